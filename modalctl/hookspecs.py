@@ -1,0 +1,44 @@
+"""Hook specifications of ``modalctl`` plugins (pluggy project name and entry point group ``modalctl``).
+
+A plugin is a module or object with functions marked ``@hookimpl`` whose names match the
+specs below. Register it under the ``modalctl`` entry point group in its ``pyproject.toml``::
+
+    [project.entry-points.modalctl]
+    myshapes = "mypackage.shapes"
+
+Every hook here is documented in ``docs/plugins.md`` (a test fails otherwise).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, TypeVar, cast
+
+import pluggy
+
+__all__ = ["hookspec", "hookimpl", "modalctl_shapes"]
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+_spec = pluggy.HookspecMarker("modalctl")
+_impl = pluggy.HookimplMarker("modalctl")
+
+
+def hookspec(function: _F) -> _F:
+    """Mark ``function`` as a hook specification (typed wrapper of pluggy's marker)."""
+    return cast(_F, _spec(function))
+
+
+def hookimpl(function: _F) -> _F:
+    """Mark ``function`` as a hook implementation; keeps its signature for type checkers."""
+    return cast(_F, _impl(function))
+
+
+@hookspec
+def modalctl_shapes():
+    """Return the shape generators this plugin provides.
+
+    Returns
+    -------
+    iterable of modalctl.shape.ShapeGenerator
+        Objects with ``name``, ``summary``, ``params`` and ``generate(grid, **params)``.
+        Names must be unique across installed plugins.
+    """

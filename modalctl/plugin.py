@@ -1,0 +1,62 @@
+"""The plugin manager: loads plugins registered under the ``modalctl`` entry point group.
+
+First-party plugins (``modalctl.plugins``) are registered through the same entry points as
+third-party ones, so they are examples of what a plugin author writes.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import pluggy
+
+from . import hookspecs
+from .shape import ShapeGenerator
+
+__all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "plugin_table"]
+
+ENTRY_POINT_GROUP = "modalctl"
+
+
+class PluginError(LookupError):
+    """An unknown or conflicting plugin name."""
+
+
+@lru_cache(maxsize=None)
+def plugin_manager() -> pluggy.PluginManager:
+    """The process-wide plugin manager with every installed plugin loaded."""
+    manager = pluggy.PluginManager(ENTRY_POINT_GROUP)
+    manager.add_hookspecs(hookspecs)
+    manager.load_setuptools_entrypoints(ENTRY_POINT_GROUP)
+    return manager
+
+
+def shape_generators(manager: pluggy.PluginManager | None = None) -> dict[str, ShapeGenerator]:
+    """All installed shape generators by name."""
+    manager = manager or plugin_manager()
+    found: dict[str, ShapeGenerator] = {}
+    for group in manager.hook.modalctl_shapes():
+        for generator in group:
+            if generator.name in found:
+                raise PluginError(f"shape {generator.name!r} is provided by two plugins")
+            found[generator.name] = generator
+    return dict(sorted(found.items()))
+
+
+def get_shape(name: str, manager: pluggy.PluginManager | None = None) -> ShapeGenerator:
+    """The shape generator called ``name``; the error lists the installed ones."""
+    generators = shape_generators(manager)
+    if name not in generators:
+        raise PluginError(f"unknown shape {name!r}; installed shapes: {', '.join(generators)}")
+    return generators[name]
+
+
+def plugin_table(manager: pluggy.PluginManager | None = None) -> list[dict]:
+    """One row per registered plugin: its name, distribution and the hooks it implements."""
+    manager = manager or plugin_manager()
+    dists = {id(plugin): f"{dist.project_name} {dist.version}" for plugin, dist in manager.list_plugin_distinfo()}
+    rows = []
+    for name, plugin in manager.list_name_plugin():
+        hooks = sorted(h.name for h in manager.get_hookcallers(plugin) or [])
+        rows.append({"name": name, "distribution": dists.get(id(plugin), "-"), "hooks": hooks})
+    return rows

@@ -1,0 +1,78 @@
+"""Parse physical quantities at the edges (``18mm``, ``25ms``, ``1%``) into SI floats.
+
+Everything inside ``modalctl`` is SI: metres, seconds, hertz, volts. Text with units only
+enters through :func:`parse_quantity`, which raises :class:`UnitError` naming the field.
+"""
+
+from __future__ import annotations
+
+import re
+
+__all__ = ["UnitError", "parse_quantity", "parse_point", "DIMENSIONS"]
+
+_PREFIXES = {"n": 1e-9, "u": 1e-6, "\u00b5": 1e-6, "m": 1e-3, "c": 1e-2, "k": 1e3, "M": 1e6}
+
+
+def _with_prefixes(base: str, allowed: str) -> dict[str, float]:
+    table = {base: 1.0}
+    for p in allowed:
+        table[p + base] = _PREFIXES[p]
+    return table
+
+
+#: Accepted unit symbols per dimension, with their factor to SI.
+DIMENSIONS: dict[str, dict[str, float]] = {
+    "m": _with_prefixes("m", "nu\u00b5mck"),
+    "s": _with_prefixes("s", "nu\u00b5m"),
+    "Hz": _with_prefixes("Hz", "kM"),
+    "V": _with_prefixes("V", "mk"),
+    "m/s": _with_prefixes("m/s", "u\u00b5mc"),
+    "1": {"": 1.0, "%": 1e-2, "ppm": 1e-6},
+}
+
+_NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
+
+
+class UnitError(ValueError):
+    """A value with a missing, unknown or mismatched unit."""
+
+
+def parse_quantity(value, unit: str, name: str = "value") -> float:
+    """Return ``value`` in SI units of dimension ``unit``.
+
+    Parameters
+    ----------
+    value : str or float
+        ``"18mm"``, ``"18 mm"``, ``"0.018"`` or a number (already SI).
+    unit : str
+        Dimension key of :data:`DIMENSIONS` (``"m"``, ``"s"``, ``"Hz"``, ``"V"``, ``"m/s"``, ``"1"``).
+    name : str
+        Field name used in error messages.
+
+    Returns
+    -------
+    float
+        The value in SI units (for ``"1"``: a plain fraction, ``"1%"`` -> 0.01).
+    """
+    table = DIMENSIONS[unit]
+    if isinstance(value, bool):
+        raise UnitError(f"{name}: expected a number with unit {unit!r}, got {value!r}")
+    if isinstance(value, (int, float)):
+        return float(value)
+    match = _NUMBER.match(str(value))
+    if not match:
+        raise UnitError(f"{name}: cannot read {value!r} as a number with unit {unit!r} (example: 18mm)")
+    number, symbol = float(match.group(1)), match.group(2)
+    if symbol not in table:
+        known = ", ".join(repr(s) for s in table if s) or "none"
+        raise UnitError(f"{name}: unknown unit {symbol!r} in {value!r}; {unit!r} accepts {known}")
+    return number * table[symbol]
+
+
+def parse_point(value, unit: str, name: str = "value") -> tuple[float, ...]:
+    """Parse one or more comma-separated quantities (``"24mm"`` or ``"24mm,10mm"``) into a tuple."""
+    if isinstance(value, (int, float, str)):
+        parts = str(value).split(",") if isinstance(value, str) else [value]
+    else:
+        parts = list(value)
+    return tuple(parse_quantity(p, unit, name) for p in parts)
