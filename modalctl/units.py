@@ -63,6 +63,8 @@ def parse_quantity(value, unit: str, name: str = "value") -> float:
     if not match:
         raise UnitError(f"{name}: cannot read {value!r} as a number with unit {unit!r} (example: 18mm)")
     number, symbol = float(match.group(1)), match.group(2)
+    if symbol == "":
+        return number  # a bare number is already SI
     if symbol not in table:
         known = ", ".join(repr(s) for s in table if s) or "none"
         raise UnitError(f"{name}: unknown unit {symbol!r} in {value!r}; {unit!r} accepts {known}")
