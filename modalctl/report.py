@@ -95,12 +95,13 @@ def plot_modes_needed(labels, series: dict, kept: dict, path, title: str) -> Pat
         ax.bar(pos + (i - (len(series) - 1) / 2) * width, values, width, color=colour,
                label=f"{name}: {len(kept[name])} modes")
         if len(kept[name]):
-            ax.axvspan(min(kept[name]) - 0.45, max(kept[name]) + 0.45, ymin=0.97 - 0.03 * i, ymax=1 - 0.03 * i,
+            ax.axvspan(min(kept[name]) - 0.45, max(kept[name]) + 0.45, ymin=0.95 - 0.035 * i, ymax=0.975 - 0.035 * i,
                        color=colour, alpha=0.6)
+    ax.set_ylim(0, 1.25)  # room above the bars for the kept bands
     ax.axhline(0.2, color="k", lw=0.8, ls=":", label="20% of the set's largest")
     ax.set_xticks(pos, [str(l) for l in labels], fontsize=8)
     ax.set_xlabel("mode")
     ax.set_ylabel("max over centres of |c| / max |c| of the set")
     ax.set_title(title, fontsize=10)
-    ax.legend(frameon=False, fontsize=8)
+    ax.legend(frameon=False, fontsize=8, loc="center right")
     return _save(fig, path)
