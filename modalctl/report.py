@@ -29,7 +29,8 @@ def _coefficient_bars(ax, dec: Decomposition):
     kept = np.zeros(c.size, bool)
     kept[dec.modes_used] = True
     pos = np.arange(c.size)
-    ax.bar(pos[~kept], c[~kept], color="0.75", label="dropped")
+    if not kept.all():
+        ax.bar(pos[~kept], c[~kept], color="0.75", label="dropped")
     ax.bar(pos[kept], c[kept], color="C0", label="kept")
     ax.set_xticks(pos, [str(l) for l in labels], fontsize=7)
     ax.set_xlabel("mode")
