@@ -6,6 +6,8 @@ and use the inner product ``<f, g> = sum_i m_i f_i g_i`` (Eq 2.11 sampled, Eq 3.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import scipy.linalg
 
@@ -105,8 +107,6 @@ def orthonormalize_model(model: ModalModel) -> ModalModel:
     sensors) ``R^-T C``. Frequencies and damping are kept: this assumes, as the thesis does,
     that the identified modes are nearly orthogonal already (R close to diagonal).
     """
-    from dataclasses import replace
-
     ortho, r = orthonormalize(model.shapes, model.grid.mass)
     sensors = scipy.linalg.solve_triangular(r, model.sensor_gains, trans="T") if model.sensor_gains.size \
         else model.sensor_gains
