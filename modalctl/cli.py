@@ -1,7 +1,8 @@
-"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``.
+"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``, ``run``.
 
-Exit codes: 0 success, 1 a target that cannot be met, 2 bad input (unknown scene, shape or
-parameter, bad units, unreadable file).
+Exit codes: 0 success, 1 a target that cannot be met (no mode set or no plan meets it: the
+message says by how much), 2 bad input (unknown scene, shape or parameter, bad units,
+unreadable file), 3 a device error.
 """
 
 from __future__ import annotations
@@ -9,16 +10,19 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from .decompose import decompose
+from .device import DeviceError
+from .planner import PlanError
 from .model import ModalModel, ModelError
 from .plugin import PluginError, get_shape, plugin_table, shape_generators
 from .reduction import ReductionError
 from .scenes import SCENES, UnknownScene, load_scene
 from .shape import ParamError, parse_params
-from .units import UnitError
+from .units import UnitError, parse_quantity
 
-BAD_INPUT, UNREACHABLE = 2, 1
+BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
 
 
 def _parse_param(text: str) -> tuple[str, str]:
@@ -26,6 +30,30 @@ def _parse_param(text: str) -> tuple[str, str]:
         raise argparse.ArgumentTypeError(f"expected name=value, got {text!r}")
     name, value = text.split("=", 1)
     return name.strip(), value.strip()
+
+
+def _quantity(unit: str, name: str):
+    def parse(text: str) -> float:
+        try:
+            return parse_quantity(text, unit, name)
+        except UnitError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    return parse
+
+
+def _add_target(p) -> None:
+    """Arguments shared by decompose and run: where the model and the shape come from."""
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--scene", help="scene name (see 'modalctl scenes')")
+    source.add_argument("--model", help="modal model file (.npz written by modalctl)")
+    p.add_argument("--shape", required=True, help="shape generator (see 'modalctl plugins')")
+    p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
+                   help="shape parameter with units, e.g. width=18mm (repeatable)")
+    p.add_argument("--modes", type=_modes, default="auto",
+                   help="auto (smallest set meeting the target), all, or N (the N lowest modes)")
+    p.add_argument("--tau-target", type=float, help="auto: least tau for the kept modes (default 0.98)")
+    p.add_argument("--points", type=int, help="grid points of a beam scene (default: the scene's)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def _modes(text: str):
@@ -48,21 +76,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
 
     p = sub.add_parser("decompose", help="project a target field on a scene's modes and reduce")
-    source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument("--scene", help="scene name (see 'modalctl scenes')")
-    source.add_argument("--model", help="modal model file (.npz written by modalctl)")
-    p.add_argument("--shape", required=True, help="shape generator (see 'modalctl plugins')")
-    p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
-                   help="shape parameter with units, e.g. width=18mm (repeatable)")
-    p.add_argument("--modes", type=_modes, default="auto",
-                   help="auto (smallest set meeting the target), all, or N (the N lowest modes)")
-    p.add_argument("--tau-target", type=float, help="auto: least tau for the kept modes (default 0.98)")
+    _add_target(p)
     p.add_argument("--nrmse-target", type=float, help="auto: largest NRMSE for the kept modes")
     p.add_argument("--orthogonalize", action="store_true", help="Gram-Schmidt the mode shapes first")
-    p.add_argument("--points", type=int, help="grid points of a beam scene (default: the scene's)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--plot", metavar="FILE.png", help="draw the field and the modal bars")
     p.add_argument("--save-model", metavar="FILE.npz", help="also write the model used")
+
+    p = sub.add_parser("run", help="plan a focus, play it on a device (default sim://) and measure it")
+    _add_target(p)
+    p.add_argument("--focus-time", required=True, type=_quantity("s", "focus-time"), help="T_F, e.g. 25ms")
+    p.add_argument("--margin", type=_quantity("1", "margin"),
+                   help="transient margin to plan for, e.g. 0.5 or 50%% (runs the envelope optimizer)")
+    p.add_argument("--voltage-limit", type=_quantity("V", "voltage-limit"), help="largest drive voltage, e.g. 100V")
+    p.add_argument("--kappa", type=float, default=1.0, help="envelope rate without --margin (default 1)")
+    p.add_argument("--no-brake", action="store_true", help="optimizer: free decay after the focus only")
+    p.add_argument("--after", type=_quantity("s", "after"), default=4e-3,
+                   help="post-transient window recorded and checked (default 4ms)")
+    p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=1e6, help="DAC rate (1MHz)")
+    p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
+    truth = p.add_argument_group("simulator truth (sim:// only)")
+    truth.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
+    truth.add_argument("--drift-spread", type=_quantity("1", "drift-spread"), default=0.0,
+                       help="random extra shift per mode (standard deviation), e.g. 0.5%%")
+    truth.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0,
+                       help="relative damping error, e.g. 20%%")
+    truth.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
+    truth.add_argument("--amplifier-bandwidth", type=_quantity("Hz", "amplifier-bandwidth"),
+                       help="first-order amplifier bandwidth, e.g. 100kHz")
+    truth.add_argument("--rails", type=_quantity("V", "rails"), help="amplifier voltage rails (clipping)")
+    truth.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", required=True, help="directory for metrics.json, fields.npz and the pictures")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
@@ -93,13 +138,14 @@ def _plugins(args) -> int:
     return 0
 
 
-def _decompose(args) -> int:
-    if args.scene:
-        model = load_scene(args.scene, args.points)
-    else:
-        model = ModalModel.load(args.model)
+def _model_and_shape(args):
+    model = load_scene(args.scene, args.points) if args.scene else ModalModel.load(args.model)
     generator = get_shape(args.shape)
-    shape = generator.generate(model.grid, **parse_params(generator, dict(args.param)))
+    return model, generator.generate(model.grid, **parse_params(generator, dict(args.param)))
+
+
+def _decompose(args) -> int:
+    model, shape = _model_and_shape(args)
     result = decompose(model, shape, args.modes, tau_min=args.tau_target, nrmse_max=args.nrmse_target,
                        orthogonalize=args.orthogonalize)
     summary = result.to_dict()
@@ -127,11 +173,76 @@ def _decompose(args) -> int:
     return 0
 
 
+def _run(args) -> int:
+    import numpy as np
+
+    from .device import open_device
+    from .hil.scenario import Perturbation
+    from .run import run_open_loop
+
+    model, shape = _model_and_shape(args)
+    perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
+                                args.rails, args.seed)
+    device = open_device(args.transport, model=model, perturbation=perturbation)
+    shot = run_open_loop(model, shape, device, args.focus_time, modes=args.modes, tau_min=args.tau_target,
+                         margin=args.margin, voltage_limit=args.voltage_limit, sample_rate=args.sample_rate,
+                         progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake, after=args.after)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,
+               "params": dict(args.param), "truth": perturbation.describe(), "out": str(out)}
+    centre = int(np.argmax(np.abs(shot.focus_field) * shape.target_mask))
+    focus_velocity = device.scan(shot.capture.times, points=centre)[0]
+    coeffs = shot.coefficients()
+    np.savez_compressed(out / "fields.npz", times=shot.times, field=shot.field, focus_field=shot.focus_field,
+                        target=shape.values, target_mask=shape.target_mask, grid=model.grid.points,
+                        sample_times=shot.capture.times, voltages=shot.capture.voltages,
+                        sensors=shot.capture.sensors, focus_point_velocity=focus_velocity,
+                        labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
+    if not args.no_plots:
+        from .report import write_run_report
+
+        metrics["pictures"] = write_run_report(shot, out, focus_velocity, args.sample_rate,
+                                               float(model.grid.points[centre, 0]))
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_jsonable))
+    if args.json:
+        print(json.dumps(metrics, default=_jsonable))
+        return 0
+    m = metrics
+    print(f"{m['scene']}, {args.shape} {' '.join(f'{k}={v}' for k, v in args.param)}, T_F {args.focus_time * 1e3:g} ms, "
+          f"truth: {m['truth']}")
+    print(f"modes {m['modes_used']}")
+    print(f"tau {m['tau']:.4f} (model {m['tau_model']:.4f})  tau_norm {m['tau_norm']:.4f}  NRMSE {m['nrmse']:.4f}")
+    print(f"margin ratio {m['margin_ratio']:.3f} ({'met' if m['margin_ok'] else 'NOT met'}: criterion "
+          f"{m['margin_criterion']:g})  peak voltage {m['peak_voltage']:.1f} V")
+    print(f"plan {m['plan_seconds']:.2f} s, device {m['sim_seconds']:.2f} s")
+    for w in m["decoupling_warnings"]:
+        print("warning: " + w)
+    print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in m else ")"))
+    return 0
+
+
+def _jsonable(value):
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose}
+    handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run}
     try:
         return handlers[args.command](args)
+    except DeviceError as exc:
+        print(f"modalctl {args.command}: device error: {exc}", file=sys.stderr)
+        return DEVICE
+    except PlanError as exc:
+        print(f"modalctl {args.command}: no plan: {exc}", file=sys.stderr)
+        return UNREACHABLE
     except ReductionError as exc:
         print(f"modalctl {args.command}: {exc}", file=sys.stderr)
         return UNREACHABLE

@@ -15,7 +15,7 @@ from typing import Any, Callable, TypeVar, cast
 
 import pluggy
 
-__all__ = ["hookspec", "hookimpl", "modalctl_shapes"]
+__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _spec = pluggy.HookspecMarker("modalctl")
@@ -41,4 +41,17 @@ def modalctl_shapes():
     iterable of modalctl.shape.ShapeGenerator
         Objects with ``name``, ``summary``, ``params`` and ``generate(grid, **params)``.
         Names must be unique across installed plugins.
+    """
+
+
+@hookspec
+def modalctl_transports():
+    """Return the transports this plugin provides, by URL scheme.
+
+    Returns
+    -------
+    dict of str to callable
+        ``{scheme: factory}``; ``factory(url, **context)`` returns an object implementing
+        :class:`modalctl.device.Device`. ``context`` may carry what a transport needs beyond
+        the URL (the simulator takes ``model`` and ``perturbation``); ignore what you do not use.
     """

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["tau", "tau_norm", "nrmse", "focus_contrast"]
+__all__ = ["tau", "tau_norm", "nrmse", "focus_contrast", "margin_ratio"]
 
 
 def _centred(a):
@@ -52,3 +52,38 @@ def focus_contrast(field, target_mask):
     outside = np.max(np.where(mask, 0.0, a), axis=-1)
     with np.errstate(divide="ignore"):
         return np.where(outside > 0, inside / np.where(outside > 0, outside, 1.0), np.inf)
+
+
+def margin_ratio(field, times, focus_time: float, target_mask, peak: float | None = None):
+    """Transient margin ratio: the largest ``|w|`` outside the target zone over the largest ``|w(x, T_F)|``.
+
+    The thesis's criterion (chapter 5) asks for at most 0.5 over the transient and the
+    post-transient: every time sample given.
+
+    Parameters
+    ----------
+    field : ndarray, shape (n, nt)
+        Velocity on the grid over time (m/s).
+    times : ndarray, shape (nt,)
+        Sample times (s).
+    focus_time : float
+        T_F (s); the field at the sample nearest to it gives the peak.
+    target_mask : ndarray of bool, shape (n,)
+    peak : float, optional
+        Focus peak to divide by (m/s); by default ``max |field(:, T_F)|``.
+
+    Returns
+    -------
+    ratio : float
+    worst : tuple of (int, float)
+        Grid index and time (s) of the largest off-target velocity.
+    """
+    field, times = np.asarray(field, float), np.asarray(times, float)
+    if peak is None:
+        peak = float(np.max(np.abs(field[:, np.argmin(np.abs(times - focus_time))])))
+    outside = np.flatnonzero(~np.asarray(target_mask, bool))
+    if outside.size == 0 or peak <= 0:
+        return (0.0 if peak > 0 else np.inf), (-1, float(focus_time))
+    off = np.abs(field[outside])
+    i, j = np.unravel_index(np.argmax(off), off.shape)
+    return float(off[i, j] / peak), (int(outside[i]), float(times[j]))

@@ -12,7 +12,8 @@ import numpy as np  # noqa: E402
 
 from .decompose import Decomposition  # noqa: E402
 
-__all__ = ["plot_decomposition", "plot_modes_needed"]
+__all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
+           "plot_spectrogram", "write_run_report"]
 
 
 def _save(fig, path) -> Path:
@@ -106,3 +107,126 @@ def plot_modes_needed(labels, series: dict, kept: dict, path, title: str) -> Pat
     ax.set_title(title, fontsize=10)
     ax.legend(frameon=False, fontsize=8, loc="center right")
     return _save(fig, path)
+
+
+def _window(shot, half: float = 4e-3):
+    tf = shot.plan.focus_time
+    sel = (shot.times >= tf - half) & (shot.times <= tf + half)
+    return sel
+
+
+def plot_spacetime(shot, path) -> Path:
+    """Space-time field around the focus with margin violations in red (thesis Figs 5.3-5.5).
+
+    1-D grids: velocity over x and t. 2-D grids: the largest off-target and on-target |w| over time.
+    """
+    m, grid = shot.metrics, shot.decomposition.model.grid
+    tf, sel = shot.plan.focus_time, _window(shot)
+    t, field = shot.times[sel], shot.field[:, sel]
+    peak = np.max(np.abs(shot.focus_field))
+    limit = m["margin_criterion"] * peak
+    mask = shot.decomposition.shape.target_mask
+    title = (f"margin ratio {m['margin_ratio']:.2f} (criterion {m['margin_criterion']:g}, "
+             f"{'met' if m['margin_ok'] else 'NOT met'}), tau {m['tau']:.3f}")
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [3, 2]})
+    if grid.dim == 1:
+        x = grid.x * 1e3
+        vmax = np.max(np.abs(field)) * 1e3
+        im = left.pcolormesh((t - tf) * 1e3, x, field * 1e3, cmap="RdBu_r", vmin=-vmax, vmax=vmax, shading="auto")
+        bad = (np.abs(field) > limit) & ~mask[:, None]
+        left.contourf((t - tf) * 1e3, x, bad.astype(float), levels=[0.5, 1.5], colors=["red"], alpha=0.8)
+        left.axhspan(x[mask].min(), x[mask].max(), color="C2", alpha=0.12, lw=0)
+        left.set_ylabel("x (mm)")
+        fig.colorbar(im, ax=left, label="velocity (mm/s)")
+        left.set_title("field; red: off-target above the margin, green: target zone", fontsize=9)
+    off = np.max(np.abs(field[~mask]), axis=0) if (~mask).any() else np.zeros(t.size)
+    on = np.max(np.abs(field[mask]), axis=0)
+    ax = left if grid.dim != 1 else right
+    ax.plot((t - tf) * 1e3, on * 1e3, "C2", lw=1, label="max |w| in target zone")
+    ax.plot((t - tf) * 1e3, off * 1e3, "C0", lw=1, label="max |w| off target")
+    ax.axhline(limit * 1e3, color="red", ls="--", lw=1, label=f"margin {m['margin_criterion']:g} x focus peak")
+    ax.set_ylabel("velocity (mm/s)")
+    ax.legend(frameon=False, fontsize=8)
+    for a in (left, right):
+        a.set_xlabel("t - T_F (ms)")
+    if grid.dim != 1:
+        right.axis("off")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_modal_bars(shot, path) -> Path:
+    """Modal coefficients at the focus: reference, reduced model, measured (thesis Fig 4.17)."""
+    coeffs, labels = shot.coefficients(), shot.decomposition.model.labels
+    pos = np.arange(len(labels))
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6.5), gridspec_kw={"height_ratios": [2, 3]})
+    grid = shot.decomposition.model.grid
+    if grid.dim == 1:
+        x = grid.x * 1e3
+        top.plot(x, shot.decomposition.shape.values * 1e3, "C3", lw=2, label="reference")
+        top.plot(x, shot.decomposition.reconstruction * 1e3, "k--", lw=1.2, label="reduced model")
+        top.plot(x, shot.focus_field * 1e3, "C0", lw=1.2, label="measured")
+        top.set_xlabel("x (mm)")
+        top.set_ylabel("velocity at T_F (mm/s)")
+        top.legend(frameon=False, fontsize=8)
+    else:
+        top.axis("off")
+    for i, (name, colour) in enumerate([("reference", "C3"), ("reduced", "k"), ("measured", "C0")]):
+        bottom.bar(pos + (i - 1) * 0.27, coeffs[name], 0.27, color=colour, label=name)
+    bottom.set_xticks(pos, [str(l) for l in labels], fontsize=7)
+    bottom.set_xlabel("mode")
+    bottom.set_ylabel("coefficient (m/s sqrt(kg))")
+    bottom.axhline(0, color="0.5", lw=0.5)
+    bottom.legend(frameon=False, fontsize=8)
+    m = shot.metrics
+    top.set_title(f"tau {m['tau']:.3f} (model {m['tau_model']:.3f}), tau_norm {m['tau_norm']:.3f}, "
+                  f"NRMSE {m['nrmse']:.3f}", fontsize=10)
+    return _save(fig, path)
+
+
+def plot_voltages(shot, path) -> Path:
+    """Drive voltage of each actuator over the shot."""
+    cap = shot.capture
+    fig, ax = plt.subplots(figsize=(9, 4))
+    active = np.flatnonzero(np.max(np.abs(cap.voltages), axis=1) > 0)
+    for a in active:
+        ax.plot(cap.times * 1e3, cap.voltages[a], lw=0.6, label=f"actuator {a + 1}")
+    ax.axvline(shot.plan.focus_time * 1e3, color="k", ls=":", lw=1, label="T_F")
+    ax.set_xlabel("t (ms)")
+    ax.set_ylabel("voltage (V)")
+    ax.set_title(f"peak {shot.metrics['peak_voltage']:.1f} V", fontsize=10)
+    ax.legend(frameon=False, fontsize=7, ncol=4)
+    return _save(fig, path)
+
+
+def plot_spectrogram(shot, velocity: np.ndarray, sample_rate: float, where: float, path) -> Path:
+    """Spectrogram of the velocity at the focus point (thesis Fig 4.29), with the kept resonances."""
+    from scipy.signal import spectrogram
+
+    nper = int(2 ** np.round(np.log2(sample_rate / 400)))  # about 400 Hz resolution, 2.5 ms windows
+    f, t, s = spectrogram(velocity, sample_rate, nperseg=nper, noverlap=nper * 7 // 8)
+    model = shot.decomposition.model
+    f_top = 1.3 * np.max(model.frequencies[shot.plan.modes])
+    keep = f <= f_top
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    db = 10 * np.log10(s[keep] + 1e-30)
+    im = ax.pcolormesh(t * 1e3, f[keep] / 1e3, db, shading="auto", vmin=db.max() - 60, vmax=db.max())
+    for fk in model.frequencies[shot.plan.modes]:
+        ax.axhline(fk / 1e3, color="w", lw=0.4, ls=":")
+    ax.axvline(shot.plan.focus_time * 1e3, color="r", lw=0.8)
+    ax.set_xlabel("t (ms)")
+    ax.set_ylabel("frequency (kHz)")
+    ax.set_title(f"velocity at x = {where * 1e3:.1f} mm (dotted: kept resonances, red: T_F)", fontsize=10)
+    fig.colorbar(im, ax=ax, label="dB (m/s)^2/Hz")
+    return _save(fig, path)
+
+
+def write_run_report(shot, out, focus_velocity=None, sample_rate=None, where=None) -> dict:
+    """All run pictures into directory ``out``; returns {name: path}."""
+    out = Path(out)
+    paths = {"spacetime": plot_spacetime(shot, out / "spacetime.png"),
+             "modal_bars": plot_modal_bars(shot, out / "modal_bars.png"),
+             "voltages": plot_voltages(shot, out / "voltages.png")}
+    if focus_velocity is not None:
+        paths["spectrogram"] = plot_spectrogram(shot, focus_velocity, sample_rate, where, out / "spectrogram.png")
+    return {k: str(v) for k, v in paths.items()}

@@ -1,0 +1,135 @@
+"""``sim://``: the HIL board. It runs the exact plant on the perturbed truth behind the device interface."""
+
+from __future__ import annotations
+
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from modalctl.device import Capabilities, Capture, DeviceError
+from modalctl.model import ModalModel
+
+from .plant import HOLDS, Plant, truncation
+from .scenario import Perturbation, perturb
+
+__all__ = ["SimDevice"]
+
+CHUNK = 8192  # samples per plant step (one progress-bar tick)
+
+
+class SimDevice:
+    """A simulated amplifier board on a simulated structure, with a scanning vibrometer.
+
+    Parameters
+    ----------
+    model : ModalModel
+        The structure as built (every mode known); the truth is ``perturb(model, perturbation)``.
+    perturbation : Perturbation
+    hold : {"zoh", "foh"}
+        DAC output between samples.
+    tol : float
+        Modes whose bound on the velocity they add is below ``tol`` times the largest are left out
+        of the simulation; the sum of their bounds is reported in ``info``.
+    url : str
+    """
+
+    max_sample_rate = 10e6
+
+    def __init__(self, model: ModalModel, perturbation: Perturbation = Perturbation(), hold: str = "zoh",
+                 tol: float = 1e-4, url: str = "sim://"):
+        if hold not in HOLDS:
+            raise DeviceError(f"{url}: hold must be one of {HOLDS}, got {hold!r}")
+        self.url, self.model, self.perturbation, self.hold, self.tol = url, model, perturbation, hold, tol
+        self.truth = perturb(model, perturbation)
+        self.state, self.sample_rate, self.info = "unconfigured", None, {}
+        self._voltages = self._modal = None
+        self._kept = np.arange(model.n_modes)
+        self._rng = np.random.default_rng(perturbation.seed + 1)
+
+    @classmethod
+    def from_url(cls, url: str, model: ModalModel | None = None, perturbation: Perturbation | None = None,
+                 **_ignored) -> "SimDevice":
+        """``sim://?hold=zoh&tol=1e-4``; the structure comes from ``model`` (the scene)."""
+        if model is None:
+            raise DeviceError(f"{url}: the simulator needs the structure's model (pass model=...)")
+        query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
+        unknown = set(query) - {"hold", "tol"}
+        if unknown:
+            raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: hold, tol")
+        try:
+            tol = float(query.get("tol", 1e-4))
+        except ValueError:
+            raise DeviceError(f"{url}: tol must be a number, got {query['tol']!r}") from None
+        return cls(model, perturbation or Perturbation(), query.get("hold", "zoh"), tol, url)
+
+    def configure(self, sample_rate: float) -> Capabilities:
+        """Set the DAC/ADC rate (Hz) and report what the board can do."""
+        if not 0 < sample_rate <= self.max_sample_rate:
+            raise DeviceError(f"{self.url}: sample rate {sample_rate:g} Hz outside (0, {self.max_sample_rate:g}]")
+        self.sample_rate, self.state = float(sample_rate), "inactive"
+        return Capabilities("modalctl HIL board", self.model.actuator_gains.shape[1],
+                            self.model.sensor_gains.shape[1], self.max_sample_rate,
+                            self.perturbation.voltage_limit, True)
+
+    def activate(self) -> None:
+        if self.state == "unconfigured":
+            raise DeviceError(f"{self.url}: configure before activate")
+        self.state = "active"
+
+    def deactivate(self) -> None:
+        self.state = "inactive" if self.state != "unconfigured" else self.state
+
+    def upload(self, voltages: np.ndarray) -> None:
+        """Load one shot of waveforms, shape (channels, n), in volts."""
+        u = np.atleast_2d(np.asarray(voltages, float))
+        channels = self.model.actuator_gains.shape[1]
+        if u.shape[0] != channels:
+            raise DeviceError(f"{self.url}: {u.shape[0]} waveforms for {channels} channels")
+        if not np.all(np.isfinite(u)):
+            raise DeviceError(f"{self.url}: waveform contains non-finite samples")
+        self._voltages = u
+
+    def trigger(self, progress: bool = False) -> Capture:
+        """Play the uploaded waveforms and record the sensors (the plant from rest)."""
+        if self.state != "active":
+            raise DeviceError(f"{self.url}: trigger needs an active device (state: {self.state})")
+        if self._voltages is None:
+            raise DeviceError(f"{self.url}: nothing uploaded")
+        u, p = self._voltages, self.perturbation
+        kept, bounds, dropped = truncation(self.truth, u, self.sample_rate, self.tol)
+        self._kept = kept
+        self.info = {"modes_simulated": int(kept.size), "modes_available": int(self.truth.n_modes),
+                     "truncation_bound_m_s": dropped, "truncation_tol": self.tol}
+        plant = Plant(self.truth.select(kept), self.sample_rate, self.hold, p.amplifier_bandwidth,
+                      p.voltage_limit)
+        chunks = range(0, u.shape[1], CHUNK)
+        bar = tqdm(chunks, desc="HIL shot", unit="chunk", disable=not progress or len(chunks) < 4, leave=False)
+        self._modal = np.hstack([plant.step(u[:, i:i + CHUNK]) for i in bar])
+        self.info["clipped_samples"] = plant.clipped
+        sensors = self._noisy(plant.sensors(self._modal))
+        times = np.arange(u.shape[1]) / self.sample_rate
+        return Capture(times, sensors, np.clip(u, -p.voltage_limit, p.voltage_limit) if p.voltage_limit else u)
+
+    def scan(self, times: np.ndarray, points=None) -> np.ndarray:
+        """Velocity (n_points, nt) at the samples nearest to ``times`` of the last shot (m/s).
+
+        ``points``: grid indices to measure (default all), like moving the vibrometer's spot.
+        """
+        if self._modal is None:
+            raise DeviceError(f"{self.url}: no shot to scan")
+        idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._modal.shape[1] - 1)
+        shapes = self.truth.shapes[self._kept]
+        shapes = shapes if points is None else shapes[:, np.atleast_1d(points)]
+        return self._noisy(shapes.T @ self._modal[:, idx])
+
+    def modal_truth(self) -> tuple[np.ndarray, np.ndarray]:
+        """Simulation-only: the simulated modes (positional in the model) and their velocities (k, n)."""
+        return self._kept, self._modal
+
+    def _noisy(self, values: np.ndarray) -> np.ndarray:
+        snr = self.perturbation.snr_db
+        if snr is None:
+            return values
+        sigma = np.max(np.abs(values)) / 10 ** (snr / 20)
+        return values + sigma * self._rng.standard_normal(values.shape)

@@ -1,0 +1,16 @@
+"""First-party transports: ``sim://``, the embedded HIL board."""
+
+from __future__ import annotations
+
+from modalctl.hookspecs import hookimpl
+
+
+def _sim(url, **context):
+    from modalctl.hil.device import SimDevice
+
+    return SimDevice.from_url(url, **context)
+
+
+@hookimpl
+def modalctl_transports():
+    return {"sim": _sim}
