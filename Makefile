@@ -15,9 +15,9 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/modalctl decompose --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm \
-		--plot demo/decompose.png
-	@echo "demo: picture of the decomposition in demo/decompose.png"
+	$(BIN)/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm \
+		--focus-time 25ms --margin 0.5 --out demo/run
+	@echo "demo: report in demo/run/ (metrics.json, fields.npz, spacetime.png, modal_bars.png, voltages.png, spectrogram.png)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
@@ -25,6 +25,10 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/modes_needed.py
 	$(BIN)/python benchmarks/decompose_speed.py
+	$(BIN)/python benchmarks/plant_speed.py
+	$(BIN)/python benchmarks/margin_case.py
+	$(BIN)/python benchmarks/thesis_table.py
+	$(BIN)/python benchmarks/focus_time.py
 
 clean:
 	rm -rf $(VENV) demo

@@ -1,0 +1,50 @@
+"""Shared pieces of the benchmarks: medians, the results folder, machine facts, a thesis scene's target."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def median_seconds(func, repeats: int) -> float:
+    """Median wall time of ``repeats`` calls (s)."""
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        func()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def machine() -> dict:
+    """What the numbers were measured on."""
+    import casadi
+    import control
+    import scipy
+
+    return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
+            "control": control.__version__, "casadi": casadi.__version__, "machine": platform.machine(),
+            "cpus": os.cpu_count()}
+
+
+def write_json(name: str, data: dict) -> Path:
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    path.write_text(json.dumps({**data, "machine": machine()}, indent=2, default=float))
+    return path
+
+
+def target(model, shape: str, **params):
+    """A shape generator's field on the model's grid; ``params`` as text with units."""
+    from modalctl.plugin import get_shape
+    from modalctl.shape import parse_params
+
+    generator = get_shape(shape)
+    return generator.generate(model.grid, **parse_params(generator, params))

@@ -1,0 +1,124 @@
+"""Planner: dispatch, decoupling, the envelope optimizer and its refusals, checked by simulation."""
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from modalctl.decompose import decompose
+from modalctl.device import open_device
+from modalctl.dispatch import DecouplingWarning, decoupling, dispatch, mobility
+from modalctl.metrics import margin_ratio
+from modalctl.planner import PlanError, gap_bounds, min_focus_time, plan
+from modalctl.plugin import get_shape
+from modalctl.run import run_open_loop
+from modalctl.scenes import load_scene
+from modalctl.shape import parse_params
+
+
+@pytest.fixture(scope="module")
+def beam():
+    return load_scene("thesis-al-cc", 351)
+
+
+def sinc(model, width, center):
+    g = get_shape("sinc")
+    return g.generate(model.grid, **parse_params(g, {"width": width, "center": center}))
+
+
+def test_dispatch_drives_each_mode_with_unit_force_and_spares_neighbours(beam):
+    modes = np.arange(6)
+    weights = dispatch(beam, modes)
+    forces = beam.actuator_gains @ weights
+    np.testing.assert_allclose(forces[modes, np.arange(6)], 1.0, rtol=1e-12)
+    one_patch = replace(beam, actuator_gains=beam.actuator_gains[:, :1])
+    assert dispatch(one_patch, [2])[0, 0] == pytest.approx(1 / beam.actuator_gains[2, 0])
+    # eight actuators: the nearest neighbours of mode 3 get far less than with one actuator
+    nearest = [1, 3]
+    assert np.max(np.abs(forces[nearest, 2])) < 0.2 * np.max(np.abs(beam.actuator_gains[nearest, 0] / beam.actuator_gains[2, 0]))
+
+
+def test_decoupling_leakage_is_the_mobility_ratio(beam):
+    modes, kappa = np.array([2]), 3.0
+    weights = dispatch(beam, modes, kappa)
+    d = decoupling(beam, modes, kappa, weights, np.array([1.0]), warn=False)
+    s = kappa * beam.damping[2] * beam.omega[2] + 1j * beam.omega[2]
+    j = 3
+    expected = (abs(mobility(s, beam.omega[j], beam.damping[j]) * (beam.actuator_gains[j] @ weights[:, 0]))
+                / abs(mobility(s, beam.omega[2], beam.damping[2])))
+    assert d.leakage[j, 0] == pytest.approx(expected, rel=1e-12)
+
+
+def test_too_fast_envelope_warns(beam):
+    dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
+    with pytest.warns(DecouplingWarning, match="Eq 2.30"):
+        plan(dec, 0.025, kappa=60.0)
+
+
+def test_plan_reproduces_the_reduced_field_on_a_perfect_plant(beam):
+    shape = sinc(beam, "18mm", "24mm")
+    shot = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, modes=9)
+    assert shot.metrics["tau"] == pytest.approx(shot.metrics["tau_model"], abs=5e-3)
+    measured = shot.coefficients()["measured"][:9]
+    np.testing.assert_allclose(measured, shot.decomposition.coefficients[:9], atol=0.03 * np.max(np.abs(measured)))
+
+
+def test_thesis_margin_case_kappa_one_fails_and_optimizer_meets_it(beam):
+    dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DecouplingWarning)
+        first = plan(dec, 0.025)
+        best = plan(dec, 0.025, margin=0.5)
+    assert first.info["predicted_margin_ratio"] > 0.6  # the thesis: about two thirds
+    # independent check of the optimized plan: its modal field evaluated densely by numpy
+    t = np.arange(0.021, 0.029, 1e-6)
+    ratio, _ = margin_ratio(best.field(t), t, 0.025, best.target_mask, best.focus_peak)
+    assert ratio <= 0.5 * 1.02
+    assert np.all(best.kappa <= gap_bounds(beam, best.modes) + 1e-9)
+
+
+def test_optimizer_plan_meets_the_margin_when_simulated(beam):
+    """Whole-model verification: the HIL (all 21 modes, perfect model) measures what the planner promised."""
+    g = get_shape("sinc")
+    shape = g.generate(beam.grid, **parse_params(g, {"width": "25mm", "center": "0mm"}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DecouplingWarning)
+        plain = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025)
+        shot = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, margin=0.58, verify="whole")
+    assert plain.metrics["margin_ratio"] > 0.62
+    assert shot.metrics["margin_ratio"] <= 0.58 * 1.02
+    assert shot.metrics["tau"] > 0.97
+
+
+def test_voltage_limit_refusal_says_how_much(beam):
+    dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
+    with pytest.raises(PlanError, match="above the 1 V limit") as err:
+        plan(dec, 0.002, voltage_limit=1.0)
+    assert err.value.needed > 1.0
+
+
+def test_unreachable_margin_is_refused_with_the_best_ratio(beam):
+    dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
+    with pytest.raises(PlanError, match="margin") as err:
+        plan(dec, 0.025, margin=0.1)
+    assert err.value.needed > 0.1 and err.value.limit == 0.1
+
+
+def test_uncontrollable_needed_mode_is_refused(beam):
+    gains = beam.actuator_gains.copy()
+    gains[2] = 0.0
+    crippled = replace(beam, actuator_gains=gains)
+    dec = decompose(crippled, sinc(crippled, "18mm", "24mm"), 9)
+    with pytest.raises(PlanError, match="mode 3: no actuator can drive it"):
+        plan(dec, 0.025)
+
+
+def test_min_focus_time_is_the_shortest_within_the_limit(beam):
+    dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DecouplingWarning)
+        tf, best = min_focus_time(dec, 5.0, lower=5e-4, upper=0.02, rel_tol=0.02)
+        assert best.info["peak_voltage"] <= 5.0 * 1.001
+        with pytest.raises(PlanError):
+            plan(dec, tf * 0.9, voltage_limit=5.0)

@@ -1,0 +1,91 @@
+"""``modalctl run`` end to end on sim://, the device lifecycle, and every refusal's exit code."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from modalctl.cli import main
+from modalctl.device import DeviceError, open_device, transports
+from modalctl.plugin import PluginError
+from modalctl.scenes import load_scene
+
+RUN = ["run", "--scene", "thesis-al-cc", "--points", "351", "--shape", "sinc", "--param", "width=18mm",
+       "--param", "center=24mm", "--quiet"]
+
+
+def run(capsys, *args):
+    code = main(list(args))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_run_writes_metrics_fields_and_pictures(capsys, tmp_path):
+    code, out, err = run(capsys, *RUN, "--focus-time", "25ms", "--modes", "9", "--drift", "1%", "--out",
+                         str(tmp_path), "--json")
+    assert code == 0, err
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    for key in ("tau", "tau_norm", "nrmse", "margin_ratio", "margin_ok", "peak_voltage", "modes_used",
+                "plan_seconds", "sim_seconds"):
+        assert key in metrics
+    assert 0.75 < metrics["tau"] < 0.95  # a 1% drift: DESIGN says about 0.85 open loop
+    fields = np.load(tmp_path / "fields.npz", allow_pickle=False)
+    assert fields["field"].shape == (351, fields["times"].size)
+    for name in ("spacetime", "modal_bars", "voltages", "spectrogram"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 10_000
+
+
+def test_focus_time_too_short_for_the_voltage_limit(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "1ms", "--voltage-limit", "2V", "--out", str(tmp_path))
+    assert code == 1 and "above the 2 V limit" in err
+
+
+def test_margin_no_plan_can_meet(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--modes", "9", "--margin", "10%", "--out", str(tmp_path))
+    assert code == 1 and "no envelope meets the 0.1 margin" in err and "best plan found reaches" in err
+
+
+def test_uncontrollable_mode_the_shape_needs(capsys, tmp_path):
+    model = load_scene("thesis-al-cc", 351)
+    gains = model.actuator_gains.copy()
+    gains[1] = 0.0  # mode 2: every patch on its nodes
+    path = replace(model, actuator_gains=gains).save(tmp_path / "crippled.npz")
+    code, _, err = run(capsys, "run", "--model", str(path), "--shape", "sinc", "--param", "width=18mm",
+                       "--param", "center=24mm", "--focus-time", "25ms", "--quiet", "--out", str(tmp_path / "r"))
+    assert code == 1 and "mode 2: no actuator can drive it" in err
+
+
+def test_bad_units_exit_2(capsys, tmp_path):
+    with pytest.raises(SystemExit) as exit_:
+        main([*RUN, "--focus-time", "25kg", "--out", str(tmp_path)])
+    assert exit_.value.code == 2 and "focus-time" in capsys.readouterr().err
+
+
+def test_unknown_transport_exits_2(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "nope://x", "--out", str(tmp_path))
+    assert code == 2 and "no transport for 'nope://x'" in err
+
+
+def test_device_errors_exit_3(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "sim://?bogus=1", "--out", str(tmp_path))
+    assert code == 3 and "unknown option" in err
+
+
+def test_sim_device_lifecycle_and_transport_registry():
+    assert "sim" in transports()
+    with pytest.raises(PluginError, match="installed: sim://"):
+        open_device("serial:///dev/null")
+    model = load_scene("thesis-al-cc", 101)
+    device = open_device("sim://", model=model)
+    with pytest.raises(DeviceError, match="configure before activate"):
+        device.activate()
+    caps = device.configure(1e6)
+    assert caps.channels == model.actuator_gains.shape[1] and caps.can_scan
+    device.activate()
+    with pytest.raises(DeviceError, match="waveforms for"):
+        device.upload(np.zeros((3, 10)))
+    device.upload(np.zeros((caps.channels, 100)))
+    capture = device.trigger()
+    assert capture.sensors.shape == (caps.sensors, 100) and np.all(capture.sensors == 0)
+    assert device.scan(np.array([0.0, 5e-5]), points=[3, 4]).shape == (2, 2)
