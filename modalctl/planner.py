@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time as _time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -163,7 +163,7 @@ def _controllable(dec: Decomposition, modes, coefficients) -> None:
 def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
          voltage_limit: float | None = None, kappa=1.0, brake: bool = True, after: float = DEFAULT_AFTER,
          sample_rate: float = 1e6, gap_fraction: float = 0.5, decoupling_threshold: float = 0.1,
-         verify: str = "planned") -> Plan:
+         verify: str = "planned", compensate: bool = True) -> Plan:
     """Plan the drive that builds the decomposition's reduced field at ``focus_time``.
 
     Parameters
@@ -188,6 +188,10 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
         DAC rate (Hz).
     gap_fraction : float
         Envelopes stay inside this fraction of the gap to the nearest mode (Eq 2.30).
+    compensate : bool
+        Correct the kept modes' commanded targets for the cross-talk of their drives (each
+        drive also moves the other kept modes), so that on the model every kept mode reaches
+        its target at T_F exactly (see :func:`cross_talk_matrix`).
     verify : {"planned", "whole"}
         Where the margin must hold: on the field of the kept modes' references (the thesis's
         criterion, chapter 5), or also once the whole model's cross-talk is simulated (the exact
@@ -223,6 +227,8 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
         weights = dispatch(model, modes, kappa)
     final = Plan(model, modes, targets, kappa, brake_rates, focus_time, focus_time + after, sample_rate, weights,
                  dec.shape.target_mask, reference, info)
+    if compensate and modes.size > 1:
+        final = _compensate(final)
     peak_v = float(np.max(np.abs(final.voltages())))
     info["peak_voltage"] = peak_v
     if voltage_limit is not None and peak_v > voltage_limit * 1.001:
@@ -246,6 +252,37 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
                                "t_s": worst[1]}
     info["plan_seconds"] = _time.perf_counter() - start
     return final
+
+
+def cross_talk_matrix(the_plan: Plan) -> np.ndarray:
+    """Velocity at T_F of each kept mode (rows) per unit target of each kept mode's drive (columns).
+
+    Computed with the exact plant on the kept modes of the controller's model, the DAC's hold
+    and the dispatch included. The identity when the drives are perfectly decoupled (Eq 2.30).
+    """
+    from .hil.plant import Plant
+
+    kept = the_plan.model.select(the_plan.modes)
+    n_focus = int(round(the_plan.focus_time * the_plan.sample_rate))
+    t = np.arange(n_focus + 1) / the_plan.sample_rate + 0.5 / the_plan.sample_rate
+    drives = the_plan.modal(t)[1] / the_plan.targets[:, None]  # unit-target drives, (m, nt)
+    plant = Plant(kept, the_plan.sample_rate)
+    return np.column_stack([plant.simulate(np.outer(the_plan.weights[:, k], drives[k]))[:, n_focus]
+                            for k in range(the_plan.modes.size)])
+
+
+def _compensate(the_plan: Plan) -> Plan:
+    """The plan with commanded targets ``M^-1 c`` so that the kept modes reach ``c`` despite cross-talk."""
+    matrix = cross_talk_matrix(the_plan)
+    cond = float(np.linalg.cond(matrix))
+    the_plan.info.update({"cross_talk_condition": cond,
+                          "cross_talk_largest_off_diagonal": float(np.max(np.abs(matrix - np.eye(len(matrix)))))})
+    if cond > 1e6:
+        labels = [the_plan.model.labels[k] for k in the_plan.modes]
+        raise PlanError(f"the drives of modes {labels} are too entangled to reach every target "
+                        f"(cross-talk matrix condition {cond:.1e}): slow the envelopes or add actuators")
+    commanded = np.linalg.solve(matrix, the_plan.targets)
+    return replace(the_plan, targets=commanded)
 
 
 def crosstalk_field(proto: Plan, kappa, brake, times) -> np.ndarray:
