@@ -9,12 +9,9 @@ Medians over repeats; ratios are measured in this run on this machine.
 
 from __future__ import annotations
 
-import json
-import platform
-import time
-from pathlib import Path
-
 import numpy as np
+
+from common import median_seconds, write_json
 
 from modalctl.metrics import tau
 from modalctl.modal import project, reconstruct
@@ -22,17 +19,7 @@ from modalctl.plugin import get_shape
 from modalctl.shape import parse_params
 from modalctl.structures import Beam, Plate
 
-RESULTS = Path(__file__).resolve().parent / "results"
 REPEATS, BATCH = 31, 256
-
-
-def _median_seconds(func, repeats=REPEATS) -> float:
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        func()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def case(name: str, model, center: str) -> dict:
@@ -58,8 +45,8 @@ def case(name: str, model, center: str) -> dict:
         c, *_ = np.linalg.lstsq(root_shapes_t, fields[0] * np.sqrt(mass), rcond=None)
         return c
 
-    t_one, t_proj = _median_seconds(one_shape), _median_seconds(projection_only)
-    t_batch, t_peer = _median_seconds(batch, 11), _median_seconds(peer_lstsq)
+    t_one, t_proj = median_seconds(one_shape, REPEATS), median_seconds(projection_only, REPEATS)
+    t_batch, t_peer = median_seconds(batch, 11), median_seconds(peer_lstsq, REPEATS)
     return {
         "case": name, "modes": int(model.n_modes), "points": int(model.grid.n),
         "shapes_per_s_end_to_end": 1 / t_one,
@@ -73,12 +60,9 @@ def case(name: str, model, center: str) -> dict:
 def main() -> dict:
     beam = Beam(0.105, 0.007, 0.001, 69e9, 2700, "clamped-clamped").modal_model(21, n_points=1000)
     plate = Plate(0.1, 0.07, 0.001, 70e9, 2500).modal_model(21, nx=100, ny=70)
-    report = {"machine": {"python": platform.python_version(), "numpy": np.__version__,
-                          "processor": platform.machine()},
-              "statistic": "median", "repeats": REPEATS, "batch": BATCH,
+    report = {"statistic": "median", "repeats": REPEATS, "batch": BATCH,
               "cases": [case("beam 1000 points", beam, "24mm"), case("plate 100x70", plate, "20mm,10mm")]}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "decompose_speed.json").write_text(json.dumps(report, indent=2))
+    write_json("decompose_speed", report)
     return report
 
 
