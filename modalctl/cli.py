@@ -221,8 +221,9 @@ def _run(args) -> int:
           f"truth: {m['truth']}")
     print(f"modes {m['modes_used']}")
     print(f"tau {m['tau']:.4f} (model {m['tau_model']:.4f})  tau_norm {m['tau_norm']:.4f}  NRMSE {m['nrmse']:.4f}")
-    print(f"margin ratio {m['margin_ratio']:.3f} ({'met' if m['margin_ok'] else 'NOT met'}: criterion "
-          f"{m['margin_criterion']:g})  peak voltage {m['peak_voltage']:.1f} V")
+    print(f"margin ratio {m['margin_ratio']:.3f} measured ({'met' if m['margin_ok'] else 'NOT met'}: criterion "
+          f"{m['margin_criterion']:g}); planned {m['predicted_margin_ratio']:.3f} on the kept modes, "
+          f"{m['whole_model_margin_ratio']:.3f} predicted on the whole model; peak voltage {m['peak_voltage']:.1f} V")
     print(f"plan {m['plan_seconds']:.2f} s, device {m['sim_seconds']:.2f} s")
     for w in m["decoupling_warnings"]:
         print("warning: " + w)

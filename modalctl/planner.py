@@ -319,6 +319,10 @@ def _optimize(proto: Plan, margin: float, voltage_limit, brake: bool, gap_fracti
     for _ in range(4 if verify == "whole" else 1):
         result = solve(problem, kappa0=kappa, brake0=brake_rates)
         seconds += result.seconds
+        if not result.ok:  # non-convex: try again from fast envelopes before giving up
+            retry = solve(problem, kappa0=np.sqrt(kappa_bounds.prod(axis=1)), brake0=brake_bounds.mean(axis=1))
+            seconds += retry.seconds
+            result = retry if retry.ok or retry.ratio < result.ratio else result
         kappa, brake_rates = result.kappa, result.brake
         if not result.ok:
             break

@@ -7,16 +7,16 @@ port itself and draws nothing (pictures are in :mod:`modalctl.report`).
 from __future__ import annotations
 
 import time as _time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .decompose import Decomposition, decompose
 from .device import Capture, Device, DeviceError
 from .metrics import margin_ratio, nrmse, tau, tau_norm
-from .modal import project
+from .modal import project, reconstruct
 from .model import ModalModel
-from .planner import Plan, plan
+from .planner import Plan, PlanError, plan
 from .shape import Shape
 
 __all__ = ["Shot", "run_open_loop", "THESIS_MARGIN"]
@@ -60,6 +60,28 @@ class Shot:
         return {"reference": dec.coefficients, "reduced": reduced, "measured": measured}
 
 
+MAX_ADDED_MODES = 4
+
+
+def _plan_growing(dec: Decomposition, focus_time, margin, grow: bool, **options):
+    """Plan; when the margin fails on an automatic mode set, add the next strongest modes (up to 4).
+
+    The margin is part of what a scene needs: more modes give the optimizer more freedom to
+    cancel the off-target field (the thesis's second remedy, chapter 5).
+    """
+    for added in range(MAX_ADDED_MODES + 1):
+        try:
+            return plan(dec, focus_time, margin=margin, **options), dec
+        except PlanError as exc:
+            left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
+            if not grow or margin is None or exc.limit != margin or left.size == 0 or added == MAX_ADDED_MODES:
+                raise
+            chosen = np.sort(np.append(dec.modes_used, left[np.argmax(np.abs(dec.coefficients[left]))]))
+            dec = replace(dec, modes_used=chosen, reconstruction=reconstruct(dec.coefficients[chosen],
+                                                                             dec.model.shapes[chosen]),
+                          rule=dec.rule + f", plus modes for the {margin:g} margin")
+
+
 def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: float, *, modes="auto",
                   tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
                   sample_rate: float = 1e6, progress: bool = False, **plan_options) -> Shot:
@@ -89,8 +111,8 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
     if not caps.can_scan:
         raise DeviceError(f"{device.url}: open-loop runs measure the field, and this device cannot scan it")
     dec = decompose(model, shape, modes, tau_min=tau_min)
-    the_plan = plan(dec, focus_time, margin=margin, voltage_limit=voltage_limit, sample_rate=sample_rate,
-                    **plan_options)
+    the_plan, dec = _plan_growing(dec, focus_time, margin, grow=modes == "auto", voltage_limit=voltage_limit,
+                                  sample_rate=sample_rate, **plan_options)
     voltages = the_plan.voltages()
     start = _time.perf_counter()
     device.activate()
@@ -118,6 +140,7 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
         "focus_time_s": focus_time, "sample_rate_hz": sample_rate,
         "plan_seconds": the_plan.info["plan_seconds"], "sim_seconds": sim_seconds,
         "predicted_margin_ratio": the_plan.info["predicted_margin_ratio"],
+        "whole_model_margin_ratio": the_plan.info["whole_model_margin_ratio"],
         "decoupling_worst": the_plan.info["decoupling_worst"],
         "decoupling_warnings": the_plan.info["decoupling_warnings"],
         "device": device.url, "device_info": getattr(device, "info", {}),
