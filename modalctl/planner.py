@@ -21,6 +21,7 @@ from .dispatch import DecouplingWarning, decoupling, dispatch
 from .metrics import margin_ratio, tau
 from .model import ModalModel
 from .optimize import Problem, evaluate, solve
+from .propagate import Plant
 from .reference import modal_response
 
 __all__ = ["PlanError", "Plan", "plan", "min_focus_time", "gap_bounds"]
@@ -262,8 +263,6 @@ def cross_talk_matrix(the_plan: Plan) -> np.ndarray:
     Computed with the exact plant on the kept modes of the controller's model, the DAC's hold
     and the dispatch included. The identity when the drives are perfectly decoupled (Eq 2.30).
     """
-    from .hil.plant import Plant
-
     kept = the_plan.model.select(the_plan.modes)
     n_focus = int(round(the_plan.focus_time * the_plan.sample_rate))
     t = np.arange(n_focus + 1) / the_plan.sample_rate + 0.5 / the_plan.sample_rate
@@ -293,8 +292,6 @@ def crosstalk_field(proto: Plan, kappa, brake, times) -> np.ndarray:
     The plan's voltages drive every mode of the model (exact plant): the kept modes leak into
     one another and ring the others. Returned is the simulated field minus the planned one.
     """
-    from .hil.plant import Plant  # the exact propagator serves the planner's prediction too
-
     trial = Plan(proto.model, proto.modes, proto.targets, kappa, brake, proto.focus_time, proto.duration,
                  proto.sample_rate, dispatch(proto.model, proto.modes, kappa), proto.target_mask, proto.reference)
     velocity = Plant(proto.model, proto.sample_rate).simulate(trial.voltages())
