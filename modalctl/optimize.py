@@ -85,12 +85,16 @@ class Result:
     history: list = field(default_factory=list)
 
 
-def evaluate(problem: Problem, kappa, brake):
-    """Dense check: off-target field (n_out, nt) and voltages (a, nt) of the closed forms."""
+def evaluate(problem: Problem, kappa, brake, offset=None):
+    """Dense check: off-target field (n_out, nt) and voltages (a, nt) of the closed forms.
+
+    ``offset`` replaces ``problem.offset`` as the cross-talk added to the field when given.
+    """
     velocity, drive = modal_response(problem.times, problem.targets, problem.omega, problem.zeta, kappa, brake,
                                      problem.focus_time)
     off = problem.shapes_out.T @ velocity
-    return (off if problem.offset is None else off + problem.offset), problem.weights @ drive
+    offset = problem.offset if offset is None else offset
+    return (off if offset is None else off + offset), problem.weights @ drive
 
 
 def _worst(values: np.ndarray, limit: float, count: int):
@@ -160,7 +164,7 @@ def solve(problem: Problem, kappa0=None, brake0=None, rounds: int = 10, per_roun
             break
         field_set |= new_field
         volt_set |= new_volt
-        kappa, brake, status = _ipopt(problem, field_set, volt_set, kappa, brake)
+        kappa, brake, status = _ipopt(problem, field_set, volt_set, kappa, brake, vpeak)
     off, volts = evaluate(problem, kappa, brake)
     ratio, vpeak = float(np.max(np.abs(off)) / problem.peak), float(np.max(np.abs(volts)))
     ok = minimize_ratio or ratio <= problem.margin * (1 + tol)
@@ -170,7 +174,7 @@ def solve(problem: Problem, kappa0=None, brake0=None, rounds: int = 10, per_roun
                   history)
 
 
-def _ipopt(problem: Problem, field_set, volt_set, kappa0, brake0):
+def _ipopt(problem: Problem, field_set, volt_set, kappa0, brake0, scale_v: float):
     """One IPOPT solve on the current constraint set; returns (kappa, brake, status)."""
     m = problem.targets.size
     free_brake = bool(np.any(problem.brake_bounds[:, 1] > problem.brake_bounds[:, 0]))
@@ -189,7 +193,7 @@ def _ipopt(problem: Problem, field_set, volt_set, kappa0, brake0):
     off = off / problem.peak
     vpairs = sorted(volt_set)
     volts = casadi.sum1(casadi.DM(problem.weights[[a for a, _ in vpairs]].T) * drv[:, [column[j] for _, j in vpairs]]).T
-    scale_v = max(float(np.max(np.abs(volts_numeric(problem, kappa0, brake0)))), 1e-12)
+    scale_v = max(scale_v, 1e-12)  # voltages in units of the current peak
     volts = volts / scale_v
     minimize_ratio = problem.margin is None
     bound = ratio if minimize_ratio else problem.margin
@@ -216,8 +220,3 @@ def _ipopt(problem: Problem, field_set, volt_set, kappa0, brake0):
     b = xs[m:2 * m] if free_brake else problem.brake_bounds[:, 0].copy()
     return (np.clip(k, problem.kappa_bounds[:, 0], problem.kappa_bounds[:, 1]),
             np.clip(b, problem.brake_bounds[:, 0], problem.brake_bounds[:, 1]), status)
-
-
-def volts_numeric(problem: Problem, kappa, brake) -> np.ndarray:
-    """Voltages (a, nt) of the dense check (helper for scaling)."""
-    return evaluate(problem, kappa, brake)[1]

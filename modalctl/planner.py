@@ -324,7 +324,7 @@ def _optimize(proto: Plan, margin: float, voltage_limit, brake: bool, gap_fracti
         if not result.ok:
             break
         offset = crosstalk_field(proto, kappa, brake_rates, times)[outside]
-        whole = np.max(np.abs(evaluate_with(problem, offset, kappa, brake_rates))) / proto.focus_peak
+        whole = np.max(np.abs(evaluate(problem, kappa, brake_rates, offset)[0])) / proto.focus_peak
         verified.append(float(whole))
         if whole <= margin * 1.001:
             break
@@ -341,15 +341,6 @@ def _optimize(proto: Plan, margin: float, voltage_limit, brake: bool, gap_fracti
                         f"{reach:.3f} (over by {reach - margin:.3f}){counted}{hint}", reach, margin)
     result.history.append({"whole_model_ratio": verified})
     return kappa, brake_rates, result
-
-
-def evaluate_with(problem: Problem, offset, kappa, brake) -> np.ndarray:
-    """Off-target field of the closed forms plus a cross-talk ``offset`` (n_out, nt)."""
-    saved, problem.offset = problem.offset, None
-    try:
-        return evaluate(problem, kappa, brake)[0] + offset
-    finally:
-        problem.offset = saved
 
 
 def min_focus_time(dec: Decomposition, voltage_limit: float, *, margin: float | None = None,
