@@ -41,14 +41,16 @@ def truncation(model: ModalModel, voltages: np.ndarray, sample_rate: float, tol:
         Sum of the bounds of the dropped modes (m/s).
     """
     u = np.atleast_2d(voltages)
+    active = np.flatnonzero(np.any(u != 0, axis=1))  # silent channels add nothing
     n = int(2 ** np.ceil(np.log2(4 * u.shape[1])))
-    spectrum = np.fft.rfft(u, n=n) / sample_rate  # continuous Fourier transform, V s
+    spectrum = np.fft.rfft(u[active], n=n) / sample_rate  # continuous Fourier transform, V s
     w = 2 * np.pi * np.fft.rfftfreq(n, 1 / sample_rate)
-    wk, zk = model.omega[:, None], model.damping[:, None]
-    h = 1j * w / (wk**2 - w**2 + 2j * zk * wk * w)
-    force = model.actuator_gains @ spectrum
-    dw = w[1] - w[0]
-    bounds = np.sum(np.abs(force * h), axis=1) * dw / np.pi * np.max(np.abs(model.shapes), axis=1)
+    force = np.abs(model.actuator_gains[:, active] @ spectrum)
+    bounds = np.empty(model.n_modes)
+    for k, (wk, zk) in enumerate(zip(model.omega, model.damping)):  # one mode at a time: no (k, n) temporaries
+        gain = w / np.sqrt((wk**2 - w**2) ** 2 + (2 * zk * wk * w) ** 2)  # |H_k(jw)| of the velocity
+        bounds[k] = force[k] @ gain
+    bounds *= (w[1] - w[0]) / np.pi * np.max(np.abs(model.shapes), axis=1)
     kept = np.flatnonzero(bounds >= tol * bounds.max())
     kept = np.union1d(kept, np.asarray(keep, int))
     dropped = np.setdiff1d(np.arange(model.n_modes), kept)

@@ -24,7 +24,8 @@ class Perturbation:
     damping_error : float
         Relative error of every damping ratio (0.2 = 20% more damping than modelled).
     snr_db : float or None
-        Measurement noise: white, with a standard deviation of the focus peak over 10^(snr/20).
+        Measurement noise: white, with a standard deviation of the shot's peak over 10^(snr/20)
+        (the vibrometer: the peak velocity over the whole grid; each sensor: its own peak).
     amplifier_bandwidth : float or None
         First-order amplifier bandwidth (Hz).
     voltage_limit : float or None
