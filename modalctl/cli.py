@@ -1,4 +1,4 @@
-"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``, ``run``.
+"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``, ``identify``, ``run``.
 
 Exit codes: 0 success, 1 a target that cannot be met (no mode set or no plan meets it: the
 message says by how much), 2 bad input (unknown scene, shape or parameter, bad units,
@@ -95,6 +95,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=1e6, help="DAC rate (1MHz)")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
     truth = p.add_argument_group("simulator truth (sim:// only)")
+    truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
     truth.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
     truth.add_argument("--drift-spread", type=_quantity("1", "drift-spread"), default=0.0,
                        help="random extra shift per mode (standard deviation), e.g. 0.5%%")
@@ -107,6 +108,28 @@ def build_parser() -> argparse.ArgumentParser:
     truth.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="directory for metrics.json, fields.npz and the pictures")
     p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("identify", help="identify a structure's modes from FRFs measured through a device")
+    p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
+    p.add_argument("--scene", help="sim://: the structure simulated (and its mass per length by default)")
+    p.add_argument("--snr", type=float, default=40.0, help="sim://: vibrometer noise, dB below the peak (40)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--f-low", type=_quantity("Hz", "f-low"), default=100.0, help="sweep start (100Hz)")
+    p.add_argument("--f-high", type=_quantity("Hz", "f-high"), default=100e3, help="sweep end (100kHz)")
+    p.add_argument("--resolution", type=_quantity("Hz", "resolution"), default=4.0,
+                   help="FRF resolution = 1 / T_sweep (4Hz)")
+    p.add_argument("--amplitude", type=_quantity("V", "amplitude"), default=15.0, help="sweep peak voltage (15V)")
+    p.add_argument("--step", type=_quantity("m", "step"), default=1e-3, help="spatial step of the scan (1mm)")
+    p.add_argument("--mass-per-length", type=_quantity("kg/m", "mass-per-length"),
+                   help="of the beam (kg/m); default from the scene")
+    p.add_argument("--method", default="sdof", help="identifier plugin: sdof (default) or peaks")
+    p.add_argument("--primary", type=int, default=0, help="actuator swept over the whole grid (0)")
+    p.add_argument("--averages", type=int, default=2, help="shots per point (2)")
+    p.add_argument("--no-orthogonalize", action="store_true", help="skip Gram-Schmidt")
+    p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
@@ -189,7 +212,8 @@ def _run(args) -> int:
     model, shape = _model_and_shape(args)
     perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
                                 args.rails, args.seed)
-    device = open_device(args.transport, model=model, perturbation=perturbation)
+    truth = load_scene(args.truth) if args.truth else model
+    device = open_device(args.transport, model=truth, perturbation=perturbation)
     shot = run_open_loop(model, shape, device, args.focus_time, modes=args.modes, tau_min=args.tau_target,
                          margin=args.margin, voltage_limit=args.voltage_limit, sample_rate=args.sample_rate,
                          progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake, after=args.after)
@@ -198,7 +222,10 @@ def _run(args) -> int:
     metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,
                "params": dict(args.param), "truth": perturbation.describe(), "out": str(out)}
     centre = int(np.argmax(np.abs(shot.focus_field) * shape.target_mask))
-    focus_velocity = device.scan(shot.capture.times, points=centre)[0]
+    from .device import scan_indices
+
+    index = scan_indices(device.capabilities, model.grid.points[[centre]], device.url)
+    focus_velocity = device.scan(shot.capture.times, points=centre if index is None else index)[0]
     coeffs = shot.coefficients()
     # the field scan is stored in float32 (7 digits, far below any measurement noise) to keep runs small
     np.savez_compressed(out / "fields.npz", times=shot.times, field=shot.field.astype(np.float32),
@@ -231,6 +258,61 @@ def _run(args) -> int:
     return 0
 
 
+def _identify(args) -> int:
+    import numpy as np
+
+    from .device import open_device
+    from .frf import Sweep
+    from .hil.scenario import Perturbation
+    from .survey import beam_wavelength, identify_device
+
+    scene = load_scene(args.scene) if args.scene else None
+    if args.transport.startswith("sim") and scene is None:
+        raise ModelError("identify: the simulator needs --scene (the structure to simulate)")
+    meta = scene.meta if scene is not None else {}
+    mass = args.mass_per_length
+    if mass is None:
+        try:
+            mass = meta["density_kg_m3"] * meta["width_m"] * meta["thickness_m"]
+        except KeyError:
+            raise ModelError("identify: give --mass-per-length (kg/m): it scales the shapes and gains") from None
+    sweep = Sweep.design(args.f_low, args.f_high, args.resolution, args.amplitude)
+    device = open_device(args.transport, model=scene, perturbation=Perturbation(snr_db=args.snr, seed=args.seed))
+    caps = device.configure(sweep.sample_rate)
+    x = np.asarray(caps.scan_points, float)[:, 0]
+    points = np.flatnonzero(np.diff(np.floor((x - x[0]) / args.step + 1e-9), prepend=-1) > 0)
+    survey = identify_device(device, sweep, points, mass, method=args.method, primary=args.primary,
+                             averages=args.averages, orthogonalize=not args.no_orthogonalize,
+                             wavelength=beam_wavelength(meta, args.f_high), progress=not args.quiet)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    path = survey.model.save(out)
+    off = lambda c: float(np.max(np.abs(c - np.eye(len(c)))))  # noqa: E731
+    summary = {"model_file": str(path), "modes": survey.model.n_modes, "method": args.method,
+               "frequencies_hz": survey.model.frequencies.tolist(), "damping": survey.model.damping.tolist(),
+               "poles": survey.poles.summary(), "notes": survey.notes, "seconds": survey.seconds,
+               "points": int(points.size), "crosstalk_max_before": off(survey.crosstalk_before),
+               "crosstalk_max_after": off(survey.crosstalk_after)}
+    if not args.no_plots:
+        from .report import plot_identification
+
+        summary["pictures"] = plot_identification(survey, path.with_suffix(""))
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    print(f"identified {summary['modes']} modes on {points.size} points with {args.method} "
+          f"({survey.seconds['frf'] + survey.seconds['modal']:.2f} s compute)")
+    print(f"{'mode':>5s} {'f (Hz)':>10s} {'zeta':>9s}")
+    for i, (f, z) in enumerate(zip(survey.model.frequencies, survey.model.damping)):
+        print(f"{i + 1:5d} {f:10.1f} {z:9.5f}")
+    for note in survey.notes:
+        print("note: " + note)
+    print(f"cross-talk: max {summary['crosstalk_max_before']:.3f} before Gram-Schmidt, "
+          f"{summary['crosstalk_max_after']:.1e} after")
+    print(f"model: {path}" + (f"; pictures: {', '.join(summary['pictures'])}" if "pictures" in summary else ""))
+    return 0
+
+
 def _jsonable(value):
     import numpy as np
 
@@ -243,7 +325,8 @@ def _jsonable(value):
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run}
+    handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run,
+                "identify": _identify}
     try:
         return handlers[args.command](args)
     except DeviceError as exc:

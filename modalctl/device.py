@@ -17,7 +17,7 @@ import numpy as np
 
 from .plugin import PluginError, plugin_manager
 
-__all__ = ["DeviceError", "Capabilities", "Capture", "Device", "transports", "open_device"]
+__all__ = ["DeviceError", "Capabilities", "Capture", "Device", "transports", "open_device", "scan_indices"]
 
 
 class DeviceError(RuntimeError):
@@ -40,6 +40,8 @@ class Capabilities:
         Output rails (V).
     can_scan : bool
         True when the device also measures the field on the grid (a scanning vibrometer, or the simulator).
+    scan_points : ndarray, shape (n, d), optional
+        Coordinates (m) of the points ``scan`` can measure, by index.
     """
 
     name: str
@@ -48,6 +50,7 @@ class Capabilities:
     max_sample_rate: float
     voltage_limit: float | None
     can_scan: bool
+    scan_points: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +66,7 @@ class Device(Protocol):
     """What the runtime needs of a device (see the module docstring for the lifecycle)."""
 
     url: str
+    capabilities: Capabilities | None  # from the last configure
 
     def configure(self, sample_rate: float) -> Capabilities: ...
 
@@ -97,3 +101,25 @@ def open_device(url: str, manager=None, **context) -> Device:
     if scheme not in found:
         raise PluginError(f"no transport for {url!r}; installed: {', '.join(s + '://' for s in found)}")
     return found[scheme](url, **context)
+
+
+def scan_indices(caps: Capabilities, positions: np.ndarray, url: str = "device"):
+    """Scan indices of the device's points nearest to ``positions`` (n, d) in m; None when the
+    device does not list its points (it then scans the model's own grid).
+
+    Raises DeviceError when a position is farther from every scan point than half the
+    smallest spacing between the positions.
+    """
+    if caps.scan_points is None:
+        return None
+    scan = np.asarray(caps.scan_points, float).reshape(len(caps.scan_points), -1)
+    pos = np.asarray(positions, float).reshape(len(positions), -1)
+    if scan.shape[1] != pos.shape[1]:
+        raise DeviceError(f"{url}: scans {scan.shape[1]}-D points, the model's grid is {pos.shape[1]}-D")
+    distance = np.linalg.norm(pos[:, None, :] - scan[None, :, :], axis=2)
+    index = np.argmin(distance, axis=1)
+    spacing = np.min(np.linalg.norm(np.diff(pos, axis=0), axis=1)) if len(pos) > 1 else np.inf
+    worst = float(distance[np.arange(len(pos)), index].max())
+    if worst > 0.5 * spacing:
+        raise DeviceError(f"{url}: a model grid point is {worst * 1e3:.3g} mm from the nearest scan point")
+    return index

@@ -15,7 +15,7 @@ from typing import Any, Callable, TypeVar, cast
 
 import pluggy
 
-__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports"]
+__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports", "modalctl_identifiers"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _spec = pluggy.HookspecMarker("modalctl")
@@ -54,4 +54,17 @@ def modalctl_transports():
         ``{scheme: factory}``; ``factory(url, **context)`` returns an object implementing
         :class:`modalctl.device.Device`. ``context`` may carry what a transport needs beyond
         the URL (the simulator takes ``model`` and ``perturbation``); ignore what you do not use.
+    """
+
+
+@hookspec
+def modalctl_identifiers():
+    """Return the modal parameter estimators this plugin provides.
+
+    Returns
+    -------
+    iterable of modalctl.identify.Identifier
+        Objects with ``name``, ``summary`` and ``identify(frf, threshold_db)`` returning
+        :class:`modalctl.identify.Modes` (poles, modal constants per FRF row, misfit, resolved).
+        Names must be unique across installed plugins.
     """

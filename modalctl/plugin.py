@@ -13,7 +13,8 @@ import pluggy
 from . import hookspecs
 from .shape import ShapeGenerator
 
-__all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "plugin_table"]
+__all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "identifiers", "get_identifier",
+           "plugin_table"]
 
 ENTRY_POINT_GROUP = "modalctl"
 
@@ -33,14 +34,7 @@ def plugin_manager() -> pluggy.PluginManager:
 
 def shape_generators(manager: pluggy.PluginManager | None = None) -> dict[str, ShapeGenerator]:
     """All installed shape generators by name."""
-    manager = manager or plugin_manager()
-    found: dict[str, ShapeGenerator] = {}
-    for group in manager.hook.modalctl_shapes():
-        for generator in group:
-            if generator.name in found:
-                raise PluginError(f"shape {generator.name!r} is provided by two plugins")
-            found[generator.name] = generator
-    return dict(sorted(found.items()))
+    return _by_name((manager or plugin_manager()).hook.modalctl_shapes(), "shape")
 
 
 def get_shape(name: str, manager: pluggy.PluginManager | None = None) -> ShapeGenerator:
@@ -49,6 +43,29 @@ def get_shape(name: str, manager: pluggy.PluginManager | None = None) -> ShapeGe
     if name not in generators:
         raise PluginError(f"unknown shape {name!r}; installed shapes: {', '.join(generators)}")
     return generators[name]
+
+
+def _by_name(groups, kind: str) -> dict:
+    found: dict = {}
+    for group in groups:
+        for item in group:
+            if item.name in found:
+                raise PluginError(f"{kind} {item.name!r} is provided by two plugins")
+            found[item.name] = item
+    return dict(sorted(found.items()))
+
+
+def identifiers(manager: pluggy.PluginManager | None = None) -> dict:
+    """All installed modal parameter estimators (:class:`modalctl.identify.Identifier`) by name."""
+    return _by_name((manager or plugin_manager()).hook.modalctl_identifiers(), "identifier")
+
+
+def get_identifier(name: str, manager: pluggy.PluginManager | None = None):
+    """The estimator called ``name``; the error lists the installed ones."""
+    found = identifiers(manager)
+    if name not in found:
+        raise PluginError(f"unknown identifier {name!r}; installed: {', '.join(found)}")
+    return found[name]
 
 
 def plugin_table(manager: pluggy.PluginManager | None = None) -> list[dict]:

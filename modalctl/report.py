@@ -230,3 +230,39 @@ def write_run_report(shot, out, focus_velocity=None, sample_rate=None, where=Non
     if focus_velocity is not None:
         paths["spectrogram"] = plot_spectrogram(shot, focus_velocity, sample_rate, where, out / "spectrogram.png")
     return {k: str(v) for k, v in paths.items()}
+
+
+def plot_identification(survey, stem) -> list[str]:
+    """The identification's pictures beside the model file: ``<stem>_frf.png`` (mean FRF of every
+    actuator with the poles, Fig 3.8), ``<stem>_crosstalk.png`` (before/after Gram-Schmidt,
+    Fig 3.11) and ``<stem>_shapes.png`` (the identified shapes)."""
+    stem = Path(stem)
+    model = survey.model
+    fig, ax = plt.subplots(figsize=(10, 4))
+    for a, frf in sorted(survey.frfs["sparse"].items()):
+        ax.semilogy(frf.frequencies / 1e3, frf.mean_magnitude(), lw=0.7, label=f"actuator {a}")
+    for f, ok in zip(survey.poles.frequencies, survey.poles.resolved):
+        ax.axvline(f / 1e3, color="k" if ok else "r", lw=0.6, ls="-" if ok else "--")
+    ax.set(xlabel="frequency (kHz)", ylabel="mean |H| over points (m/s/V)",
+           title=f"mean mobility per actuator; poles found ({model.n_modes} kept, red dashed: unresolved)")
+    ax.legend(fontsize=7, ncol=4)
+    paths = [_save(fig, f"{stem}_frf.png")]
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4))
+    for ax, matrix, title in zip(axes, (survey.crosstalk_before, survey.crosstalk_after),
+                                 ("identified shapes", "after Gram-Schmidt")):
+        image = ax.imshow(np.abs(matrix), vmin=0, vmax=1, cmap="viridis")
+        off = np.max(np.abs(matrix - np.eye(len(matrix))))
+        ax.set(title=f"{title}: max off-diagonal {off:.2g}", xlabel="mode", ylabel="mode")
+    fig.colorbar(image, ax=axes, label="|cross-talk|")
+    paths.append(_save(fig, f"{stem}_crosstalk.png"))
+
+    fig, ax = plt.subplots(figsize=(10, 5))
+    x = model.grid.x * 1e3
+    for k in range(model.n_modes):
+        s = model.shapes[k] / np.max(np.abs(model.shapes[k]))
+        ax.plot(x, 0.4 * s - k, lw=0.8)
+        ax.text(x[-1] + 1, -k, f"{model.frequencies[k] / 1e3:.2f} kHz", fontsize=7, va="center")
+    ax.set(xlabel="x (mm)", yticks=[], title="identified mode shapes (normalized, Eq 3.13)")
+    paths.append(_save(fig, f"{stem}_shapes.png"))
+    return [str(p) for p in paths]

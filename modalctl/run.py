@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .decompose import Decomposition, decompose
-from .device import Capture, Device, DeviceError
+from .device import Capture, Device, DeviceError, scan_indices
 from .metrics import margin_ratio, nrmse, tau, tau_norm
 from .modal import project, reconstruct
 from .model import ModalModel
@@ -120,7 +120,7 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
         device.upload(voltages)
         capture = device.trigger(progress=progress)
         times = np.union1d(the_plan.check_times(), [focus_time])
-        field = device.scan(times)
+        field = device.scan(times, scan_indices(caps, model.grid.points, device.url))
     finally:
         device.deactivate()
     sim_seconds = _time.perf_counter() - start

@@ -28,6 +28,7 @@ DIMENSIONS: dict[str, dict[str, float]] = {
     "V": _with_prefixes("V", "mk"),
     "m/s": _with_prefixes("m/s", "u\u00b5mc"),
     "1": {"": 1.0, "%": 1e-2, "ppm": 1e-6},
+    "kg/m": {"kg/m": 1.0, "g/m": 1e-3, "g/mm": 1.0, "kg/mm": 1e3},
 }
 
 _NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")

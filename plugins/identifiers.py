@@ -1,0 +1,16 @@
+"""First-party modal parameter estimators: the thesis's peak picking and a local SDOF fit."""
+
+from __future__ import annotations
+
+from modalctl.hookspecs import hookimpl
+from modalctl.identify import Identifier, peak_picking, sdof_fit
+
+
+@hookimpl
+def modalctl_identifiers():
+    return [
+        Identifier("peaks", "peak picking on the mean FRF, half-power damping, shapes at the peaks "
+                            "(thesis chapter 3)", peak_picking),
+        Identifier("sdof", "peak picking refined by a local single-mode least-squares fit of all FRFs "
+                           "(close or heavily damped modes)", sdof_fit),
+    ]
