@@ -23,12 +23,14 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 bench: $(STAMP)
+	$(BIN)/python -m pip install --quiet -e '.[bench]'
 	$(BIN)/python benchmarks/modes_needed.py
 	$(BIN)/python benchmarks/decompose_speed.py
 	$(BIN)/python benchmarks/plant_speed.py
 	$(BIN)/python benchmarks/margin_case.py
 	$(BIN)/python benchmarks/thesis_table.py
 	$(BIN)/python benchmarks/focus_time.py
+	$(BIN)/python benchmarks/identify_accuracy.py
 
 clean:
 	rm -rf $(VENV) demo
