@@ -12,7 +12,7 @@ from modalctl.identify import peak_picking, sdof_fit
 from modalctl.model import ModelError
 from modalctl.plugin import identifiers
 from modalctl.scenes import load_scene
-from modalctl.survey import identify_device
+from modalctl.survey import beam_wavelength, identify_device
 
 X = np.linspace(0, 0.1, 41)
 
@@ -75,6 +75,12 @@ def test_close_modes_are_reported_unresolved(estimator):
     assert not modes.resolved[near].any()
 
 
+def test_a_coarse_grid_warns():
+    truth = load_scene("thesis-al-cc", 211)
+    with pytest.warns(SpatialAliasingWarning):
+        check_spatial_step(truth.grid.points[::20], beam_wavelength(truth.meta, 100e3))
+
+
 def test_sweep_rules():
     with pytest.raises(ModelError, match="ten times"):
         Sweep(100, 100e3, 0.25, 500e3)
@@ -107,17 +113,23 @@ def test_h1_matches_the_analytic_mobility():
     assert err.max() < 2e-3
 
 
-def test_survey_identifies_the_hil_beam():
-    """From scratch on the HIL, modes up to 12 kHz: frequencies, damping, shapes and every actuator's gains."""
+@pytest.fixture(scope="module")
+def survey():
+    """The HIL beam identified from scratch, modes up to 12 kHz, on every 5th point (2.5 mm)."""
     truth = load_scene("thesis-al-cc", 211)
     device = SimDevice(truth, Perturbation(snr_db=40, seed=3))
-    sweep = Sweep.design(100, 12e3, 4.0)
     points = np.arange(0, truth.grid.n, 5)
     mass = truth.meta["density_kg_m3"] * truth.meta["width_m"] * truth.meta["thickness_m"]
     with warnings.catch_warnings():
         warnings.simplefilter("error", SpatialAliasingWarning)
-        survey = identify_device(device, sweep, points, mass, sparse=4)
-    model = survey.model
+        return truth, points, identify_device(device, Sweep.design(100, 12e3, 4.0), points, mass, sparse=4,
+                                              wavelength=beam_wavelength(truth.meta, 12e3))
+
+
+def test_survey_identifies_the_hil_beam(survey):
+    """Frequencies, damping, shapes and every actuator's gains against the truth."""
+    truth, points, result = survey
+    model = result.model
     assert model.n_modes == 7
     assert np.allclose(model.frequencies, truth.frequencies[:7], rtol=5e-4)
     assert np.allclose(model.damping, truth.damping[:7], rtol=0.05)
@@ -128,7 +140,26 @@ def test_survey_identifies_the_hil_beam():
         g, gt = model.actuator_gains[k], sign * truth.actuator_gains[k]
         assert np.linalg.norm(g - gt) < 0.05 * np.linalg.norm(gt)
     # mode 5 barely moves under actuator 0 (the thesis's mode-18 situation): found through the others
-    assert any("5719" in note for note in survey.notes)
+    assert any("5719" in note for note in result.notes)
+
+
+def test_focus_with_the_identified_model(survey):
+    """The closed cycle: the HIL beam focused with its identified model does as well as with the truth."""
+    from modalctl.plugin import get_shape
+    from modalctl.run import run_open_loop
+    from modalctl.shape import parse_params
+
+    truth, points, result = survey
+    same_grid = load_scene("thesis-al-cc", points.size)
+    sinc = get_shape("sinc")
+    taus = []
+    for model in (result.model, same_grid):
+        shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "25mm", "center": "24mm"}))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            taus.append(run_open_loop(model, shape, SimDevice(truth), 0.025, modes=6).metrics["tau"])
+    assert taus[1] > 0.95
+    assert abs(taus[0] - taus[1]) < 0.02
 
 
 def test_identifier_plugins_are_registered():
