@@ -18,7 +18,7 @@ import scipy.fft
 
 from .model import ModelError
 
-__all__ = ["Sweep", "FRF", "H1", "bending_wavelength", "check_spatial_step", "SpatialAliasingWarning"]
+__all__ = ["Sweep", "FRF", "H1", "mobility", "bending_wavelength", "check_spatial_step", "SpatialAliasingWarning"]
 
 
 class SpatialAliasingWarning(UserWarning):
@@ -216,6 +216,29 @@ class H1:
             noise = np.sqrt(residual / ((n - 1) * self._suu)) if n > 1 else None
         return FRF(self.frequencies, h, np.clip(coherence, 0, 1),
                    np.asarray(points, float).reshape(self.n_points, -1), actuator, n, self.seconds, noise)
+
+
+def mobility(freqs: np.ndarray, frequencies, damping, constants) -> np.ndarray:
+    """Modal mobility ``sum_k A_pk j w / (w_k^2 - w^2 + 2 j zeta_k w_k w)`` (Eq 3.4 for velocity).
+
+    Parameters
+    ----------
+    freqs : ndarray, shape (nf,)
+        Hz.
+    frequencies, damping : array_like, shape (k,)
+        Modes (Hz, ratio).
+    constants : array_like, shape (k, n_points)
+        Modal constants ``phi(p) b`` (m/s^2/V).
+
+    Returns
+    -------
+    ndarray, shape (n_points, nf)
+        m/s/V.
+    """
+    w = 2 * np.pi * np.asarray(freqs, float)
+    wk = 2 * np.pi * np.atleast_1d(np.asarray(frequencies, float))[:, None]
+    zk = np.atleast_1d(np.asarray(damping, float))[:, None]
+    return np.atleast_2d(constants).T @ (1j * w / (wk**2 - w**2 + 2j * zk * wk * w))
 
 
 def bending_wavelength(frequency: float, modulus: float, density: float, thickness: float) -> float:

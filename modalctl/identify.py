@@ -21,11 +21,12 @@ import numpy as np
 import scipy.optimize
 import scipy.signal
 
-from .frf import FRF
+from .frf import FRF, mobility
 from .modal import mass_normalize
 from .model import Grid, ModalModel, ModelError
 
-__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "half_width", "to_model",
+__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "half_width",
+           "neighbours", "constants_of", "to_model",
            "actuator_gains", "UNRESOLVED_ERROR", "NOISE_EXCESS"]
 
 UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole above which a peak may be unresolved...
@@ -91,24 +92,23 @@ class Identifier:
     identify: Callable[..., "Modes"]
 
 
-def _mobility(omega: np.ndarray, f: float, zeta: float) -> np.ndarray:
-    wk = 2 * np.pi * f
-    return 1j * omega / (wk**2 - omega**2 + 2j * zeta * wk * omega)
+def _basis(freqs: np.ndarray, poles, centre: float) -> np.ndarray:
+    """One column per pole ``(f, zeta)`` plus a complex constant and slope for the modes outside
+    the band, shape (nb, len(poles) + 2)."""
+    f, z = np.array(poles, float).reshape(-1, 2).T
+    return np.column_stack([mobility(freqs, f, z, np.eye(f.size)).T, np.ones(freqs.size), freqs / centre - 1])
 
 
-def _basis(freqs: np.ndarray, f: float, zeta: float) -> np.ndarray:
-    """One mode plus a complex constant and slope for the modes outside the band, shape (nb, 3)."""
-    return np.column_stack([_mobility(2 * np.pi * freqs, f, zeta), np.ones(freqs.size), freqs / f - 1])
-
-
-def modal_constants(frf: FRF, f: float, zeta: float, half_width: float) -> tuple[np.ndarray, float, bool]:
+def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
+                    others=()) -> tuple[np.ndarray, float, bool]:
     """Real modal constants at every point for a known pole, and the relative misfit.
 
-    The FRFs within ``f +- half_width`` (Hz) are fitted by least squares with the mode and a
-    complex constant and slope per point (the other modes). The constants of a normal mode
-    share one phase (zero for an ideal set-up; a DAC hold or a delay turns it by ``w`` times
-    the delay): they are rotated by the phase that makes them most nearly real, and the
-    misfit counts what one real shape and that phase cannot explain.
+    The FRFs within ``f +- half_width`` (Hz) are fitted by least squares with the mode, the
+    neighbouring poles ``others`` (``[(f, zeta), ...]``, close modes whose peaks reach into the
+    band) and a complex constant and slope per point (the modes outside the band). The
+    constants of a normal mode share one phase (zero for an ideal set-up; a DAC hold or a delay
+    turns it by ``w`` times the delay): they are rotated by the phase that makes them most
+    nearly real, and the misfit counts what one real shape and that phase cannot explain.
 
     Returns
     -------
@@ -117,13 +117,13 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float) -> tuple
     misfit : float
         RMS of the residual over RMS of the mode's part of the fit.
     resolved : bool
-        Whether one pole explains the band (see :class:`Modes`).
+        Whether the poles explain the band (see :class:`Modes`).
     """
     keep = np.abs(frf.frequencies - f) <= half_width
     if np.count_nonzero(keep) < 5:
         raise ModelError(f"identify: fewer than 5 FRF bins within {half_width:g} Hz of {f:g} Hz")
     h = frf.values[:, keep].T  # (nb, n_points)
-    b = _basis(frf.frequencies[keep], f, zeta)
+    b = _basis(frf.frequencies[keep], [(f, zeta), *others], f)
     coef, *_ = np.linalg.lstsq(b, h, rcond=None)
     phase = np.exp(0.5j * np.angle(np.sum(coef[0] ** 2)))
     constants = (coef[0] / phase).real
@@ -214,42 +214,50 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
     return _modes(rows, frf.values.shape[0], "peaks")
 
 
-def fit_band(frf: FRF, f0: float, zeta0: float, half_width: float, components: int = 4,
-             max_bins: int = 256) -> tuple[float, float]:
-    """Pole (f in Hz, zeta) of one mode by a local least-squares fit to all points at once.
+def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int = 4,
+             max_bins: int = 256) -> np.ndarray:
+    """Poles ``[(f in Hz, zeta), ...]`` of the modes in ``centre +- half_width`` by a local
+    least-squares fit to all points at once; returns them refined, shape (len(poles), 2).
 
-    Variable projection: for a trial pole, the response at every point is fitted linearly
-    (the mode's constant, a complex constant and slope); the pole minimizes what is left.
-    To keep it fast, the points are first reduced to their ``components`` principal FRFs
-    (the SVD of the band), which carry the mode whatever its shape, and the band to at most
-    ``max_bins`` evenly spread bins.
+    Variable projection: for trial poles, the response at every point is fitted linearly
+    (each mode's constant, a complex constant and slope); the poles minimize what is left.
+    To keep it fast, the points are first reduced to their principal FRFs (the SVD of the
+    band; ``components`` plus one per extra pole), which carry the modes whatever their
+    shapes, and the band to at most ``max_bins`` evenly spread bins.
     """
-    keep = np.flatnonzero(np.abs(frf.frequencies - f0) <= half_width)
+    start = np.array(poles, float).reshape(-1, 2)
+    keep = np.flatnonzero(np.abs(frf.frequencies - centre) <= half_width)
     keep = keep[::max(1, -(-keep.size // max_bins))]
     freqs = frf.frequencies[keep]
     u, s, _ = np.linalg.svd(frf.values[:, keep].T, full_matrices=False)
-    data = u[:, :components] * s[:components]
+    rank = components + len(start) - 1
+    data = u[:, :rank] * s[:rank]
+
+    def trial(x):
+        x = x.reshape(-1, 2)
+        return np.column_stack([start[:, 0] * (1 + 1e-3 * x[:, 0]), start[:, 1] * np.exp(x[:, 1])])
 
     def residual(x):
-        b = _basis(freqs, f0 * (1 + 1e-3 * x[0]), zeta0 * np.exp(x[1]))
+        b = _basis(freqs, trial(x), centre)
         coef, *_ = np.linalg.lstsq(b, data, rcond=None)
         r = data - b @ coef
         return np.concatenate([r.real.ravel(), r.imag.ravel()])
 
-    sol = scipy.optimize.least_squares(residual, np.zeros(2), x_scale=np.array([zeta0 * 1e3, 0.3]),
-                                       method="lm")
-    return f0 * (1 + 1e-3 * sol.x[0]), zeta0 * np.exp(sol.x[1])
+    scale = np.column_stack([start[:, 1] * 1e3, np.full(len(start), 0.3)]).ravel()
+    sol = scipy.optimize.least_squares(residual, np.zeros(2 * len(start)), x_scale=scale, method="lm")
+    return trial(sol.x)
 
 
 def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None,
              band: float = 3.0) -> Modes:
-    """Peak picking refined by a local single-mode least-squares fit around each peak.
+    """Peak picking refined by a local least-squares fit of each mode with its close neighbours.
 
     Parameters
     ----------
     band : float
-        Half width of the fitted band in half-power half-widths (``zeta f``), capped at half
-        the distance to the neighbouring peaks.
+        Half width of the fitted band in half-power half-widths (``zeta f``). Neighbouring
+        modes whose peaks reach into it are fitted with it (their poles too), so that close
+        modes do not bias each other.
     """
     start = peak_picking(frf, threshold_db, min_frequency)
     df = frf.frequencies[1] - frf.frequencies[0]
@@ -259,20 +267,37 @@ def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
             rows.append((f, zeta, start.constants[i], start.misfit[i], False))
             continue
         half = half_width(start.frequencies, start.damping, i, df, band)
-        f_fit, z_fit = fit_band(frf, f, zeta, half)
-        constants, misfit, resolved = modal_constants(frf, f_fit, z_fit, half)
+        near = [j for j in neighbours(start.frequencies, start.damping, i, half) if start.resolved[j]]
+        poles = fit_band(frf, [(f, zeta), *[(start.frequencies[j], start.damping[j]) for j in near]], f, half)
+        f_fit, z_fit = poles[0]
+        if abs(f_fit - f) > half or not 0 < z_fit < 0.5:  # the fit ran away: no single pole here
+            rows.append((f, zeta, start.constants[i], np.inf, False))
+            continue
+        constants, misfit, resolved = modal_constants(frf, f_fit, z_fit, half, poles[1:])
         rows.append((f_fit, z_fit, constants, misfit, resolved))
     return _modes(rows, frf.values.shape[0], "sdof")
 
 
 def half_width(frequencies: np.ndarray, damping: np.ndarray, i: int, df: float, band: float = 3.0) -> float:
     """Half width (Hz) of the band fitted around mode ``i``: ``band`` half-power half-widths
-    (``zeta f``), capped at half the distance to the neighbouring modes, at least four bins."""
-    half = band * damping[i] * frequencies[i]
-    gaps = np.abs(np.delete(frequencies, i) - frequencies[i])
-    if gaps.size:
-        half = min(half, 0.5 * gaps.min())
-    return max(half, 4 * df)
+    (``zeta f``), at least four bins."""
+    return max(band * damping[i] * frequencies[i], 4 * df)
+
+
+def neighbours(frequencies: np.ndarray, damping: np.ndarray, i: int, half: float) -> np.ndarray:
+    """Modes other than ``i`` whose half-power band reaches into ``f_i +- half``."""
+    reach = np.abs(frequencies - frequencies[i]) - 2 * damping * frequencies < half
+    reach[i] = False
+    return np.flatnonzero(reach)
+
+
+def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
+                 band: float = 3.0) -> tuple[np.ndarray, float, bool]:
+    """:func:`modal_constants` of mode ``k`` of a known set, in its band, with its neighbours."""
+    df = frf.frequencies[1] - frf.frequencies[0]
+    half = half_width(frequencies, damping, k, df, band)
+    near = neighbours(frequencies, damping, k, half)
+    return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])))
 
 
 def _modes(rows, n_points: int, method: str) -> Modes:
@@ -313,8 +338,7 @@ def actuator_gains(model: ModalModel, frf: FRF, point_index: np.ndarray) -> Moda
     """
     gains = np.array(model.actuator_gains, copy=True)
     phi = model.shapes[:, point_index]
-    df = frf.frequencies[1] - frf.frequencies[0]
-    for k, (f, z) in enumerate(zip(model.frequencies, model.damping)):
-        constants, _, _ = modal_constants(frf, f, z, half_width(model.frequencies, model.damping, k, df))
+    for k in range(model.n_modes):
+        constants, _, _ = constants_of(frf, model.frequencies, model.damping, k)
         gains[k, frf.actuator] = float(phi[k] @ constants / (phi[k] @ phi[k]))
     return replace(model, actuator_gains=gains)

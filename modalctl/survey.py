@@ -19,7 +19,7 @@ import numpy as np
 from .acquire import measure_frf
 from .device import Device
 from .frf import FRF, Sweep, bending_wavelength, check_spatial_step
-from .identify import Modes, actuator_gains, half_width, modal_constants, to_model
+from .identify import Modes, actuator_gains, constants_of, to_model
 from .modal import crosstalk, orthonormalize_model
 from .model import Grid, ModalModel, quadrature_weights
 from .plugin import get_identifier
@@ -117,12 +117,10 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
     t0 = time.perf_counter()
     poles = identifier.identify(FRF.stack(list(sparse_frf.values())), threshold_db=threshold_db)
     good = poles.only_resolved()
-    df = sweep.resolution
     drive = np.zeros((good.n_modes, caps.channels))
     for k in range(good.n_modes):
-        half = half_width(good.frequencies, good.damping, k, df)
         for a, frf in sparse_frf.items():
-            drive[k, a] = np.sqrt(np.mean(modal_constants(frf, good.frequencies[k], good.damping[k], half)[0] ** 2))
+            drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k)[0] ** 2))
     weak = drive[:, primary] < WEAK_DRIVE * drive.max(axis=1)
     chooser = np.where(weak, np.argmax(drive, axis=1), primary)
     compute += time.perf_counter() - t0
@@ -135,9 +133,7 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
     constants = np.zeros((good.n_modes, points.size))
     misfit, resolved = good.misfit.copy(), good.resolved.copy()
     for k in range(good.n_modes):
-        half = half_width(good.frequencies, good.damping, k, df)
-        constants[k], misfit[k], resolved[k] = modal_constants(full_frf[chooser[k]], good.frequencies[k],
-                                                               good.damping[k], half)
+        constants[k], misfit[k], resolved[k] = constants_of(full_frf[chooser[k]], good.frequencies, good.damping, k)
     grid = _grid(positions, mass_per_length)
     notes = [f"mode at {f:.1f} Hz: actuator {primary} drives it at {100 * d[primary] / d.max():.1f}% of "
              f"actuator {int(np.argmax(d))}; shape from actuator {int(np.argmax(d))}"
