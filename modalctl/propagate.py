@@ -17,6 +17,8 @@ round-off, whatever the ratio of sample rate to resonance.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.signal import lfilter
 
@@ -66,6 +68,7 @@ class _Bank:
     def __init__(self, poles, residues, dt: float, hold: str):
         e, g0, g1 = hold_coefficients(poles, dt, hold)
         r = np.broadcast_to(np.asarray(residues, complex), e.shape)
+        self._r, self._e, self._g0 = r, e, g0
         self.real = bool(np.all(np.asarray(poles).imag == 0))
         if self.real:
             self.b = np.stack([2 * (r * g1).real, 2 * (r * g0).real], axis=1)
@@ -77,6 +80,29 @@ class _Bank:
             self.a = np.stack([np.ones(e.size), -2 * e.real, np.abs(e) ** 2], axis=1)
             self.start = np.stack([-self.b[:, 0], 2 * (r * g0).real - self.b[:, 1]], axis=1)
         self.state = None
+
+    def phasors(self, last_input: np.ndarray) -> np.ndarray:
+        """The complex states ``z`` (rows) after the last sample, given that sample's input.
+
+        The second-order section's state is ``s1 = 2 Re(r E z + r g0 x)`` and
+        ``s2 = -2 Re(r g0 conj(E)) x - |E|^2 2 Re(r z)``: two real equations for ``z``.
+        """
+        if self.state is None:
+            return np.zeros(self._e.shape, complex)
+        r, e, g0, x = self._r, self._e, self._g0, np.asarray(last_input, float)
+        p = 0.5 * (self.state[:, 0] - 2 * (r * g0).real * x)  # Re(r E z)
+        q = -0.5 * (self.state[:, 1] + 2 * (r * g0 * e.conj()).real * x) / np.abs(e) ** 2  # Re(r z)
+        re, rr = r * e, r
+        det = -re.real * rr.imag + re.imag * rr.real
+        zr = (-p * rr.imag + q * re.imag) / det
+        zi = (re.real * q - rr.real * p) / det
+        return zr + 1j * zi
+
+    def set_phasors(self, z: np.ndarray, last_input: np.ndarray) -> None:
+        """Set the state so that the complex states after the last sample are ``z``."""
+        r, e, g0, x = self._r, self._e, self._g0, np.asarray(last_input, float)
+        self.state = np.stack([2 * (r * e * z + r * g0 * x).real,
+                               -2 * (r * g0 * e.conj()).real * x - np.abs(e) ** 2 * 2 * (r * z).real], axis=1)
 
     def run(self, force: np.ndarray) -> np.ndarray:
         """Filter a chunk ``force`` (rows, n); returns the outputs (rows, n) at the samples."""
@@ -130,6 +156,7 @@ class Plant:
         """Bring the structure back to rest."""
         dt = 1 / self.sample_rate
         self._modes = _Bank(self.poles, self.residues, dt, self.hold)
+        self._last_force = np.zeros(self.model.n_modes)
         channels = self.model.actuator_gains.shape[1]
         self._amp = (_Bank(np.full(channels, self._amp_pole + 0j), 0.5, dt, self.hold)
                      if self._amp_pole is not None else None)
@@ -156,10 +183,43 @@ class Plant:
             self.clipped += int(np.count_nonzero(np.abs(u) > self.voltage_limit))
             u = np.clip(u, -self.voltage_limit, self.voltage_limit)
         gains = self.model.actuator_gains
-        velocity = self._modes.run(gains @ u)
+        force = gains @ u
+        velocity = self._modes.run(force)
+        if force.shape[1]:
+            self._last_force = force[:, -1]
         if self._amp is not None:
             velocity -= 2 * self.residues.real[:, None] * (gains @ self._amp.run(u))
         return velocity
+
+    def modal_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Displacement and velocity of every mode after the last sample, shapes (k,), (k,)."""
+        z = self._modes.phasors(self._last_force)
+        q = 1 / (self.poles - self.poles.conj())
+        return 2 * (z * q).real, 2 * (z * q * self.poles).real
+
+    def retune(self, frequencies: np.ndarray, damping: np.ndarray | None = None) -> None:
+        """Change the resonances (Hz) and damping mid-run, each mode's displacement and velocity
+        continuous: the truth drifting (temperature) or a finger landing, between two chunks.
+
+        Not available with an amplifier bandwidth (its state is not split per mode).
+        """
+        if self._amp is not None:
+            raise ModelError("plant: retune does not support an amplifier bandwidth")
+        eta, velocity = self.modal_state()
+        damping = self.model.damping if damping is None else damping
+        self.model = replace(self.model, frequencies=np.asarray(frequencies, float), damping=np.asarray(damping, float))
+        w, zeta = self.model.omega, self.model.damping
+        self.poles = -zeta * w + 1j * w * np.sqrt(1 - zeta**2)
+        self.residues = self.poles / (self.poles - self.poles.conj())
+        # solve 2 Re(z q) = eta, 2 Re(z q lambda) = velocity for the new poles (q = 1 / (lambda - conj(lambda)))
+        q = 1 / (self.poles - self.poles.conj())
+        a, b = q, q * self.poles
+        det = -a.real * b.imag + a.imag * b.real
+        zr = 0.5 * (-eta * b.imag + velocity * a.imag) / det
+        zi = 0.5 * (a.real * velocity - b.real * eta) / det
+        bank = _Bank(self.poles, self.residues, 1 / self.sample_rate, self.hold)
+        bank.set_phasors(zr + 1j * zi, self._last_force)
+        self._modes = bank
 
     def simulate(self, voltages: np.ndarray) -> np.ndarray:
         """Modal velocities (k, n) for a whole shot from rest (see :meth:`step`)."""

@@ -102,3 +102,33 @@ def test_truncation_bound_covers_the_dropped_modes(beam, rng):
     others = np.setdiff1d(np.arange(beam.n_modes), kept)
     actual = np.max(np.abs(beam.shapes[others].T @ velocity[others]))
     assert actual <= dropped
+
+
+def test_retune_keeps_displacement_and_velocity_continuous():
+    """Resonances +1% and damping +30% mid-run: matches an adaptive integration switching parameters there."""
+    from scipy.integrate import solve_ivp
+    from scipy.interpolate import interp1d
+
+    from modalctl.propagate import Plant as CorePlant
+    from modalctl.scenes import load_scene
+
+    m = load_scene("thesis-al-cc", 101).select([0, 1, 2])
+    fs = 200e3
+    t = np.arange(4000) / fs
+    u = np.vstack([np.sin(2 * np.pi * 900 * t) * np.exp(-((t - 0.008) / 0.004) ** 2)] * m.actuator_gains.shape[1])
+    plant = CorePlant(m, fs, hold="foh")
+    first = plant.step(u[:, :2000])
+    new_f, new_z = m.frequencies * 1.01, m.damping * 1.3
+    plant.retune(new_f, new_z)
+    ours = np.hstack([first, plant.step(u[:, 2000:])])
+    ui = interp1d(t, u, axis=1)
+
+    def rhs(tt, x, w, z):
+        eta, vel = x[:3], x[3:]
+        return np.r_[vel, m.actuator_gains @ ui(tt) - 2 * z * w * vel - w**2 * eta]
+
+    opts = dict(rtol=1e-10, atol=1e-14, max_step=1 / fs)
+    s1 = solve_ivp(rhs, (0, t[1999]), np.zeros(6), args=(m.omega, m.damping), t_eval=t[:2000], **opts)
+    s2 = solve_ivp(rhs, (t[1999], t[-1]), s1.y[:, -1], args=(2 * np.pi * new_f, new_z), t_eval=t[1999:], **opts)
+    ref = np.hstack([s1.y[3:], s2.y[3:, 1:]])
+    assert np.max(np.abs(ours - ref)) < 1e-7 * np.max(np.abs(ref))
