@@ -31,6 +31,9 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/thesis_table.py
 	$(BIN)/python benchmarks/focus_time.py
 	$(BIN)/python benchmarks/identify_accuracy.py
+	$(BIN)/python benchmarks/identify_limits.py
+	$(BIN)/python benchmarks/identify_cycle.py
+	$(BIN)/python benchmarks/tracking.py
 
 clean:
 	rm -rf $(VENV) demo

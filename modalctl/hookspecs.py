@@ -15,7 +15,8 @@ from typing import Any, Callable, TypeVar, cast
 
 import pluggy
 
-__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports", "modalctl_identifiers"]
+__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports", "modalctl_identifiers",
+           "modalctl_trackers"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _spec = pluggy.HookspecMarker("modalctl")
@@ -67,4 +68,17 @@ def modalctl_identifiers():
         Objects with ``name``, ``summary`` and ``identify(frf, threshold_db)`` returning
         :class:`modalctl.identify.Modes` (poles, modal constants per FRF row, misfit, resolved).
         Names must be unique across installed plugins.
+    """
+
+
+@hookspec
+def modalctl_trackers():
+    """Return the online resonance trackers this plugin provides (the identifiers' family).
+
+    Returns
+    -------
+    iterable of modalctl.track.TrackerFactory
+        Objects with ``name``, ``summary`` and ``create(frequencies, damping, control_rate,
+        **options)``; the tracker has ``update(response, drive)`` (lock-in envelopes, shape
+        (k, m) complex), ``frequencies``, ``damping``, ``carriers`` and ``status`` per mode.
     """

@@ -14,6 +14,7 @@ from . import hookspecs
 from .shape import ShapeGenerator
 
 __all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "identifiers", "get_identifier",
+           "trackers", "get_tracker",
            "plugin_table"]
 
 ENTRY_POINT_GROUP = "modalctl"
@@ -39,10 +40,13 @@ def shape_generators(manager: pluggy.PluginManager | None = None) -> dict[str, S
 
 def get_shape(name: str, manager: pluggy.PluginManager | None = None) -> ShapeGenerator:
     """The shape generator called ``name``; the error lists the installed ones."""
-    generators = shape_generators(manager)
-    if name not in generators:
-        raise PluginError(f"unknown shape {name!r}; installed shapes: {', '.join(generators)}")
-    return generators[name]
+    return _pick(shape_generators(manager), name, "shape")
+
+
+def _pick(found: dict, name: str, kind: str):
+    if name not in found:
+        raise PluginError(f"unknown {kind} {name!r}; installed: {', '.join(found)}")
+    return found[name]
 
 
 def _by_name(groups, kind: str) -> dict:
@@ -62,10 +66,17 @@ def identifiers(manager: pluggy.PluginManager | None = None) -> dict:
 
 def get_identifier(name: str, manager: pluggy.PluginManager | None = None):
     """The estimator called ``name``; the error lists the installed ones."""
-    found = identifiers(manager)
-    if name not in found:
-        raise PluginError(f"unknown identifier {name!r}; installed: {', '.join(found)}")
-    return found[name]
+    return _pick(identifiers(manager), name, "identifier")
+
+
+def trackers(manager: pluggy.PluginManager | None = None) -> dict:
+    """All installed online trackers (:class:`modalctl.track.TrackerFactory`) by name."""
+    return _by_name((manager or plugin_manager()).hook.modalctl_trackers(), "tracker")
+
+
+def get_tracker(name: str, manager: pluggy.PluginManager | None = None):
+    """The tracker called ``name``; the error lists the installed ones."""
+    return _pick(trackers(manager), name, "tracker")
 
 
 def plugin_table(manager: pluggy.PluginManager | None = None) -> list[dict]:

@@ -1,9 +1,10 @@
-"""First-party modal parameter estimators: the thesis's peak picking and a local SDOF fit."""
+"""First-party identifiers: offline, the thesis's peak picking and a local SDOF fit; online, an RLS tracker."""
 
 from __future__ import annotations
 
 from modalctl.hookspecs import hookimpl
 from modalctl.identify import Identifier, peak_picking, sdof_fit
+from modalctl.track import RLSTracker, TrackerFactory
 
 
 @hookimpl
@@ -14,3 +15,9 @@ def modalctl_identifiers():
         Identifier("sdof", "peak picking refined by a local single-mode least-squares fit of all FRFs "
                            "(close or heavily damped modes)", sdof_fit),
     ]
+
+
+@hookimpl
+def modalctl_trackers():
+    return [TrackerFactory("rls", "per-mode recursive least squares on the lock-in envelopes, "
+                                  "carriers retuned to the estimates", RLSTracker)]

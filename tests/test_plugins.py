@@ -78,5 +78,5 @@ def test_duplicate_names_are_refused():
 
 
 def test_unknown_shape_lists_installed():
-    with pytest.raises(PluginError, match="installed shapes: .*sinc"):
+    with pytest.raises(PluginError, match="unknown shape .*installed: .*sinc"):
         get_shape("no-such-shape")

@@ -1,0 +1,151 @@
+"""Online resonance tracking: every controlled mode's frequency and damping while it is driven.
+
+In its carrier's rotating frame a mode is a first-order complex system, and between control
+samples (period T), with the drive envelope held linear,
+
+    y[n] = a y[n-1] + b0 f[n-1] + b1 f[n],     a = exp((-zeta w + j (w_d - w_c)) T)
+
+where ``y`` and ``f`` are the lock-in envelopes of the mode's response and drive (the same
+low-pass applied to both keeps the relation; two input taps also absorb the other modes'
+quasi-static answer to the drive). :class:`RLSTracker` estimates ``(a, b0, b1)``
+per mode by recursive least squares with exponential forgetting, all modes at once (numpy
+over modes), and reads the resonance and damping from ``a``. It retunes a mode's carrier when
+the estimate leaves the carrier by more than a fraction of the half-power bandwidth (the
+drive then stays on the resonance), and says when a mode is unexcited (no drive to learn
+from: estimates frozen) or lost (the model no longer explains the response).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["RLSTracker", "sensor_weights", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
+
+TRACKING, UNEXCITED, LOST = "tracking", "unexcited", "lost"
+
+
+@dataclass(frozen=True)
+class TrackerFactory:
+    """A tracker as plugins provide them (hook ``modalctl_trackers``).
+
+    Attributes
+    ----------
+    name, summary : str
+    create : callable
+        ``create(frequencies, damping, control_rate, **options)`` returning an object with
+        ``update(response, drive)``, ``frequencies``, ``damping``, ``carriers`` and ``status``
+        (see :class:`RLSTracker`).
+    """
+
+    name: str
+    summary: str
+    create: object
+
+
+def sensor_weights(model, modes, nulls: int = 0) -> np.ndarray:
+    """Sensor combinations that read each mode, shape (k, s).
+
+    Row ``i`` gives 1 for mode ``modes[i]`` and 0 for the ``nulls`` modes of ``model`` nearest
+    to it in frequency, the least-norm such weights. The default (no nulls, the matched
+    filter) leaves the separation to the lock-in: on thesis-al-cc with four sensors, nulling
+    three neighbours amplified the leakage of weakly sensed modes (mode 16 lost its lock).
+    """
+    c = model.sensor_gains  # (all modes, s)
+    rows = []
+    for k in np.atleast_1d(modes):
+        order = np.argsort(np.abs(np.log(model.frequencies / model.frequencies[k])))
+        near = [j for j in order if j != k][:nulls]
+        rows.append(np.linalg.pinv(c[[k, *near]]) @ np.eye(len(near) + 1)[0])
+    return np.array(rows)
+
+
+class RLSTracker:
+    """Per-mode recursive least squares on the demodulated envelopes.
+
+    Parameters
+    ----------
+    frequencies, damping : array_like, shape (k,)
+        The model's resonances (Hz) and damping ratios: the first carriers and estimates.
+    control_rate : float
+        Envelope sample rate (Hz).
+    memory : float
+        Forgetting time constant (s), at least: the estimates follow changes over about this
+        long. A mode whose own time constant ``1 / (zeta w)`` is longer gets ``settle`` times
+        that instead (its response carries no faster information).
+    settle : float
+    retune : float
+        Retune a carrier when the estimate is off by this fraction of ``zeta f``.
+    lost_error : float
+        A mode is lost when the RMS prediction error exceeds this fraction of its RMS response.
+    """
+
+    def __init__(self, frequencies, damping, control_rate: float, memory: float = 2e-3, settle: float = 0.5,
+                 retune: float = 0.1, lost_error: float = 0.3, min_drive: float = 1e-3):
+        self.frequencies = np.array(frequencies, float)
+        self.damping = np.array(damping, float)
+        self.carriers = self.frequencies.copy()
+        self.period = 1 / float(control_rate)
+        w = 2 * np.pi * self.frequencies
+        self.memory = np.maximum(memory, settle / (self.damping * w))
+        self.forget = np.exp(-self.period / self.memory)
+        self.retune_fraction, self.lost_error, self.min_drive = retune, lost_error, min_drive
+        k = self.frequencies.size
+        a0 = np.exp(-self.damping * w * self.period)
+        self.theta = np.zeros((k, 3), complex)
+        self.theta[:, 0] = a0
+        self.P = np.tile(np.eye(3, dtype=complex) * 1e4, (k, 1, 1))
+        self._prev = np.zeros((k, 2), complex)  # y[n-1], f[n-1]
+        self._scale = None
+        self._err = np.zeros(k)
+        self._power = np.full(k, 1e-30)
+        self._drive = np.zeros(k)
+        self.status = np.full(k, UNEXCITED, dtype=object)
+        self.retuned = np.zeros(k, int)
+
+    def update(self, response: np.ndarray, drive: np.ndarray) -> None:
+        """Learn from new envelopes, shapes (k, m) complex: the mode's response and its drive."""
+        response, drive = np.atleast_2d(response), np.atleast_2d(drive)
+        if self._scale is None:  # drive level from the first block, response level from the model at resonance
+            drive_rms = np.maximum(np.sqrt(np.mean(np.abs(drive) ** 2, axis=1)), 1e-30)
+            self._scale = drive_rms / (2 * self.damping * 2 * np.pi * self.frequencies), drive_rms
+        y_all, f_all = response / self._scale[0][:, None], drive / self._scale[1][:, None]
+        lam, smooth = self.forget, 1 - self.forget
+        for y, f in zip(y_all.T, f_all.T):
+            phi = np.column_stack([self._prev[:, 0], self._prev[:, 1], f])  # (k, 3)
+            err = y - np.einsum("kj,kj->k", phi, self.theta)
+            self._drive = (1 - smooth) * self._drive + smooth * np.abs(f) ** 2
+            self._err = (1 - smooth) * self._err + smooth * np.abs(err) ** 2
+            self._power = (1 - smooth) * self._power + smooth * np.abs(y) ** 2
+            learn = self._drive > self.min_drive
+            pc = np.einsum("kij,kj->ki", self.P, phi.conj())
+            gain = pc / (lam + np.einsum("kj,kj->k", phi, pc))[:, None]
+            self.theta[learn] += gain[learn] * err[learn, None]
+            self.P[learn] = (self.P[learn] - np.einsum("ki,kj->kij", gain[learn],
+                                                       np.einsum("kj,kji->ki", phi[learn], self.P[learn]))) \
+                / lam[learn, None, None]
+            self._prev = np.column_stack([y, f])
+        self._read()
+
+    def _read(self) -> None:
+        """Resonances and damping from ``a``; status; carrier retuning."""
+        a = self.theta[:, 0]
+        decay = -np.log(np.maximum(np.abs(a), 1e-300)) / self.period  # zeta w (1/s)
+        detune = np.angle(a) / self.period  # w_d - w_c (rad/s)
+        wd = 2 * np.pi * self.carriers + detune
+        w = np.sqrt(wd**2 + decay**2)
+        zeta = decay / w
+        excited = self._drive > self.min_drive
+        plausible = (zeta > 0) & (zeta < 0.3) & (np.abs(detune) < 0.05 * 2 * np.pi * self.carriers)
+        fits = self._err <= self.lost_error**2 * self._power
+        self.status = np.where(~excited, UNEXCITED, np.where(plausible & fits, TRACKING, LOST)).astype(object)
+        ok = self.status == TRACKING
+        self.frequencies[ok] = w[ok] / (2 * np.pi)
+        self.damping[ok] = zeta[ok]
+        off = ok & (np.abs(self.frequencies - self.carriers) > self.retune_fraction * self.damping * self.frequencies)
+        if off.any():
+            delta = self.frequencies[off] - self.carriers[off]
+            self.theta[off, 0] *= np.exp(-2j * np.pi * delta * self.period)
+            self.carriers[off] = self.frequencies[off]
+            self.retuned[off] += 1
