@@ -65,7 +65,7 @@ def dither_envelopes(rng, periods: np.ndarray, n: int) -> np.ndarray:
 def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: float = 500e3,
                  control_rate: float = 20e3, snr_db: float | None = 40.0, velocity: float = 5e-3,
                  dither_period: float = 2e-3, chunk: float = 1e-3, seed: int = 0, tracker: str = "rls",
-                 tracker_options: dict | None = None) -> TrackingRun:
+                 tracker_options: dict | None = None, plan=None) -> TrackingRun:
     """Track ``modes`` (positional) of ``truth`` for ``duration`` seconds while it drifts.
 
     Parameters
@@ -76,15 +76,18 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
         Peak velocity each mode is held at on the grid (m/s).
     tracker : str
         Tracker plugin name; ``tracker_options`` go to its ``create``.
+    plan : modalctl.planner.Plan, optional
+        Drive the modes with this focus plan (its modal drives and actuator weights, sampled
+        at ``sample_rate``) instead of dithered carriers: tracking during a focus shot.
     """
     import time
 
-    modes = np.asarray(modes, int)
+    modes = np.asarray(modes if plan is None else plan.modes, int)
     model = truth.select(modes)
     rng = np.random.default_rng(seed)
     decimation = int(round(sample_rate / control_rate))
     n_chunk = int(round(chunk * sample_rate / decimation)) * decimation
-    weights = dispatch(truth, modes, np.ones(modes.size))  # (a, k): b_k . g_k = 1
+    weights = dispatch(truth, modes, np.ones(modes.size)) if plan is None else plan.weights  # (a, k)
     level = 2 * model.damping * model.omega * velocity / np.max(np.abs(model.shapes), axis=1)  # force at resonance
     sensors = sensor_weights(truth, modes)  # (k, s): each mode read, its nearest neighbours nulled
     plant = Plant(truth, sample_rate, hold="foh")
@@ -105,7 +108,10 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
             plant.retune(shifted)
         phases = osc.advance(n_chunk)
         envelope = envelopes[:, start:start + n_chunk]
-        force = level[:, None] * envelope * np.cos(phases)  # intended modal drive (k, n)
+        if plan is None:
+            force = level[:, None] * envelope * np.cos(phases)  # intended modal drive (k, n)
+        else:
+            force = plan.modal((start + np.arange(n_chunk) + 0.5) / sample_rate)[1]
         velocity_modal = plant.step(weights @ force)
         measured = plant.sensors(velocity_modal)
         if snr_db is not None:
