@@ -113,6 +113,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("identify", help="identify a structure's modes from FRFs measured through a device")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
     p.add_argument("--scene", help="sim://: the structure simulated (and its mass per length by default)")
+    p.add_argument("--frf", help="identify from measured FRFs in a universal file (datasets 58 and 15) instead")
     p.add_argument("--snr", type=float, default=40.0, help="sim://: vibrometer noise, dB below the peak (40)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--f-low", type=_quantity("Hz", "f-low"), default=100.0, help="sweep start (100Hz)")
@@ -262,12 +263,12 @@ def _identify(args) -> int:
     import numpy as np
 
     from .device import open_device
-    from .frf import Sweep
+    from .frf import Sweep, read_uff58
     from .hil.scenario import Perturbation
-    from .survey import beam_wavelength, identify_device
+    from .survey import beam_wavelength, identify_device, identify_frf
 
     scene = load_scene(args.scene) if args.scene else None
-    if args.transport.startswith("sim") and scene is None:
+    if args.frf is None and args.transport.startswith("sim") and scene is None:
         raise ModelError("identify: the simulator needs --scene (the structure to simulate)")
     meta = scene.meta if scene is not None else {}
     mass = args.mass_per_length
@@ -276,14 +277,18 @@ def _identify(args) -> int:
             mass = meta["density_kg_m3"] * meta["width_m"] * meta["thickness_m"]
         except KeyError:
             raise ModelError("identify: give --mass-per-length (kg/m): it scales the shapes and gains") from None
-    sweep = Sweep.design(args.f_low, args.f_high, args.resolution, args.amplitude)
-    device = open_device(args.transport, model=scene, perturbation=Perturbation(snr_db=args.snr, seed=args.seed))
-    caps = device.configure(sweep.sample_rate)
-    x = np.asarray(caps.scan_points, float)[:, 0]
-    points = np.flatnonzero(np.diff(np.floor((x - x[0]) / args.step + 1e-9), prepend=-1) > 0)
-    survey = identify_device(device, sweep, points, mass, method=args.method, primary=args.primary,
-                             averages=args.averages, orthogonalize=not args.no_orthogonalize,
-                             wavelength=beam_wavelength(meta, args.f_high), progress=not args.quiet)
+    if args.frf:
+        survey = identify_frf(read_uff58(args.frf), mass, args.method, not args.no_orthogonalize)
+        points = np.arange(survey.model.grid.n)
+    else:
+        sweep = Sweep.design(args.f_low, args.f_high, args.resolution, args.amplitude)
+        device = open_device(args.transport, model=scene, perturbation=Perturbation(snr_db=args.snr, seed=args.seed))
+        caps = device.configure(sweep.sample_rate)
+        x = np.asarray(caps.scan_points, float)[:, 0]
+        points = np.flatnonzero(np.diff(np.floor((x - x[0]) / args.step + 1e-9), prepend=-1) > 0)
+        survey = identify_device(device, sweep, points, mass, method=args.method, primary=args.primary,
+                                 averages=args.averages, orthogonalize=not args.no_orthogonalize,
+                                 wavelength=beam_wavelength(meta, args.f_high), progress=not args.quiet)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     path = survey.model.save(out)

@@ -18,7 +18,7 @@ import scipy.fft
 
 from .model import ModelError
 
-__all__ = ["Sweep", "FRF", "H1", "mobility", "bending_wavelength", "check_spatial_step", "SpatialAliasingWarning"]
+__all__ = ["Sweep", "FRF", "H1", "mobility", "read_uff58", "bending_wavelength", "check_spatial_step", "SpatialAliasingWarning"]
 
 
 class SpatialAliasingWarning(UserWarning):
@@ -239,6 +239,46 @@ def mobility(freqs: np.ndarray, frequencies, damping, constants) -> np.ndarray:
     wk = 2 * np.pi * np.atleast_1d(np.asarray(frequencies, float))[:, None]
     zk = np.atleast_1d(np.asarray(damping, float))[:, None]
     return np.atleast_2d(constants).T @ (1j * w / (wk**2 - w**2 + 2j * zk * wk * w))
+
+
+def read_uff58(path) -> FRF:
+    """Measured FRFs from a universal file: datasets 58 (one FRF each, one reference) and the
+    node coordinates of dataset 15 (metres assumed), needs the optional ``pyuff``.
+
+    Rows follow the order of the response nodes in dataset 15; the coherence is unknown (ones).
+    """
+    from pathlib import Path
+
+    from .model import ModelError
+
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"uff: no such file {str(path)!r}")
+    try:
+        import pyuff
+    except ImportError:
+        raise ModelError("uff: reading UFF files needs pyuff: pip install 'modalctl[uff]'") from None
+    sets = pyuff.UFF(str(path)).read_sets()
+    sets = sets if isinstance(sets, list) else [sets]
+    nodes = [s for s in sets if s.get("type") == 15]
+    frfs = [s for s in sets if s.get("type") == 58]
+    if not frfs or not nodes:
+        raise ModelError(f"uff: {str(path)!r} needs datasets 58 (FRFs) and 15 (node coordinates)")
+    refs = {int(s["ref_node"]) for s in frfs}
+    if len(refs) != 1:
+        raise ModelError(f"uff: FRFs of several references {sorted(refs)}; give one actuator per file")
+    where = {int(n): i for i, n in enumerate(nodes[0]["node_nums"])}
+    xyz = np.column_stack([nodes[0]["x"], nodes[0]["y"], nodes[0]["z"]])
+    frfs = sorted(frfs, key=lambda s: where.get(int(s["rsp_node"]), -1))
+    missing = [int(s["rsp_node"]) for s in frfs if int(s["rsp_node"]) not in where]
+    if missing:
+        raise ModelError(f"uff: response nodes {missing} have no coordinates in dataset 15")
+    freqs = np.asarray(frfs[0]["x"], float)
+    values = np.array([np.asarray(s["data"], complex) for s in frfs])
+    points = xyz[[where[int(s["rsp_node"])] for s in frfs]]
+    used = np.any(points != 0, axis=0)
+    points = points[:, used] if used.any() else points[:, :1]
+    return FRF(freqs, values, np.ones(values.shape), points, 0, 1)
 
 
 def bending_wavelength(frequency: float, modulus: float, density: float, thickness: float) -> float:

@@ -24,7 +24,7 @@ from .modal import crosstalk, orthonormalize_model
 from .model import Grid, ModalModel, quadrature_weights
 from .plugin import get_identifier
 
-__all__ = ["Survey", "identify_device", "WEAK_DRIVE"]
+__all__ = ["Survey", "identify_device", "identify_frf", "WEAK_DRIVE"]
 
 WEAK_DRIVE = 0.1  # a mode the primary actuator drives below this fraction of the best one is rescanned
 
@@ -165,6 +165,25 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
     return Survey(model, poles, drive[resolved][order], chooser[resolved][order], before, after, notes,
                   {"acquisition": acquisition - frf_seconds, "frf": frf_seconds, "modal": compute},
                   {"sparse": sparse_frf, "full": full_frf})
+
+
+def identify_frf(frf: FRF, mass_per_length: float, method: str = "sdof", orthogonalize: bool = True,
+                 threshold_db: float = 3.0) -> Survey:
+    """A model from measured FRFs of one actuator along a beam (e.g. read from UFF 58)."""
+    start = time.perf_counter()
+    poles = get_identifier(method).identify(frf, threshold_db=threshold_db)
+    model = to_model(poles, _grid(frf.points, mass_per_length), 1, source="identified from measured FRFs")
+    model = actuator_gains(model, frf, np.arange(frf.values.shape[0]))
+    before = crosstalk(model.shapes, model.grid.mass)
+    if orthogonalize:
+        model = orthonormalize_model(model)
+    notes = [f"unresolved peak at {f:.1f} Hz: one pole cannot explain it (close modes?); left out"
+             for f in poles.frequencies[~poles.resolved]]
+    order = np.argsort(poles.frequencies[poles.resolved])
+    return Survey(model, poles, np.ones((model.n_modes, 1)), np.zeros(model.n_modes, int), before,
+                  crosstalk(model.shapes, model.grid.mass), notes,
+                  {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},
+                  {"sparse": {0: frf}, "full": {0: frf}})
 
 
 def beam_wavelength(model_meta: dict, f_high: float) -> float | None:

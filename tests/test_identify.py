@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from modalctl.frf import FRF, Sweep, SpatialAliasingWarning, check_spatial_step
+from modalctl.frf import FRF, Sweep, SpatialAliasingWarning, check_spatial_step, read_uff58
 from modalctl.hil.device import SimDevice
 from modalctl.hil.scenario import Perturbation
 from modalctl.identify import peak_picking, sdof_fit
@@ -164,3 +164,44 @@ def test_focus_with_the_identified_model(survey):
 
 def test_identifier_plugins_are_registered():
     assert {"peaks", "sdof"} <= set(identifiers())
+
+
+def test_uff58_round_trip(tmp_path):
+    """FRFs written as UFF 58 with pyuff (and nodes as UFF 15) read back and identify the same modes."""
+    pyuff = pytest.importorskip("pyuff")
+    freqs = np.arange(200, 4000, 1.0)
+    frf = analytic_frf(freqs, TWO_MODES)
+    path = tmp_path / "beam.uff"
+    uff = pyuff.UFF(str(path))
+    nodes = np.arange(1, X.size + 1)
+    uff.write_sets(pyuff.prepare_15(node_nums=nodes, x=X, y=np.zeros(X.size), z=np.zeros(X.size)), mode="add")
+    for node, row in zip(nodes, frf.values):
+        uff.write_sets(pyuff.prepare_58(func_type=4, rsp_node=int(node), rsp_dir=3, ref_node=100, ref_dir=3,
+                                        data=row, x=freqs, id1="mobility", rsp_ent_name="beam", ref_ent_name="beam",
+                                        abscissa_spacing=1, abscissa_spec_data_type=18, ordinate_spec_data_type=11,
+                                        orddenom_spec_data_type=13), mode="add")
+    back = read_uff58(path)
+    assert np.allclose(back.frequencies, freqs) and np.allclose(back.points[:, 0], X)
+    assert np.allclose(back.values, frf.values, rtol=1e-6, atol=1e-9 * np.abs(frf.values).max())
+    modes = sdof_fit(back)
+    assert np.allclose(modes.frequencies, [1000, 2500], rtol=1e-5)
+    from modalctl.survey import identify_frf
+
+    model = identify_frf(back, mass_per_length=1.9).model
+    assert model.n_modes == 2 and all(mac(model.shapes[k], s[2]) > 0.999 for k, s in enumerate(TWO_MODES))
+
+
+def test_identify_cli_on_the_hil_and_bad_input(tmp_path):
+    from modalctl.cli import main
+
+    out = tmp_path / "beam.npz"
+    code = main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--step", "2mm", "--out", str(out),
+                 "--quiet", "--no-plots", "--json"])
+    assert code == 0
+    from modalctl.model import ModalModel
+
+    model = ModalModel.load(out)
+    assert model.n_modes == 5 and model.actuator_gains.shape == (5, 8)
+    assert main(["identify", "--out", str(out)]) == 2  # the simulator needs a scene
+    assert main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--method", "nope",
+                 "--out", str(out)]) == 2
