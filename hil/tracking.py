@@ -64,7 +64,7 @@ def dither_envelopes(rng, periods: np.ndarray, n: int) -> np.ndarray:
 
 def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: float = 500e3,
                  control_rate: float = 20e3, snr_db: float | None = 40.0, velocity: float = 5e-3,
-                 dither_period: float = 2e-3, chunk: float = 1e-3, seed: int = 0, tracker: str = "rls",
+                 dither_period: float = 2e-3, chunk: float = 1e-3, seed: int = 0, tracker: str = "pole",
                  tracker_options: dict | None = None, plan=None) -> TrackingRun:
     """Track ``modes`` (positional) of ``truth`` for ``duration`` seconds while it drifts.
 

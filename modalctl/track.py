@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RLSTracker", "sensor_weights", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
+__all__ = ["RLSTracker", "PoleTracker", "sensor_weights", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
 
 TRACKING, UNEXCITED, LOST = "tracking", "unexcited", "lost"
 
@@ -149,3 +149,53 @@ class RLSTracker:
             self.theta[off, 0] *= np.exp(-2j * np.pi * delta * self.period)
             self.carriers[off] = self.frequencies[off]
             self.retuned[off] += 1
+
+
+class PoleTracker(RLSTracker):
+    """Per-mode recursive least squares on the pole alone, the modal gain taken from the model.
+
+    In the carrier's frame the lock-in envelopes obey ``y' = p y + r f`` with ``r`` the mode's
+    velocity residue (``lambda / (lambda - conj(lambda))``, known from the model; the dispatch
+    makes the modal force one per unit of drive). Discretized exactly for a linear drive between
+    samples, ``y[n] - r (g0 f[n-1] + g1 f[n]) = a y[n-1]``: one complex unknown ``a = exp(p T)``
+    per mode. Unlike the three-parameter fit, one complex exponential drive (a focus envelope, or
+    a steady carrier) already determines it; a gain error ``e`` moves the pole by about ``e``
+    times the distance from the drive's complex frequency to the pole.
+
+    Parameters are those of :class:`RLSTracker`.
+    """
+
+    def update(self, response: np.ndarray, drive: np.ndarray) -> None:
+        """Learn from new envelopes, shapes (k, m) complex: the mode's response and its drive."""
+        from .propagate import hold_coefficients
+
+        response, drive = np.atleast_2d(response), np.atleast_2d(drive)
+        if self._scale is None:
+            self._scale = np.ones(response.shape[0])
+            self.P = np.full(response.shape[0], 1e4)  # scalar covariance per mode
+        level = np.maximum(np.sqrt(np.mean(np.abs(response) ** 2, axis=1)), 1e-300)
+        grow = level > self._scale  # one common scale for y and f (the relation is homogeneous)
+        self._prev[grow] *= (self._scale[grow] / level[grow])[:, None]
+        self._scale = np.where(grow, level, self._scale)
+        y_all, f_all = response / self._scale[:, None], drive / self._scale[:, None]
+        a = self.theta[:, 0]
+        p = np.log(a) / self.period
+        w = 2 * np.pi * self.carriers
+        lam = p + 1j * w  # pole in the fixed frame
+        r = lam / (lam - lam.conj())
+        _, g0, g1 = hold_coefficients(p, self.period, "foh")
+        lam_f, smooth = self.forget, 1 - self.forget
+        for y, f in zip(y_all.T, f_all.T):
+            target = y - r * (g0 * self._prev[:, 1] + g1 * f)
+            phi = self._prev[:, 0]
+            err = target - a * phi
+            self._drive = (1 - smooth) * self._drive + smooth * np.abs(f) ** 2 / (np.abs(f) ** 2 + np.abs(y) ** 2 + 1e-300)
+            self._err = (1 - smooth) * self._err + smooth * np.abs(err) ** 2
+            self._power = (1 - smooth) * self._power + smooth * np.abs(y) ** 2
+            learn = np.abs(f) > 0
+            gain = self.P * phi.conj() / (lam_f + self.P * np.abs(phi) ** 2)
+            a = np.where(learn, a + gain * err, a)
+            self.P = np.where(learn, (self.P - gain * phi * self.P) / lam_f, self.P)
+            self._prev = np.column_stack([y, f])
+        self.theta[:, 0] = a
+        self._read()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from modalctl.hookspecs import hookimpl
 from modalctl.identify import Identifier, peak_picking, sdof_fit
-from modalctl.track import RLSTracker, TrackerFactory
+from modalctl.track import PoleTracker, RLSTracker, TrackerFactory
 
 
 @hookimpl
@@ -20,4 +20,6 @@ def modalctl_identifiers():
 @hookimpl
 def modalctl_trackers():
     return [TrackerFactory("rls", "per-mode recursive least squares on the lock-in envelopes, "
-                                  "carriers retuned to the estimates", RLSTracker)]
+                                  "carriers retuned to the estimates", RLSTracker),
+            TrackerFactory("pole", "per-mode recursive least squares on the pole, gain from the model: "
+                                   "learns from any drive, a focus envelope included", PoleTracker)]
