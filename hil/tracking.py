@@ -28,7 +28,8 @@ __all__ = ["TrackingRun", "run_tracking", "dither_envelopes", "step", "ramp"]
 @dataclass
 class TrackingRun:
     """Time series at the control rate: ``times`` (n,), ``estimates``, ``truth`` (k, n) in Hz,
-    ``damping`` (k, n), ``status`` (k, n) strings, and the per-step tracker time (s)."""
+    ``damping`` (k, n), ``status`` (k, n) strings, the per-step tracker time (s), the tracked
+    ``modes`` (positional) and the ``tracker`` at the end."""
 
     times: np.ndarray
     estimates: np.ndarray
@@ -36,6 +37,8 @@ class TrackingRun:
     damping: np.ndarray
     status: np.ndarray
     step_seconds: np.ndarray
+    modes: np.ndarray | None = None
+    tracker: object = None
 
 
 def step(at: float, size: float):
@@ -129,4 +132,4 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
         rows["zeta"].append(tracker.damping.copy())
         rows["status"].append(tracker.status.copy())
     return TrackingRun(np.array(rows["t"]), np.array(rows["est"]).T, np.array(rows["truth"]).T,
-                       np.array(rows["zeta"]).T, np.array(rows["status"]).T, np.array(rows["cost"]))
+                       np.array(rows["zeta"]).T, np.array(rows["status"]).T, np.array(rows["cost"]), modes, tracker)

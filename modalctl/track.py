@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RLSTracker", "PoleTracker", "sensor_weights", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
+__all__ = ["RLSTracker", "PoleTracker", "sensor_weights", "updated_model", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
 
 TRACKING, UNEXCITED, LOST = "tracking", "unexcited", "lost"
 
@@ -199,3 +199,24 @@ class PoleTracker(RLSTracker):
             self._prev = np.column_stack([y, f])
         self.theta[:, 0] = a
         self._read()
+
+
+def updated_model(model, modes, tracker):
+    """``model`` with the tracked modes' resonances and damping replaced by the tracker's
+    estimates where it is tracking (others keep the model's values): what the planner and the
+    controllers plan the next shot with.
+
+    Parameters
+    ----------
+    model : ModalModel
+    modes : sequence of int
+        Positional indices in ``model`` of the tracker's modes, in its order.
+    tracker : object with ``frequencies``, ``damping``, ``status``
+    """
+    from dataclasses import replace
+
+    f, z = np.array(model.frequencies, copy=True), np.array(model.damping, copy=True)
+    ok = np.asarray(tracker.status) == TRACKING
+    idx = np.asarray(modes, int)[ok]
+    f[idx], z[idx] = np.asarray(tracker.frequencies)[ok], np.asarray(tracker.damping)[ok]
+    return replace(model, frequencies=f, damping=z)

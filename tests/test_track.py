@@ -71,3 +71,27 @@ def test_pole_tracker_learns_during_a_focus_shot():
 
 def test_trackers_are_plugins():
     assert {"rls", "pole"} <= set(trackers())
+
+
+def test_tracked_model_plans_a_better_focus():
+    """Truth 1% above the model: one focus shot tracked with the pole tracker, then the next shot planned
+    with the updated model focuses better on that truth than the stale model does."""
+    from modalctl.decompose import decompose
+    from modalctl.hil.device import SimDevice
+    from modalctl.hil.scenario import Perturbation
+    from modalctl.planner import plan
+    from modalctl.plugin import get_shape
+    from modalctl.run import run_open_loop
+    from modalctl.shape import parse_params
+    from modalctl.track import updated_model
+
+    model = load_scene("thesis-al-cc", 211)
+    sinc = get_shape("sinc")
+    shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        shot = plan(decompose(model, shape, "auto"), 0.025, sample_rate=500e3)
+        run = run_tracking(model, None, step(0.0, 0.01), 0.029, snr_db=40.0, plan=shot, tracker="pole")
+        taus = [run_open_loop(m, shape, SimDevice(model, Perturbation(drift=0.01)), 0.025).metrics["tau"]
+                for m in (model, updated_model(model, run.modes, run.tracker))]
+    assert taus[1] > taus[0] + 0.02
