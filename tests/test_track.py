@@ -48,20 +48,26 @@ def test_unexcited_and_lost_are_reported():
     assert tracker.status[1] == LOST
 
 
-def test_pole_tracker_learns_during_a_focus_shot():
-    """The truth 1% above the model; the planned modes tracked from the focus drive alone (40 dB):
-    at the focus, modes 5, 6 and 8 are known within 0.05% (the slow low modes need longer)."""
+@pytest.fixture(scope="module")
+def focus():
+    """thesis-al-cc, the sinc 18 mm at 24 mm, and its focus plan at 25 ms sampled at 500 kHz."""
     from modalctl.decompose import decompose
-    from modalctl.plugin import get_shape
     from modalctl.planner import plan
+    from modalctl.plugin import get_shape
     from modalctl.shape import parse_params
 
-    truth = load_scene("thesis-al-cc", 211)
+    model = load_scene("thesis-al-cc", 211)
     sinc = get_shape("sinc")
-    shape = sinc.generate(truth.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
+    shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        shot = plan(decompose(truth, shape, "auto"), 0.025, sample_rate=500e3)
+        return model, shape, plan(decompose(model, shape, "auto"), 0.025, sample_rate=500e3)
+
+
+def test_pole_tracker_learns_during_a_focus_shot(focus):
+    """The truth 1% above the model; the planned modes tracked from the focus drive alone (40 dB):
+    at the focus, modes 5, 6 and 8 are known within 0.05% (the slow low modes need longer)."""
+    truth, _, shot = focus
     run = run_tracking(truth, None, step(0.0, 0.01), 0.025, snr_db=40.0, plan=shot, tracker="pole")
     error = run.estimates[:, -1] / run.truth[:, -1] - 1
     for label in (5, 6, 8):
@@ -73,25 +79,18 @@ def test_trackers_are_plugins():
     assert {"rls", "pole"} <= set(trackers())
 
 
-def test_tracked_model_plans_a_better_focus():
+def test_tracked_model_plans_a_better_focus(focus):
     """Truth 1% above the model: one focus shot tracked with the pole tracker, then the next shot planned
     with the updated model focuses better on that truth than the stale model does."""
-    from modalctl.decompose import decompose
     from modalctl.hil.device import SimDevice
     from modalctl.hil.scenario import Perturbation
-    from modalctl.planner import plan
-    from modalctl.plugin import get_shape
     from modalctl.run import run_open_loop
-    from modalctl.shape import parse_params
     from modalctl.track import updated_model
 
-    model = load_scene("thesis-al-cc", 211)
-    sinc = get_shape("sinc")
-    shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
+    model, shape, shot = focus
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        shot = plan(decompose(model, shape, "auto"), 0.025, sample_rate=500e3)
         run = run_tracking(model, None, step(0.0, 0.01), 0.029, snr_db=40.0, plan=shot, tracker="pole")
         taus = [run_open_loop(m, shape, SimDevice(model, Perturbation(drift=0.01)), 0.025).metrics["tau"]
                 for m in (model, updated_model(model, run.modes, run.tracker))]
-    assert taus[1] > taus[0] + 0.02
+    assert taus[1] > taus[0] + 0.1
