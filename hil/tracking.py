@@ -16,11 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from modalctl.dispatch import dispatch
-from modalctl.lockin import LockIn, Oscillators, lockin_bandwidths
+from modalctl.lockin import LockIn, Oscillators, hold_gain, lockin_bandwidths
 from modalctl.model import ModalModel
 from modalctl.propagate import Plant
 from modalctl.plugin import get_tracker
-from modalctl.track import sensor_weights
+from modalctl.track import feedthrough, sensor_weights
 
 __all__ = ["TrackingRun", "run_tracking", "dither_envelopes", "step", "ramp"]
 
@@ -76,7 +76,8 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
     truth : ModalModel
         Starts as the model the tracker knows; its resonances then move by ``drift(t, k)``.
     velocity : float
-        Peak velocity each mode is held at on the grid (m/s).
+        Peak velocity each mode is held at on the grid (m/s); the sensor noise is ``snr_db`` below
+        it (below the plan's focus peak when ``plan`` is given).
     tracker : str
         Tracker plugin name; ``tracker_options`` go to its ``create``.
     plan : modalctl.planner.Plan, optional
@@ -96,6 +97,8 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
     plant = Plant(truth, sample_rate, hold="foh")
     osc = Oscillators(model.frequencies, sample_rate)
     bands = lockin_bandwidths(truth.frequencies, control_rate)[modes]
+    held = hold_gain(model.frequencies, sample_rate, "foh")
+    leak = feedthrough(truth, modes, sensors, weights)  # the other modes' answer to each mode's drive
     lock_y, lock_f = LockIn(bands, sample_rate, decimation), LockIn(bands, sample_rate, decimation)
     tracker = get_tracker(tracker).create(model.frequencies, model.damping, control_rate, **(tracker_options or {}))
     periods = np.maximum(dither_period, 0.5 / (model.damping * model.omega))  # slow modes: slow dither
@@ -103,7 +106,8 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
     envelopes = dither_envelopes(rng, np.round(periods * sample_rate).astype(int), total)
     base = truth.frequencies.copy()
     rows = {"t": [], "est": [], "truth": [], "zeta": [], "status": [], "cost": []}
-    noise_peak = None
+    # noise: SNR below the velocity the run is about (the held level, or the focus peak of the plan)
+    reference = velocity if plan is None else float(np.max(np.abs(plan.focus_peak)))
     for start in range(0, int(duration * sample_rate), n_chunk):
         t0 = start / sample_rate
         shifted = base * (1 + drift(t0, truth.n_modes))
@@ -118,12 +122,11 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
         velocity_modal = plant.step(weights @ force)
         measured = plant.sensors(velocity_modal)
         if snr_db is not None:
-            noise_peak = noise_peak or np.max(np.abs(measured))
-            measured = measured + noise_peak / 10 ** (snr_db / 20) * rng.standard_normal(measured.shape)
+            measured = measured + reference / 10 ** (snr_db / 20) * rng.standard_normal(measured.shape)
         y = lock_y.process(sensors @ measured, phases)
-        f = lock_f.process(force, phases)
+        f = lock_f.process(force, phases) * held[:, None]  # the drive as the structure receives it
         tic = time.perf_counter()
-        tracker.update(y, f)
+        tracker.update(y - leak[:, None] * f, f)
         rows["cost"].append((time.perf_counter() - tic) / y.shape[1])
         osc.retune(tracker.carriers)
         rows["t"].append(t0 + chunk)

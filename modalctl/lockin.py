@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import butter, sosfilt
 
-__all__ = ["Oscillators", "LockIn", "lockin_bandwidths"]
+__all__ = ["Oscillators", "LockIn", "lockin_bandwidths", "hold_gain"]
 
 
 class Oscillators:
@@ -54,6 +54,18 @@ def lockin_bandwidths(frequencies: np.ndarray, control_rate: float, fraction: fl
     gaps = np.abs(f[:, None] - f[None, :]) + np.diag(np.full(f.size, np.inf))
     nearest = gaps.min(axis=1) if f.size > 1 else np.full(1, np.inf)
     return np.minimum(np.minimum(fraction * nearest, image * f), control_rate / 5)
+
+
+def hold_gain(frequencies, sample_rate: float, hold: str) -> np.ndarray:
+    """Complex gain of the DAC's hold at each carrier, shape (k,): what a sampled drive becomes
+    once held between samples (first-order hold: ``sinc^2``, 4% down at a tenth of the rate;
+    zero-order hold: ``sinc`` and half a sample of delay)."""
+    x = np.asarray(frequencies, float) / sample_rate
+    if hold == "foh":
+        return np.sinc(x) ** 2 + 0j
+    if hold == "zoh":
+        return np.sinc(x) * np.exp(-1j * np.pi * x)
+    raise ValueError(f"hold must be 'zoh' or 'foh', got {hold!r}")
 
 
 class LockIn:

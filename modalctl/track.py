@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RLSTracker", "PoleTracker", "sensor_weights", "updated_model", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
+__all__ = ["RLSTracker", "PoleTracker", "sensor_weights", "feedthrough", "updated_model", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
 
 TRACKING, UNEXCITED, LOST = "tracking", "unexcited", "lost"
 
@@ -61,6 +61,33 @@ def sensor_weights(model, modes, nulls: int = 0) -> np.ndarray:
     return np.array(rows)
 
 
+def feedthrough(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.ndarray:
+    """What each mode's reading picks up from the *other* modes answering its own drive, shape (k,).
+
+    Mode ``modes[i]`` is driven at its carrier through actuator weights ``actuators[:, i]``;
+    every other mode j answers at that frequency with ``H_j(j w_i) (b_j . g_i)`` (off resonance,
+    nearly independent of drift) and reaches the reading ``sensors[i]`` through ``C_j``. The sum
+    multiplies the drive envelope in the mode's frame: subtract it from the response envelope
+    before tracking (a pole tracker would read it as a pole shift).
+
+    Parameters
+    ----------
+    sensors : ndarray, shape (k, s)
+        Sensor weights per tracked mode.
+    actuators : ndarray, shape (a, k)
+        Actuator weights per tracked mode (unit modal force).
+    """
+    modes = np.asarray(modes, int)
+    s = 2j * np.pi * model.frequencies[modes]  # (k,)
+    w, z = model.omega, model.damping
+    h = s[:, None] / (s[:, None] ** 2 + 2 * z * w * s[:, None] + w**2)  # (k, all modes): H_j(j w_i)
+    drive = (model.actuator_gains @ actuators).T  # (k, all): b_j . g_i
+    seen = sensors @ model.sensor_gains.T  # (k, all): w_i . C_j
+    terms = h * drive * seen
+    terms[np.arange(modes.size), modes] = 0  # the mode itself is what is tracked
+    return terms.sum(axis=1)
+
+
 class RLSTracker:
     """Per-mode recursive least squares on the demodulated envelopes.
 
@@ -78,19 +105,22 @@ class RLSTracker:
     retune : float
         Retune a carrier when the estimate is off by this fraction of ``zeta f``.
     lost_error : float
-        A mode is lost when the RMS prediction error exceeds this fraction of its RMS response.
+        A mode is lost when the RMS prediction error exceeds this fraction of its RMS response,
+        or when its estimate leaves the model's resonance by more than ``max_drift`` (relative).
     """
 
     def __init__(self, frequencies, damping, control_rate: float, memory: float = 2e-3, settle: float = 0.5,
-                 retune: float = 0.1, lost_error: float = 0.3, min_drive: float = 1e-3):
+                 retune: float = 0.1, lost_error: float = 0.3, min_drive: float = 1e-3, max_drift: float = 0.05):
         self.frequencies = np.array(frequencies, float)
         self.damping = np.array(damping, float)
         self.carriers = self.frequencies.copy()
+        self.model_frequencies = self.frequencies.copy()
         self.period = 1 / float(control_rate)
         w = 2 * np.pi * self.frequencies
         self.memory = np.maximum(memory, settle / (self.damping * w))
         self.forget = np.exp(-self.period / self.memory)
         self.retune_fraction, self.lost_error, self.min_drive = retune, lost_error, min_drive
+        self.max_drift = max_drift
         k = self.frequencies.size
         a0 = np.exp(-self.damping * w * self.period)
         self.theta = np.zeros((k, 3), complex)
@@ -137,7 +167,7 @@ class RLSTracker:
         w = np.sqrt(wd**2 + decay**2)
         zeta = decay / w
         excited = self._drive > self.min_drive
-        plausible = (zeta > 0) & (zeta < 0.3) & (np.abs(detune) < 0.05 * 2 * np.pi * self.carriers)
+        plausible = (zeta > 0) & (zeta < 0.3) & (np.abs(w / (2 * np.pi * self.model_frequencies) - 1) < self.max_drift)
         fits = self._err <= self.lost_error**2 * self._power
         self.status = np.where(~excited, UNEXCITED, np.where(plausible & fits, TRACKING, LOST)).astype(object)
         ok = self.status == TRACKING
