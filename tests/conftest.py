@@ -13,3 +13,23 @@ def al_beam():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="session")
+def sinc18():
+    """thesis-al-cc (211 points), the thesis's sinc 18 mm at 24 mm, and its kappa = 1 focus plan at
+    25 ms sampled at 500 kHz: ``(model, shape, plan)``."""
+    import warnings
+
+    from modalctl.decompose import decompose
+    from modalctl.planner import plan
+    from modalctl.plugin import get_shape
+    from modalctl.scenes import load_scene
+    from modalctl.shape import parse_params
+
+    model = load_scene("thesis-al-cc", 211)
+    sinc = get_shape("sinc")
+    shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return model, shape, plan(decompose(model, shape, "auto"), 0.025, sample_rate=500e3)

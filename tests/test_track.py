@@ -48,27 +48,11 @@ def test_unexcited_and_lost_are_reported():
     assert tracker.status[1] == LOST
 
 
-@pytest.fixture(scope="module")
-def focus():
-    """thesis-al-cc, the sinc 18 mm at 24 mm, and its focus plan at 25 ms sampled at 500 kHz."""
-    from modalctl.decompose import decompose
-    from modalctl.planner import plan
-    from modalctl.plugin import get_shape
-    from modalctl.shape import parse_params
-
-    model = load_scene("thesis-al-cc", 211)
-    sinc = get_shape("sinc")
-    shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return model, shape, plan(decompose(model, shape, "auto"), 0.025, sample_rate=500e3)
-
-
-def test_pole_tracker_learns_during_a_focus_shot(focus):
+def test_pole_tracker_learns_during_a_focus_shot(sinc18):
     """The truth 1% above the model; the planned modes tracked from the focus drive alone (noise 40 dB
     below the focus peak): at the focus, modes 5, 6 and 7 are known within 0.1% (the slow low
     modes need longer than one shot)."""
-    truth, _, shot = focus
+    truth, _, shot = sinc18
     run = run_tracking(truth, None, step(0.0, 0.01), 0.025, snr_db=40.0, plan=shot, tracker="pole")
     error = run.estimates[:, -1] / run.truth[:, -1] - 1
     for label in (5, 6, 7):
@@ -80,7 +64,7 @@ def test_trackers_are_plugins():
     assert {"rls", "pole"} <= set(trackers())
 
 
-def test_tracked_model_plans_a_better_focus(focus):
+def test_tracked_model_plans_a_better_focus(sinc18):
     """Truth 1% above the model: one focus shot tracked with the pole tracker, then the next shot planned
     with the updated model focuses better on that truth than the stale model does."""
     from modalctl.hil.device import SimDevice
@@ -88,7 +72,7 @@ def test_tracked_model_plans_a_better_focus(focus):
     from modalctl.run import run_open_loop
     from modalctl.track import updated_model
 
-    model, shape, shot = focus
+    model, shape, shot = sinc18
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         run = run_tracking(model, None, step(0.0, 0.01), 0.029, snr_db=40.0, plan=shot, tracker="pole")

@@ -1,0 +1,34 @@
+"""Per-mode feedback on the HIL: the loops' design, and what they do to a focus."""
+
+import numpy as np
+
+from modalctl.control import design_loops
+from modalctl.hil.closed import run_focus
+from modalctl.hil.scenario import Perturbation, perturb
+
+
+def test_loop_design_keeps_its_phase_margin():
+    design = design_loops([368.0, 16327.0], [0.0118, 0.0072], [5e-3, 2e-4], 20e3, phase_margin=50)
+    assert np.all(design.phase_margin_deg >= 50)
+    assert design.crossover_hz[1] > design.crossover_hz[0]  # less delay, faster loop
+
+
+def test_feedback_recovers_the_focus_that_drift_spoils(sinc18):
+    """1% drift, 20% more damping, 40 dB noise: open loop loses the focus, the loops restore it."""
+    model, shape, shot = sinc18
+    truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
+    open_loop = run_focus(truth, shot, shape, closed=False)
+    closed = run_focus(truth, shot, shape, closed=True)
+    assert open_loop.tau < 0.85
+    assert closed.tau > 0.95
+
+
+def test_feedback_nearly_leaves_a_perfect_model_alone(sinc18):
+    """Truth = model: the error is the 40 dB sensor noise only; the loops (no observer yet) move tau by
+    less than 0.03 (measured 0.029 too high: they answer the noise)."""
+    model, shape, shot = sinc18
+    open_loop = run_focus(model, shot, shape, closed=False)
+    closed = run_focus(model, shot, shape, closed=True)
+    assert abs(closed.tau - open_loop.tau) < 0.03
+    noiseless = run_focus(model, shot, shape, closed=True, snr_db=None)
+    assert abs(noiseless.tau - open_loop.tau) < 2e-3
