@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/identify_limits.py
 	$(BIN)/python benchmarks/identify_cycle.py
 	$(BIN)/python benchmarks/tracking.py
+	$(BIN)/python benchmarks/closed_loop.py
 
 clean:
 	rm -rf $(VENV) demo

@@ -67,6 +67,9 @@ def run_focus(truth: ModalModel, plan, target, closed: bool = True, control_rate
     loops = EnvelopeLoops(design, control_rate, limit=np.zeros(modes.size))
     sensors = sensor_weights(model, modes)
     reference_level = plan.focus_peak
+    # envelope noise per mode: 2 sigma |w| sqrt(2 B / fs), B ~ the low-pass's noise bandwidth
+    sigma = 0.0 if snr_db is None else reference_level / 10 ** (snr_db / 20)
+    envelope_noise = 2 * sigma * np.linalg.norm(sensors, axis=1) * np.sqrt(2 * 1.03 * bands / fs)
     n_total = plan.times.size
     velocity = np.empty((truth.n_modes, n_total))
     command = np.zeros(modes.size, complex)
@@ -83,13 +86,15 @@ def run_focus(truth: ModalModel, plan, target, closed: bool = True, control_rate
         velocity[:, start:start + n] = plant.step(volts)
         measured = plant.sensors(velocity[:, start:start + n])
         if snr_db is not None:
-            measured = measured + reference_level / 10 ** (snr_db / 20) * rng.standard_normal(measured.shape)
+            measured = measured + sigma * rng.standard_normal(measured.shape)
         y = lock_y.process(sensors @ measured, phases)
         expected = predictor.sensors(predictor.step(feedforward))
         ref = lock_ref.process(sensors @ expected, phases)
         ff = lock_ff.process(planned_drive, phases)
         if closed and y.shape[1]:
-            loops.limit = authority * np.abs(ff[:, -1])  # a correction, never more than a share of the plan
+            # a correction, never more than a share of the plan, and none while the signal is in the noise
+            trust = np.clip((np.abs(ref[:, -1]) - 3 * envelope_noise) / (7 * envelope_noise + 1e-300), 0, 1)
+            loops.limit = authority * np.abs(ff[:, -1]) * trust
             command = loops.step(ref[:, -1], y[:, -1])
     focus = int(round(plan.focus_time * fs))
     field = truth.shapes.T @ velocity[:, focus]

@@ -95,6 +95,7 @@ class EnvelopeLoops:
         over = size > self.limit
         pushing = np.real(np.conj(command) * error) > 0
         self.integral = np.where(over & pushing, self.integral, trial)  # anti-windup
+        self.integral = np.where(self.limit > 0, self.integral, 0)  # a loop with no authority rests
         command = self.kp * error + self.ki * self.integral
         size = np.abs(command)
         return np.where(size > self.limit, command * self.limit / np.maximum(size, 1e-300), command)

