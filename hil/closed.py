@@ -15,12 +15,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modalctl.control import EnvelopeLoops, design_loops, lockin_delay
+from modalctl.control import EnvelopeLoops, EnvelopeObserver, design_loops, lockin_delay
 from modalctl.lockin import LockIn, Oscillators, lockin_bandwidths
 from modalctl.metrics import margin_ratio, tau
 from modalctl.model import ModalModel
 from modalctl.propagate import Plant
-from modalctl.track import sensor_weights
+from modalctl.track import feedthrough, sensor_weights
 
 __all__ = ["ClosedShot", "run_focus"]
 
@@ -40,7 +40,7 @@ class ClosedShot:
 
 def run_focus(truth: ModalModel, plan, target, closed: bool = True, control_rate: float = 20e3,
               snr_db: float | None = 40.0, voltage_limit: float | None = None, authority: float = 0.5,
-              seed: int = 0) -> ClosedShot:
+              observer: bool = False, seed: int = 0) -> ClosedShot:
     """Play ``plan`` (planned on the controller's model, sampled at the plant rate) on ``truth``.
 
     Parameters
@@ -51,6 +51,11 @@ def run_focus(truth: ModalModel, plan, target, closed: bool = True, control_rate
         Per-mode feedback on top of the feed-forward; False plays the feed-forward alone.
     authority : float
         Largest feedback command of a mode, as a fraction of its planned drive at that moment.
+    observer : bool
+        Filter the envelope errors with :class:`~modalctl.control.EnvelopeObserver` first. Off by
+        default: on the thesis-al-cc experiments it lowered the median closed-loop tau from 0.900
+        to 0.890 (its process noise, set from a 2% drift bound, follows the noise near the focus
+        and lags while the envelope grows).
     """
     fs = plan.sample_rate
     decimation = int(round(fs / control_rate))
@@ -70,6 +75,8 @@ def run_focus(truth: ModalModel, plan, target, closed: bool = True, control_rate
     # envelope noise per mode: 2 sigma |w| sqrt(2 B / fs), B ~ the low-pass's noise bandwidth
     sigma = 0.0 if snr_db is None else reference_level / 10 ** (snr_db / 20)
     envelope_noise = 2 * sigma * np.linalg.norm(sensors, axis=1) * np.sqrt(2 * 1.03 * bands / fs)
+    kalman = EnvelopeObserver(model.frequencies[modes], model.damping[modes], control_rate, envelope_noise)
+    own = feedthrough(model, modes, sensors, plan.weights)  # each loop's command leaking into its own reading
     n_total = plan.times.size
     velocity = np.empty((truth.n_modes, n_total))
     command = np.zeros(modes.size, complex)
@@ -95,7 +102,10 @@ def run_focus(truth: ModalModel, plan, target, closed: bool = True, control_rate
             # a correction, never more than a share of the plan, and none while the signal is in the noise
             trust = np.clip((np.abs(ref[:, -1]) - 3 * envelope_noise) / (7 * envelope_noise + 1e-300), 0, 1)
             loops.limit = authority * np.abs(ff[:, -1]) * trust
-            command = loops.step(ref[:, -1], y[:, -1])
+            error = ref[:, -1] - (y[:, -1] - own * command)
+            if observer:
+                error = kalman.update(error, command, ref[:, -1])
+            command = loops.step(error, np.zeros_like(error))
     focus = int(round(plan.focus_time * fs))
     field = truth.shapes.T @ velocity[:, focus]
     check = np.arange(int(round((plan.focus_time - 4e-3) * fs)), n_total, 4)

@@ -17,7 +17,7 @@ import control
 import numpy as np
 from scipy.signal import butter
 
-__all__ = ["LoopDesign", "design_loops", "EnvelopeLoops", "lockin_delay"]
+__all__ = ["LoopDesign", "design_loops", "EnvelopeLoops", "EnvelopeObserver", "lockin_delay"]
 
 
 def lockin_delay(bandwidth: float, order: int = 4) -> float:
@@ -99,3 +99,47 @@ class EnvelopeLoops:
         command = self.kp * error + self.ki * self.integral
         size = np.abs(command)
         return np.where(size > self.limit, command * self.limit / np.maximum(size, 1e-300), command)
+
+
+class EnvelopeObserver:
+    """Per-mode Kalman filter of the envelope error (truth minus model), complex scalar states.
+
+    The error a mode's loop must remove evolves like the mode in its frame,
+    ``d[n+1] = a d[n] + b u[n] + w[n]`` (``a = exp(p T)``, ``b = r (a - 1) / p`` for the loop's
+    own command ``u`` held over a period); the process noise ``w`` is what the model misses,
+    set from the largest detuning expected times the current envelope (a drift of ``drift``
+    turns the envelope by ``2 pi drift f T`` per period), and the measurement noise is the
+    lock-in's envelope noise. The gain follows the Riccati recursion each period, so the filter
+    listens little while the envelope is in the noise and more as the focus builds up.
+
+    Parameters
+    ----------
+    frequencies, damping : ndarray, shape (k,)
+        The model's modes (Hz, ratios); the carriers sit on them.
+    control_rate : float
+        Hz.
+    noise : ndarray, shape (k,)
+        Standard deviation of each measured envelope (same units as the envelopes).
+    drift : float
+        Largest relative resonance error expected.
+    """
+
+    def __init__(self, frequencies, damping, control_rate: float, noise, drift: float = 0.02):
+        w = 2 * np.pi * np.asarray(frequencies, float)
+        p = -np.asarray(damping, float) * w + 0j
+        period = 1 / control_rate
+        self.a = np.exp(p * period)
+        self.b = 0.5 * (self.a - 1) / p
+        self.turn = 2 * np.pi * drift * np.asarray(frequencies, float) * period
+        self.r = np.asarray(noise, float) ** 2 + 1e-300
+        self.estimate = np.zeros(w.size, complex)
+        self.variance = np.zeros(w.size)
+
+    def update(self, measured_error: np.ndarray, command: np.ndarray, envelope: np.ndarray) -> np.ndarray:
+        """Filtered error (k,) from the measured one, the last command and the current envelope size."""
+        prior = self.a * self.estimate + self.b * command
+        variance = np.abs(self.a) ** 2 * self.variance + (self.turn * np.abs(envelope)) ** 2
+        gain = variance / (variance + self.r)
+        self.estimate = prior + gain * (measured_error - prior)
+        self.variance = (1 - gain) * variance
+        return self.estimate
