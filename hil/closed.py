@@ -105,7 +105,7 @@ def run_focus(truth: ModalModel, plan, target, closed: bool = True, control_rate
             error = ref[:, -1] - (y[:, -1] - own * command)
             if observer:
                 error = kalman.update(error, command, ref[:, -1])
-            command = loops.step(error, np.zeros_like(error))
+            command = loops.step(error)
     focus = int(round(plan.focus_time * fs))
     field = truth.shapes.T @ velocity[:, focus]
     check = np.arange(int(round((plan.focus_time - 4e-3) * fs)), n_total, 4)

@@ -86,9 +86,8 @@ class EnvelopeLoops:
         self.limit = np.asarray(limit, float)
         self.integral = np.zeros(self.kp.size, complex)
 
-    def step(self, reference: np.ndarray, measured: np.ndarray) -> np.ndarray:
-        """Feedback command envelopes (k,) complex from reference and measured envelopes (k,)."""
-        error = reference - measured
+    def step(self, error: np.ndarray) -> np.ndarray:
+        """Feedback command envelopes (k,) complex from the envelope errors (k,), reference minus measured."""
         trial = self.integral + error * self.period
         command = self.kp * error + self.ki * trial
         size = np.abs(command)

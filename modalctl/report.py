@@ -248,13 +248,17 @@ def plot_identification(survey, stem) -> list[str]:
     ax.legend(fontsize=7, ncol=4)
     paths = [_save(fig, f"{stem}_frf.png")]
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.4))
+    from matplotlib.colors import LogNorm
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
+    k = len(survey.crosstalk_before)
     for ax, matrix, title in zip(axes, (survey.crosstalk_before, survey.crosstalk_after),
-                                 ("identified shapes", "after Gram-Schmidt")):
-        image = ax.imshow(np.abs(matrix), vmin=0, vmax=1, cmap="viridis")
-        off = np.max(np.abs(matrix - np.eye(len(matrix))))
-        ax.set(title=f"{title}: max off-diagonal {off:.2g}", xlabel="mode", ylabel="mode")
-    fig.colorbar(image, ax=axes, label="|cross-talk|")
+                                 ("identified", "after Gram-Schmidt")):
+        image = ax.imshow(np.maximum(np.abs(matrix), 1e-5), norm=LogNorm(1e-5, 1), cmap="viridis",
+                          extent=(0.5, k + 0.5, k + 0.5, 0.5))
+        off = np.max(np.abs(matrix - np.eye(k)))
+        ax.set(title=f"{title}\nlargest off-diagonal {off:.2g}", xlabel="mode", ylabel="mode")
+    fig.colorbar(image, ax=axes, label="|cross-talk| (log)")
     paths.append(_save(fig, f"{stem}_crosstalk.png"))
 
     fig, ax = plt.subplots(figsize=(10, 5))
