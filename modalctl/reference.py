@@ -135,7 +135,7 @@ def modal_response(t, c, omega, zeta, kappa, brake, focus_time):
     v_rise, _, f_rise = rise(np.minimum(tau, 0.0), c, omega, zeta, kappa, focus_time)
     x0, a0 = focus_state(c, omega, zeta, kappa, focus_time)
     v_decay, _, f_decay = decay(np.maximum(tau, 0.0), c, x0, a0, omega, zeta, brake, kappa * zeta * omega)
-    before, after = tau <= 0, tau > 0
+    before = tau <= 0
     started = t >= 0
     velocity = np.where(before, v_rise, v_decay) * started
     drive = np.where(before, f_rise, f_decay) * started

@@ -64,6 +64,11 @@ class Survey:
     frfs: dict = field(default_factory=dict)
 
 
+def _unresolved(poles: Modes) -> list[str]:
+    return [f"unresolved peak at {f:.1f} Hz: one pole cannot explain it (close modes?); left out"
+            for f in poles.frequencies[~poles.resolved]]
+
+
 def _grid(points: np.ndarray, mass_per_length: float) -> Grid:
     x = np.asarray(points, float).reshape(len(points), -1)
     if x.shape[1] != 1:
@@ -141,9 +146,7 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
     left = [(f, sweep.left_at_end(f, 2 * np.pi * f * z)) for f, z in zip(good.frequencies, good.damping)]
     notes += [f"mode at {f:.1f} Hz still rings at {r:.1e} of its peak when the record ends: its FRF leaks; "
               f"lengthen the tail" for f, r in left if r > 1e-3]
-    unresolved = poles.frequencies[~poles.resolved]
-    notes += [f"unresolved peak at {f:.1f} Hz: one pole cannot explain it (close modes?); left out"
-              for f in unresolved]
+    notes += _unresolved(poles)
     shapes_modes = Modes(good.frequencies, good.damping, constants, misfit, resolved, good.method)
     model = to_model(shapes_modes, grid, caps.channels, source=f"identified through {device.url}",
                      sweep={"f_low": sweep.f_low, "f_high": sweep.f_high, "duration": sweep.duration,
@@ -177,9 +180,7 @@ def identify_frf(frf: FRF, mass_per_length: float, method: str = "sdof", orthogo
     before = crosstalk(model.shapes, model.grid.mass)
     if orthogonalize:
         model = orthonormalize_model(model)
-    notes = [f"unresolved peak at {f:.1f} Hz: one pole cannot explain it (close modes?); left out"
-             for f in poles.frequencies[~poles.resolved]]
-    order = np.argsort(poles.frequencies[poles.resolved])
+    notes = _unresolved(poles)
     return Survey(model, poles, np.ones((model.n_modes, 1)), np.zeros(model.n_modes, int), before,
                   crosstalk(model.shapes, model.grid.mass), notes,
                   {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},
