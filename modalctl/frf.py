@@ -247,19 +247,9 @@ def read_uff58(path) -> FRF:
 
     Rows follow the order of the response nodes in dataset 15; the coherence is unknown (ones).
     """
-    from pathlib import Path
+    from .model import ModelError, read_uff_sets
 
-    from .model import ModelError
-
-    path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"uff: no such file {str(path)!r}")
-    try:
-        import pyuff
-    except ImportError:
-        raise ModelError("uff: reading UFF files needs pyuff: pip install 'modalctl[uff]'") from None
-    sets = pyuff.UFF(str(path)).read_sets()
-    sets = sets if isinstance(sets, list) else [sets]
+    sets = read_uff_sets(path)
     nodes = [s for s in sets if s.get("type") == 15]
     frfs = [s for s in sets if s.get("type") == 58]
     if not frfs or not nodes:

@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import simpson
 
-__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "read_shapes_csv", "read_uff55"]
+__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "read_shapes_csv", "read_uff_sets",
+           "read_uff55"]
 
 FORMAT_VERSION = 1
 
@@ -294,12 +295,8 @@ def read_shapes_csv(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     return table[:, :ncoord], table[:, ncoord:].T.copy(), header[ncoord:]
 
 
-def read_uff55(path, component: str = "r3") -> dict:
-    """Read normal-mode shapes from a UFF dataset-55 file (needs the optional ``pyuff``).
-
-    Returns a dict with ``node_nums`` (n,), ``frequencies`` (k,) in Hz, ``damping`` (k,)
-    (viscous ratio, NaN where absent) and ``shapes`` (k, n) from the chosen response component.
-    """
+def read_uff_sets(path) -> list[dict]:
+    """Every dataset of a universal file as pyuff's dicts (needs the optional ``pyuff``)."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"uff: no such file {str(path)!r}")
@@ -307,7 +304,17 @@ def read_uff55(path, component: str = "r3") -> dict:
         import pyuff
     except ImportError:
         raise ModelError("uff: reading UFF files needs pyuff: pip install 'modalctl[uff]'") from None
-    sets = [s for s in pyuff.UFF(str(path)).read_sets() if s.get("type") == 55]
+    sets = pyuff.UFF(str(path)).read_sets()
+    return sets if isinstance(sets, list) else [sets]
+
+
+def read_uff55(path, component: str = "r3") -> dict:
+    """Read normal-mode shapes from a UFF dataset-55 file (needs the optional ``pyuff``).
+
+    Returns a dict with ``node_nums`` (n,), ``frequencies`` (k,) in Hz, ``damping`` (k,)
+    (viscous ratio, NaN where absent) and ``shapes`` (k, n) from the chosen response component.
+    """
+    sets = [s for s in read_uff_sets(path) if s.get("type") == 55]
     if not sets:
         raise ModelError(f"uff: {str(path)!r} holds no dataset 55")
     nodes = np.asarray(sets[0]["node_nums"], dtype=int)
