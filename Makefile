@@ -35,6 +35,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/identify_cycle.py
 	$(BIN)/python benchmarks/tracking.py
 	$(BIN)/python benchmarks/closed_loop.py
+	$(BIN)/python benchmarks/control_step.py
 
 clean:
 	rm -rf $(VENV) demo
