@@ -22,20 +22,12 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
+BENCHMARKS := modes_needed decompose_speed plant_speed margin_case thesis_table focus_time \
+	identify_accuracy identify_limits identify_cycle tracking closed_loop control_step
+
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'
-	$(BIN)/python benchmarks/modes_needed.py
-	$(BIN)/python benchmarks/decompose_speed.py
-	$(BIN)/python benchmarks/plant_speed.py
-	$(BIN)/python benchmarks/margin_case.py
-	$(BIN)/python benchmarks/thesis_table.py
-	$(BIN)/python benchmarks/focus_time.py
-	$(BIN)/python benchmarks/identify_accuracy.py
-	$(BIN)/python benchmarks/identify_limits.py
-	$(BIN)/python benchmarks/identify_cycle.py
-	$(BIN)/python benchmarks/tracking.py
-	$(BIN)/python benchmarks/closed_loop.py
-	$(BIN)/python benchmarks/control_step.py
+	set -e; for b in $(BENCHMARKS); do $(BIN)/python benchmarks/$$b.py; done
 
 clean:
 	rm -rf $(VENV) demo

@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, target, write_json  # noqa: E402
+from common import RESULTS, target, save_figure, write_json  # noqa: E402
 from modalctl.decompose import decompose  # noqa: E402
 from modalctl.hil.closed import run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
@@ -80,9 +80,7 @@ def main() -> None:
     ax.set_xticks(x, [r["experiment"] for r in rows], rotation=70, fontsize=7)
     ax.set(ylabel="tau on the truth", ylim=(0, 1.1), title=f"thesis-al-cc experiments, truth: {data['truth']}")
     ax.legend()
-    fig.tight_layout()
-    fig.savefig(RESULTS / "closed_loop.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, "closed_loop")
     print(f"wrote {path}")
 
 

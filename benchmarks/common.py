@@ -41,6 +41,18 @@ def write_json(name: str, data: dict) -> Path:
     return path
 
 
+def save_figure(fig, name: str, dpi: int = 120) -> Path:
+    """Lay out, write ``results/<name>.png`` and close the figure."""
+    import matplotlib.pyplot as plt
+
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"{name}.png"
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def target(model, shape: str, **params):
     """A shape generator's field on the model's grid; ``params`` as text with units."""
     from modalctl.plugin import get_shape

@@ -16,7 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, target, write_json  # noqa: E402
+from common import target, save_figure, write_json  # noqa: E402
 from modalctl.decompose import decompose  # noqa: E402
 from modalctl.device import open_device  # noqa: E402
 from modalctl.hil.scenario import Perturbation  # noqa: E402
@@ -62,8 +62,7 @@ def main() -> None:
         ax.legend(frameon=False, fontsize=8)
     fig.suptitle("thesis-al-cc, sinc 18 mm at 24 mm, 9 modes, open loop (kappa = 1): a shorter focus costs voltage "
                  "but tolerates drift better (its envelopes are wider in frequency)", fontsize=10)
-    fig.tight_layout()
-    fig.savefig(RESULTS / "focus_time.png", dpi=110)
+    save_figure(fig, "focus_time", dpi=110)
     print(f"shortest T_F within {LIMIT:g} V: {shortest * 1e3:.2f} ms")
 
 

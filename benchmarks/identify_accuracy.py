@@ -23,7 +23,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, write_json  # noqa: E402
+from common import RESULTS, save_figure, write_json  # noqa: E402
 from modalctl.acquire import measure_frf  # noqa: E402
 from modalctl.frf import Sweep  # noqa: E402
 from modalctl.hil.device import SimDevice  # noqa: E402
@@ -161,9 +161,7 @@ def plot(results: dict, truth) -> None:
             axes[2].annotate(f"{s} dB", (ti, ei), fontsize=7)
     axes[2].set(xlabel="compute (s)", ylabel="median |damping error|", title="speed against accuracy")
     axes[2].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(RESULTS / "identify_accuracy.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, "identify_accuracy")
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, write_json  # noqa: E402
+from common import save_figure, write_json  # noqa: E402
 from modalctl.frf import FRF, mobility  # noqa: E402
 from modalctl.identify import peak_picking, sdof_fit  # noqa: E402
 
@@ -101,9 +101,7 @@ def plot(results: dict) -> None:
     axes[2].set(xlabel="SNR (dB)", ylabel="median relative error",
                 title=f"against noise, spacing {SPACINGS[idx]:.1f} bandwidths")
     axes[2].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(RESULTS / "identify_limits.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, "identify_limits")
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.ndimage import median_filter  # noqa: E402
 
-from common import RESULTS, write_json  # noqa: E402
+from common import RESULTS, save_figure, target, write_json  # noqa: E402
 from modalctl.hil.tracking import ramp, run_tracking, step  # noqa: E402
 from modalctl.scenes import load_scene  # noqa: E402
 
@@ -89,7 +89,6 @@ def focus_shot(truth, tracker: str) -> dict:
     the error of each planned mode's estimate at the focus."""
     import warnings
 
-    from common import target
     from modalctl.decompose import decompose
     from modalctl.planner import plan
 
@@ -110,7 +109,6 @@ def shot_to_shot(truth) -> list[dict]:
     drifted truth with the stale model, the updated one, and the truth itself (the ceiling)."""
     import warnings
 
-    from common import target
     from modalctl.decompose import decompose
     from modalctl.hil.device import SimDevice
     from modalctl.hil.scenario import Perturbation
@@ -205,9 +203,7 @@ def plot(runs: dict, truth) -> None:
     for ax in axes[::2]:
         ax.set_ylabel("relative error (1 ms median)")
     axes[0].legend(fontsize=7, ncol=2)
-    fig.tight_layout()
-    fig.savefig(RESULTS / "tracking.png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, "tracking")
 
 
 if __name__ == "__main__":
