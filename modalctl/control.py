@@ -17,15 +17,27 @@ import control
 import numpy as np
 from scipy.signal import butter
 
-__all__ = ["LoopDesign", "design_loops", "EnvelopeLoops", "EnvelopeObserver", "lockin_delay"]
+__all__ = ["LoopDesign", "design_loops", "loop_response", "lockin_filter", "settling_time", "PIControl"]
 
 
-def lockin_delay(bandwidth: float, order: int = 4) -> float:
-    """Group delay at DC (s) of the lock-in's Butterworth low-pass of corner ``bandwidth`` (Hz),
-    from its analog prototype (the digital filter runs far above its corner):
-    ``a1 / a0 - b1 / b0`` of ``B(s) / A(s)``."""
-    b, a = butter(order, 2 * np.pi * bandwidth, analog=True)
-    return float(a[-2] / a[-1] - (b[-2] / b[-1] if len(b) > 1 else 0.0))
+def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
+    """The lock-in's low-pass as seen by the envelope: the analog Butterworth of corner
+    ``bandwidth`` (Hz) (the digital filter runs far above its corner), as a cascade of unit-gain
+    sections (one polynomial of degree ``order`` in rad/s would be ill-conditioned)."""
+    poles = butter(order, 2 * np.pi * bandwidth, analog=True, output="zpk")[1]
+    sections = [control.ss(control.tf([abs(p) ** 2], [1, -2 * p.real, abs(p) ** 2])) for p in poles if p.imag > 0]
+    sections += [control.ss(control.tf([-p.real], [1, -p.real])) for p in poles if p.imag == 0]
+    out = sections[0]
+    for section in sections[1:]:
+        out = control.series(out, section)
+    return out
+
+
+def _loop(row: tuple, sigma: float, bandwidth: float) -> control.StateSpace:
+    """PI ``(kp, ki)``, the envelope ``0.5 / (s + sigma)`` and the lock-in's low-pass, in series."""
+    kp, ki = row
+    pi = control.ss(control.tf([kp, ki], [1, 0]))
+    return control.series(pi, control.ss(control.tf([0.5], [1, sigma])), lockin_filter(bandwidth))
 
 
 @dataclass(frozen=True)
@@ -46,99 +58,91 @@ class LoopDesign:
     gain_margin_db: np.ndarray
 
 
-def design_loops(frequencies, damping, delays, control_rate: float, phase_margin: float = 50.0) -> LoopDesign:
-    """PI loops for modes (Hz, ratios) whose envelopes arrive ``delays`` (s) late.
+def loop_response(design_row: tuple, sigma: float, bandwidth: float, control_rate: float, latency: float,
+                  omega: np.ndarray) -> np.ndarray:
+    """Open-loop frequency response ``L(j omega)`` (complex, shape of ``omega`` in rad/s) of one
+    mode's loop: PI ``(kp, ki)`` times the envelope ``0.5 / (s + sigma)`` times the lock-in's
+    low-pass times ``latency`` control periods of pure delay (exact, not a Pade approximant)."""
+    response = _loop(design_row, sigma, bandwidth)(1j * omega)
+    return response * np.exp(-1j * omega * latency / control_rate)
 
-    The crossover is searched from a fifth of the control rate down until the loop with the
-    delay (third-order Pade) and half a control period of hold keeps ``phase_margin`` degrees.
+
+def design_loops(frequencies, damping, bandwidths, control_rate: float, phase_margin: float = 50.0,
+                 gain_margin: float = 6.0, latency: float = 1.0) -> LoopDesign:
+    """PI loops for modes (Hz, ratios) read through lock-ins of corners ``bandwidths`` (Hz).
+
+    The zero cancels the mode's pole, so the loop is ``kp / (2 s)`` times the lock-in's low-pass
+    times ``latency`` control periods of delay (a command computed at the end of one period is
+    reached at the end of the next, plus what a slow board adds): its phase does not depend on
+    the gain, and the crossover is the highest at which ``phase_margin`` degrees and
+    ``gain_margin`` dB remain. python-control's ``stability_margins`` then checks the exact
+    frequency response of the chosen loop (:func:`loop_response`) and gives the reported margins.
     """
+    omega = 2 * np.pi * np.geomspace(0.1, control_rate / 2, 4000)
+    tau = latency / control_rate
     kp, ki, wc_hz, pm, gm = [], [], [], [], []
-    for f, z, delay in zip(frequencies, damping, delays):
+    for f, z, band in zip(frequencies, damping, bandwidths):
         sigma = 2 * np.pi * f * z
-        plant = control.tf([0.5], [1, sigma])  # envelope answer to the modal force (r ~ 1/2)
-        lag = control.tf(*control.pade(delay + 0.5 / control_rate, 3))
-        for wc in 2 * np.pi * np.geomspace(control_rate / 5, 1.0, 200):
-            p, i = 2 * wc, 2 * wc * sigma  # |L(j wc)| ~ 1 for wc >> sigma
-            loop = control.tf([p, i], [1, 0]) * plant * lag
-            g, m, _, _ = control.margin(loop)
-            if np.isfinite(m) and m >= phase_margin:
-                break
-        kp.append(p), ki.append(i), wc_hz.append(wc / (2 * np.pi)), pm.append(m)
+        num, den = butter(4, 2 * np.pi * band, analog=True)
+        shape = 0.5 / (1j * omega) * np.polyval(num, 1j * omega) / np.polyval(den, 1j * omega) \
+            * np.exp(-1j * omega * tau)  # the loop for kp = 1
+        phase = np.degrees(np.unwrap(np.angle(shape)))
+        below = np.flatnonzero(phase > -180)
+        w180 = below[-1] + 1 if below[-1] + 1 < omega.size else below[-1]
+        margin_db = 20 * np.log10(np.abs(shape) / np.abs(shape[w180]))  # gain margin were the crossover here
+        ok = (180 + phase >= phase_margin) & (margin_db >= gain_margin) & (omega > sigma)
+        if not ok.any():
+            raise ValueError(f"no PI loop for the mode at {f:g} Hz keeps {phase_margin:g} deg and "
+                             f"{gain_margin:g} dB at {control_rate:g} Hz: raise the control rate")
+        c = np.flatnonzero(~ok & (omega > sigma))
+        c = (c[0] if c.size else omega.size) - 1  # the last good frequency before the first bad one
+        gain = 1 / np.abs(shape[c])
+        row = (gain, gain * sigma)
+        check = omega[::8]  # python-control's margins interpolate: a coarser grid is plenty
+        frd = control.frd(loop_response(row, sigma, band, control_rate, latency, check), check)
+        g, m, _, _, w_gc, _ = control.stability_margins(frd)
+        kp.append(gain), ki.append(gain * sigma), wc_hz.append(w_gc / (2 * np.pi)), pm.append(m)
         gm.append(20 * np.log10(g) if np.isfinite(g) else np.inf)
     return LoopDesign(*(np.array(v) for v in (kp, ki, wc_hz, pm, gm)))
 
 
-class EnvelopeLoops:
-    """The per-mode PI loops at run time, all modes at once.
+def settling_time(design: LoopDesign, index: int, sigma: float, bandwidth: float, control_rate: float,
+                  latency: float = 1.0, band: float = 0.02) -> float:
+    """Time (s) for loop ``index`` of ``design`` to settle within ``band`` of a step in its reference,
+    from python-control's ``step_info`` on the closed loop (the delay as a fifth-order Pade
+    approximant, accurate well past the crossover)."""
+    delay = control.ss(control.tf(*control.pade(latency / control_rate, 5)))
+    loop = control.series(_loop((design.kp[index], design.ki[index]), sigma, bandwidth), delay)
+    return float(control.step_info(control.feedback(loop, 1), SettlingTimeThreshold=band)["SettlingTime"])
+
+
+class PIControl:
+    """The per-mode PI loops at run time, all modes at once (a :class:`modalctl.runtime.Controller`).
 
     Parameters
     ----------
     design : LoopDesign
     control_rate : float
         Hz.
-    limit : ndarray, shape (k,)
-        Largest feedback modal force per mode (the supervisor's share of the voltage budget).
     """
 
-    def __init__(self, design: LoopDesign, control_rate: float, limit: np.ndarray):
+    def __init__(self, design: LoopDesign, control_rate: float):
         self.kp, self.ki = design.kp, design.ki
         self.period = 1 / control_rate
-        self.limit = np.asarray(limit, float)
         self.integral = np.zeros(self.kp.size, complex)
 
-    def step(self, error: np.ndarray) -> np.ndarray:
-        """Feedback command envelopes (k,) complex from the envelope errors (k,), reference minus measured."""
+    def reset(self) -> None:
+        self.integral[:] = 0
+
+    def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        """Feedback command envelopes (k,) complex from the envelope errors (k,), reference minus
+        measured, each at most ``limit`` (k,) in magnitude; a loop whose limit is zero rests."""
         trial = self.integral + error * self.period
         command = self.kp * error + self.ki * trial
-        size = np.abs(command)
-        over = size > self.limit
+        over = np.abs(command) > limit
         pushing = np.real(np.conj(command) * error) > 0
         self.integral = np.where(over & pushing, self.integral, trial)  # anti-windup
-        self.integral = np.where(self.limit > 0, self.integral, 0)  # a loop with no authority rests
+        self.integral = np.where(limit > 0, self.integral, 0)
         command = self.kp * error + self.ki * self.integral
         size = np.abs(command)
-        return np.where(size > self.limit, command * self.limit / np.maximum(size, 1e-300), command)
-
-
-class EnvelopeObserver:
-    """Per-mode Kalman filter of the envelope error (truth minus model), complex scalar states.
-
-    The error a mode's loop must remove evolves like the mode in its frame,
-    ``d[n+1] = a d[n] + b u[n] + w[n]`` (``a = exp(p T)``, ``b = r (a - 1) / p`` for the loop's
-    own command ``u`` held over a period); the process noise ``w`` is what the model misses,
-    set from the largest detuning expected times the current envelope (a drift of ``drift``
-    turns the envelope by ``2 pi drift f T`` per period), and the measurement noise is the
-    lock-in's envelope noise. The gain follows the Riccati recursion each period, so the filter
-    listens little while the envelope is in the noise and more as the focus builds up.
-
-    Parameters
-    ----------
-    frequencies, damping : ndarray, shape (k,)
-        The model's modes (Hz, ratios); the carriers sit on them.
-    control_rate : float
-        Hz.
-    noise : ndarray, shape (k,)
-        Standard deviation of each measured envelope (same units as the envelopes).
-    drift : float
-        Largest relative resonance error expected.
-    """
-
-    def __init__(self, frequencies, damping, control_rate: float, noise, drift: float = 0.02):
-        w = 2 * np.pi * np.asarray(frequencies, float)
-        p = -np.asarray(damping, float) * w + 0j
-        period = 1 / control_rate
-        self.a = np.exp(p * period)
-        self.b = 0.5 * (self.a - 1) / p
-        self.turn = 2 * np.pi * drift * np.asarray(frequencies, float) * period
-        self.r = np.asarray(noise, float) ** 2 + 1e-300
-        self.estimate = np.zeros(w.size, complex)
-        self.variance = np.zeros(w.size)
-
-    def update(self, measured_error: np.ndarray, command: np.ndarray, envelope: np.ndarray) -> np.ndarray:
-        """Filtered error (k,) from the measured one, the last command and the current envelope size."""
-        prior = self.a * self.estimate + self.b * command
-        variance = np.abs(self.a) ** 2 * self.variance + (self.turn * np.abs(envelope)) ** 2
-        gain = variance / (variance + self.r)
-        self.estimate = prior + gain * (measured_error - prior)
-        self.variance = (1 - gain) * variance
-        return self.estimate
+        return np.where(size > limit, command * limit / np.maximum(size, 1e-300), command)

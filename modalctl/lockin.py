@@ -81,13 +81,16 @@ class LockIn:
         Input samples per output sample.
     order : int
         Butterworth order.
+    closing : bool
+        Keep the last sample of each period of ``decimation`` samples (the freshest envelope
+        when a period's chunk has just been processed) instead of the first.
     """
 
-    def __init__(self, bandwidths, sample_rate: float, decimation: int, order: int = 4):
+    def __init__(self, bandwidths, sample_rate: float, decimation: int, order: int = 4, closing: bool = False):
         self.decimation = int(decimation)
         self.sos = [butter(order, bw, fs=sample_rate, output="sos") for bw in np.atleast_1d(bandwidths)]
         self.state = [np.zeros((s.shape[0], 2), complex) for s in self.sos]
-        self._offset = 0  # input samples since the last output sample
+        self._offset = 1 if closing else 0  # input samples since the last output sample
 
     def process(self, signals: np.ndarray, phases: np.ndarray) -> np.ndarray:
         """Envelopes of ``signals`` (k, n), mixed with ``phases`` (k, n) rad; returns (k, n_out) complex."""

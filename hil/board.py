@@ -1,0 +1,145 @@
+"""A board in phasor mode on the HIL truth: carriers, modulation, lock-in, watchdog, all emulated.
+
+Each :meth:`HILBoard.read` plays one control period at the DAC rate: the feed-forward waveform
+plus each mode's feedback phasors, moved in a straight line from the last ones to the new ones
+over the period and modulated on the mode's carrier; the plant (the truth) answers; the sensors
+(with white noise) are combined per mode and demodulated by the lock-in; the envelopes at the end
+of the period go up. :meth:`HILBoard.write` queues phasors for the next period, ``latency``
+periods later if the board is slow. Scenarios act on the truth while the shot runs: a drift of
+the resonances (``drift(t)``, relative, per mode) and lost measurements from ``fail_after``.
+The board's own watchdog ramps its outputs to zero when no command came for ``watchdog`` periods
+(the host died); :meth:`ramp_down` does the same on request.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from modalctl.lockin import LockIn, Oscillators
+from modalctl.model import ModalModel
+from modalctl.propagate import Plant
+from modalctl.schedule import HOLD, Schedule
+
+__all__ = ["HILBoard"]
+
+
+class HILBoard:
+    """The emulated board and structure.
+
+    Parameters
+    ----------
+    truth : ModalModel or object with ``step``/``sensors``/``field``
+        The structure as it is (or a plant such as :class:`~modalctl.hil.finger.FingerPlant`).
+    sample_rate : float
+        DAC and ADC rate (Hz).
+    noise : float
+        Standard deviation of each sensor's white noise (m/s).
+    voltage_limit : float or None
+        Amplifier rails (V): what the amplifier clips, whatever the supervisor did.
+    latency : int
+        Extra control periods before a written command is used (a slow link or board).
+    drift : callable or None
+        ``drift(t, k) -> (k,)`` relative shift of every resonance of the truth at time ``t`` (s).
+    fail_after : int or None
+        From this period on the measurements are lost (``read`` returns None).
+    watchdog : int
+        Periods without a command after which the board ramps down by itself.
+    seed : int
+    """
+
+    def __init__(self, truth, sample_rate: float, noise: float = 0.0, voltage_limit: float | None = None,
+                 latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3, seed: int = 0):
+        self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=voltage_limit) \
+            if isinstance(truth, ModalModel) else truth
+        self.sample_rate, self.noise, self.latency = float(sample_rate), float(noise), int(latency)
+        self.drift, self.fail_after, self.watchdog = drift, fail_after, int(watchdog)
+        self.rng = np.random.default_rng(seed)
+        self.schedule: Schedule | None = None
+        self._base = self.plant.model.frequencies.copy()
+
+    # -- set-up ------------------------------------------------------------------------------
+    def configure(self, schedule: Schedule) -> None:
+        if abs(schedule.decimation * schedule.control_rate - self.sample_rate) > 1e-6 * self.sample_rate:
+            raise ValueError(f"board runs at {self.sample_rate:g} Hz, the schedule at "
+                             f"{schedule.decimation} x {schedule.control_rate:g} Hz")
+        self.schedule = schedule
+
+    def start(self) -> None:
+        s = self.schedule
+        if s is None:
+            raise RuntimeError("board: start before configure")
+        self.plant.reset()
+        self.osc = Oscillators(s.carriers, self.sample_rate)
+        self.lockin = LockIn(s.bandwidths, self.sample_rate, s.decimation, closing=True)
+        a, k = s.feedforward.shape[0], s.carriers.size
+        self.current = np.zeros((a, k), complex)
+        self.queue = deque([np.zeros((a, k), complex)] * self.latency)
+        self.pending = np.zeros((a, k), complex)
+        self.sample = 0  # next DAC sample
+        self.period = 0
+        self.idle = 0  # periods since the last command
+        self.ramp: tuple[int, int] | None = None  # (first sample, samples) of a ramp to zero
+        total = s.feedforward.shape[1]
+        self.velocity = np.zeros((self.plant.model.n_modes, total))
+        self.applied = np.zeros((a, total))
+
+    # -- the loop ----------------------------------------------------------------------------
+    def read(self) -> np.ndarray | None:
+        """Play one period; the per-mode envelopes at its end, or None when measurements are lost."""
+        s = self.schedule
+        d = s.decimation
+        if self.sample + d > s.feedforward.shape[1]:
+            raise RuntimeError("board: the shot is over")
+        self.idle += 1
+        if self.idle > self.watchdog and self.ramp is None:
+            self.ramp_down(1 / s.control_rate)
+        target = self.queue.popleft() if self.latency else self.pending
+        if self.latency:
+            self.queue.append(self.pending)
+        envelopes = self._play(d, target)
+        self.period += 1
+        if self.fail_after is not None and self.period > self.fail_after:
+            return None
+        return envelopes
+
+    def write(self, phasors: np.ndarray) -> None:
+        self.pending = np.array(phasors, complex)
+        self.idle = 0
+
+    def ramp_down(self, seconds: float) -> None:
+        if self.ramp is None:
+            self.ramp = (self.sample, max(1, int(round(seconds * self.sample_rate))))
+
+    def play_out(self) -> None:
+        """Play the rest of the shot (the structure rings down; outputs as they are)."""
+        s = self.schedule
+        while self.sample < s.feedforward.shape[1]:
+            self._play(min(s.decimation, s.feedforward.shape[1] - self.sample), self.current)
+
+    def _play(self, n: int, target: np.ndarray) -> np.ndarray:
+        s, start = self.schedule, self.sample
+        t = (start + np.arange(n)) / self.sample_rate
+        if self.drift is not None:
+            shift = self.drift(t[0], self.plant.model.n_modes)
+            if np.any(self.plant.model.frequencies != self._base * (1 + shift)):
+                self.plant.retune(self._base * (1 + shift))
+        phases = self.osc.advance(n)
+        slope = (np.arange(1, n + 1) / n)[None, None, :]
+        phasors = self.current[:, :, None] + (target - self.current)[:, :, None] * slope  # (a, k, n)
+        volts = s.feedforward[:, start:start + n] + np.einsum("akn,kn->an", phasors, np.exp(1j * phases)).real
+        if self.ramp is not None:
+            first, length = self.ramp
+            volts = volts * np.clip(1 - (start + np.arange(1, n + 1) - first) / length, 0, 1)
+        velocity = self.plant.step(volts)
+        self.velocity[:, start:start + n] = velocity
+        limit = self.plant.voltage_limit
+        self.applied[:, start:start + n] = volts if limit is None else np.clip(volts, -limit, limit)
+        self.current = target
+        self.sample += n
+        measured = self.plant.sensors(velocity)
+        if self.noise:
+            measured = measured + self.noise * self.rng.standard_normal(measured.shape)
+        envelopes = self.lockin.process(s.sensors @ measured, phases)
+        return envelopes[:, -1] if envelopes.shape[1] else None

@@ -1,0 +1,117 @@
+"""What a plan expects each control period: the references the planner hands down to the loops.
+
+The board demodulates each mode's sensor combination with that mode's carrier; the planner
+knows, before the shot, what those envelopes read if the controller's model is right: the
+whole model (every mode, not only the kept ones) driven by the plan's feed-forward, through the
+same sensors and the same lock-in. So the reference carries the lock-in's delay and the other
+modes' leakage, and a perfect model gives zero error. The schedule also holds the feed-forward's
+own envelopes (how much authority each loop gets), and each channel's feed-forward peak and
+slope per period (the supervisor's headroom). All computed once, before the shot, so that the
+loop does no simulation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .lockin import LockIn, Oscillators
+from .propagate import Plant
+
+__all__ = ["Schedule", "schedule", "envelope_noise", "HOLD"]
+
+HOLD = "foh"  # the board's DAC interpolates linearly between samples
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """References per control period for one shot.
+
+    Attributes
+    ----------
+    control_rate : float
+        Hz.
+    decimation : int
+        DAC samples per control period.
+    carriers : ndarray, shape (k,)
+        Carrier frequencies (Hz), the model's resonances of the kept modes.
+    bandwidths : ndarray, shape (k,)
+        Lock-in corners (Hz).
+    sensors : ndarray, shape (k, s)
+        Sensor weights that read each kept mode.
+    reference : ndarray, shape (k, n)
+        Envelope each mode's reading should have at the end of each period (m/s).
+    drive : ndarray, shape (k, n)
+        Envelope of each mode's planned modal force (the loops' authority scales with it).
+    feedforward_peak, feedforward_slope : ndarray, shape (a, n)
+        Largest feed-forward voltage (V) and slope (V/s) of each channel over each period and the next.
+    feedforward : ndarray, shape (a, n * decimation)
+        The feed-forward voltages the board plays (V).
+    """
+
+    control_rate: float
+    decimation: int
+    carriers: np.ndarray
+    bandwidths: np.ndarray
+    sensors: np.ndarray
+    reference: np.ndarray
+    drive: np.ndarray
+    feedforward_peak: np.ndarray
+    feedforward_slope: np.ndarray
+    feedforward: np.ndarray
+
+    @property
+    def periods(self) -> int:
+        return self.reference.shape[1]
+
+    @property
+    def times(self) -> np.ndarray:
+        """End of each control period (s), shape (n,)."""
+        return (np.arange(self.periods) + 1) / self.control_rate
+
+
+def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: float) -> Schedule:
+    """The references of ``plan`` (sampled at its DAC rate) for loops running at ``control_rate`` (Hz).
+
+    Parameters
+    ----------
+    plan : modalctl.planner.Plan
+    sensors : ndarray, shape (k, s)
+        Sensor weights per kept mode (:func:`modalctl.track.sensor_weights`).
+    bandwidths : ndarray, shape (k,)
+        Lock-in corners per kept mode (Hz).
+    """
+    fs = plan.sample_rate
+    decimation = int(round(fs / control_rate))
+    if decimation < 1 or abs(decimation - fs / control_rate) > 1e-6 * decimation:
+        raise ValueError(f"the control rate {control_rate:g} Hz must divide the DAC rate {fs:g} Hz")
+    n = plan.times.size // decimation
+    t = plan.times[:n * decimation]
+    drive = plan.modal(t + 0.5 / fs)[1]  # (k, N) modal forces, held as the DAC holds them
+    volts = plan.weights @ drive
+    carriers = plan.model.frequencies[plan.modes]
+    phases = Oscillators(carriers, fs).advance(t.size)
+    expected = Plant(plan.model, fs, hold=HOLD)
+    readings = sensors @ expected.sensors(expected.step(volts))
+    reference = LockIn(bandwidths, fs, decimation, closing=True).process(readings, phases)
+    planned = LockIn(bandwidths, fs, decimation, closing=True).process(drive, phases)
+    per_period = volts.reshape(volts.shape[0], n, decimation)
+    peak = np.abs(per_period).max(axis=2)
+    slope = np.abs(np.diff(volts, axis=1, append=volts[:, -1:])).reshape(per_period.shape).max(axis=2) * fs
+    return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),
+                    reference, planned, _with_next(peak), _with_next(slope), volts)
+
+
+def _with_next(x: np.ndarray) -> np.ndarray:
+    """Each period's value or the next one's, whichever is larger (columns are periods)."""
+    return np.maximum(x, np.concatenate([x[:, 1:], x[:, -1:]], axis=1))
+
+
+def envelope_noise(sigma: float, sensors: np.ndarray, bandwidths: np.ndarray, sample_rate: float,
+                   order: int = 4) -> np.ndarray:
+    """Standard deviation of each demodulated envelope (k,) for white sensor noise ``sigma`` (m/s)
+    at ``sample_rate`` (Hz): ``2 sigma |w| sqrt(2 B_n / fs)`` with the Butterworth's noise
+    bandwidth ``B_n`` (``1.026 B`` at order 4)."""
+    noise_bandwidth = {2: 1.111, 4: 1.026}.get(order, 1.0) * np.asarray(bandwidths, float)
+    return 2 * sigma * np.linalg.norm(sensors, axis=1) * np.sqrt(2 * noise_bandwidth / sample_rate)

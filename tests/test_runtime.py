@@ -1,0 +1,135 @@
+"""The closed-loop runtime: lifecycle, supervisor, watchdog, log, and a loop that tracks a step."""
+
+import numpy as np
+import pytest
+
+from modalctl.control import PIControl, design_loops, settling_time
+from modalctl.dispatch import dispatch
+from modalctl.hil.board import HILBoard
+from modalctl.hil.closed import run_focus
+from modalctl.hil.scenario import Perturbation, perturb
+from modalctl.lockin import lockin_bandwidths
+from modalctl.recorder import Recorder, read_log
+from modalctl.runtime import LifecycleError, Runtime, State, log_fields
+from modalctl.schedule import Schedule
+from modalctl.supervisor import Limits, Supervisor
+from modalctl.track import feedthrough, sensor_weights
+
+FS, RATE = 500e3, 20e3
+D = int(FS / RATE)
+
+
+def _step_runtime(model, mode, periods=240, step_at=20, size=1e-4, log=None):
+    """One mode's loop, no feed-forward, its reference a step of ``size`` at period ``step_at``."""
+    modes = np.array([mode])
+    sensors = sensor_weights(model, modes)
+    bands = lockin_bandwidths(model.frequencies, RATE, fraction=1.0, image=0.5)[modes]
+    weights = dispatch(model, modes)
+    a = weights.shape[0]
+    reference = np.where(np.arange(periods) >= step_at, size, 0.0)[None, :] + 0j
+    zeros = np.zeros((a, periods))
+    schedule = Schedule(RATE, D, model.frequencies[modes], bands, sensors, reference, reference,
+                        zeros, zeros, np.zeros((a, periods * D)))
+    design = design_loops(model.frequencies[modes], model.damping[modes], bands, RATE)
+    supervisor = Supervisor(Limits(np.inf), schedule.carriers, RATE, zeros, zeros, np.full(1, size))
+    recorder = None if log is None else Recorder(log, log_fields(1, a))
+    sigma = model.omega[mode] * model.damping[mode]
+    authority = np.full((1, periods), 100 * 2 * sigma * size)
+    runtime = Runtime(HILBoard(model, FS), schedule, PIControl(design, RATE), supervisor, weights,
+                      feedthrough(model, modes, sensors, weights), authority, recorder)
+    return runtime, design, sigma, bands[0]
+
+
+@pytest.mark.parametrize("mode", [1, 4])
+def test_loop_tracks_a_step_within_its_designed_settling_time(sinc18, tmp_path, mode):
+    model = sinc18[0]
+    runtime, design, sigma, band = _step_runtime(model, mode, log=tmp_path / "step")
+    result = runtime.run()
+    assert result.state == State.INACTIVE and result.reason is None
+    records, _ = read_log(tmp_path / "step")
+    measured = records["measured"][:, 0]
+    outside = np.flatnonzero(np.abs(measured - 1e-4) > 0.02 * 1e-4)
+    settled = (outside[-1] + 1 - 20) / RATE  # from the step to the last sample outside the 2% band
+    predicted = settling_time(design, 0, sigma, band, RATE)
+    assert settled <= 1.25 * predicted + 1 / RATE
+    assert abs(measured[-1] / 1e-4 - 1) < 0.02
+
+
+def test_a_wrong_sign_loop_fails_the_step(sinc18):
+    """The check above can fail: the same loop with its sign flipped does not settle (it diverges)."""
+    runtime, *_ = _step_runtime(sinc18[0], 4)
+    runtime.controller.kp, runtime.controller.ki = -runtime.controller.kp, -runtime.controller.ki
+    result = runtime.run()
+    assert result.state == State.ERROR and result.reason.startswith("divergence")
+
+
+def test_lifecycle_refuses_updates_out_of_order(sinc18):
+    runtime, *_ = _step_runtime(sinc18[0], 4)
+    with pytest.raises(LifecycleError, match="update from state unconfigured"):
+        runtime.update()
+    runtime.configure()
+    with pytest.raises(LifecycleError, match="deactivate from state inactive"):
+        runtime.deactivate()
+    runtime.activate()
+    assert runtime.update() == State.ACTIVE
+    runtime.deactivate()
+    assert runtime.state == State.INACTIVE
+
+
+def test_watchdog_ramps_to_zero_within_one_period_and_keeps_the_log(sinc18, tmp_path):
+    model, shape, shot = sinc18
+    lost = 300
+    run = run_focus(perturb(model, Perturbation(drift=0.01)), shot, shape, fail_after=lost, log=tmp_path / "log")
+    assert run.result.state == State.ERROR and run.result.reason.startswith("watchdog")
+    applied = run.board.applied
+    stop = (lost + 1) * D  # the first period without a measurement has just been played
+    assert np.any(applied[:, stop - D:stop] != 0)
+    assert np.all(applied[:, stop + D:] == 0)  # zero from one period after the missed reading
+    records, header = read_log(tmp_path / "log")
+    assert records.size == lost + 1  # every period played and the fault
+    assert records["state"][-1] == State.ERROR and records["state"][-2] == State.ACTIVE
+    assert header["meta"]["closed"] is True
+
+
+def test_divergent_gain_is_caught_and_stopped(sinc18):
+    """Gains 30 times the design (gain margins are about 7 dB) and the authority to diverge: the
+    envelope check stops the shot. (With the default authority, half the planned drive, such a loop
+    is held to a bounded oscillation instead.)"""
+    model, shape, shot = sinc18
+    run = run_focus(perturb(model, Perturbation(drift=0.01)), shot, shape, gain_scale=30.0, authority=20.0)
+    assert run.result.state == State.ERROR and run.result.reason.startswith("divergence")
+    stop = run.result.periods * D
+    assert np.all(run.board.applied[:, stop + 2 * D:] == 0)
+    assert run.result.periods < shot.times.size // D
+
+
+def test_supervisor_keeps_voltage_and_slew_limits(sinc18):
+    """With the amplifier's rails out of the way, the supervisor alone keeps both limits while
+    strong feedback (30% drift of authority) pushes against them."""
+    model, shape, shot = sinc18
+    ff = shot.voltages()
+    volts, slew = 1.02 * np.abs(ff).max(), 1.02 * np.abs(np.diff(ff, axis=1)).max() * shot.sample_rate
+    run = run_focus(perturb(model, Perturbation(drift=0.03)), shot, shape, voltage_limit=volts, slew_limit=slew,
+                    amplifier_clips=False, authority=2.0)
+    applied = run.board.applied
+    assert np.abs(applied).max() <= volts * (1 + 1e-9)
+    assert np.abs(np.diff(applied, axis=1)).max() * shot.sample_rate <= slew * (1 + 1e-9)
+    assert run.result.limited > 0  # the limits did bite
+
+
+def test_log_reader_skips_a_half_written_record(tmp_path):
+    with Recorder(tmp_path / "x", {"a": ("<f8", (3,), "m"), "n": ("<i8", (), "1")}) as rec:
+        rec.write(a=[1, 2, 3], n=7)
+        rec.write(a=[4, 5, 6], n=8)
+    with open(tmp_path / "x.bin", "ab") as f:
+        f.write(b"\x01\x02\x03")  # a crash in the middle of a record
+    records, header = read_log(tmp_path / "x")
+    assert records["n"].tolist() == [7, 8] and records["a"][1].tolist() == [4, 5, 6]
+    assert header["fields"][0]["unit"] == "m"
+
+
+def test_limits_reject_nonsense():
+    with pytest.raises(ValueError, match="voltage limit must be positive"):
+        Limits(0.0)
+    with pytest.raises(ValueError, match="divergence factor"):
+        Limits(10.0, divergence=0.5)
