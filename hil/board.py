@@ -46,13 +46,19 @@ class HILBoard:
         From this period on the measurements are lost (``read`` returns None).
     watchdog : int
         Periods without a command after which the board ramps down by itself.
+    amplifier_bandwidth : float or None
+        First-order amplifier bandwidth (Hz).
+    scan_noise : float
+        Standard deviation of the vibrometer's noise in :meth:`scan` (m/s).
     seed : int
     """
 
     def __init__(self, truth, sample_rate: float, noise: float = 0.0, voltage_limit: float | None = None,
-                 latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3, seed: int = 0):
-        self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=voltage_limit) \
-            if isinstance(truth, ModalModel) else truth
+                 latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3,
+                 amplifier_bandwidth: float | None = None, scan_noise: float = 0.0, seed: int = 0):
+        self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=voltage_limit,
+                           amplifier_bandwidth=amplifier_bandwidth) if isinstance(truth, ModalModel) else truth
+        self.scan_noise = float(scan_noise)
         self.sample_rate, self.noise, self.latency = float(sample_rate), float(noise), int(latency)
         self.drift, self.fail_after, self.watchdog = drift, fail_after, int(watchdog)
         self.rng = np.random.default_rng(seed)
@@ -84,6 +90,7 @@ class HILBoard:
         total = s.feedforward.shape[1]
         self.velocity = np.zeros((self.plant.model.n_modes, total))
         self.applied = np.zeros((a, total))
+        self.sensed = np.zeros((self.plant.model.sensor_gains.shape[1], total))
 
     # -- the loop ----------------------------------------------------------------------------
     def read(self) -> np.ndarray | None:
@@ -118,6 +125,14 @@ class HILBoard:
         while self.sample < s.feedforward.shape[1]:
             self._play(min(s.decimation, s.feedforward.shape[1] - self.sample), self.current)
 
+    def scan(self, times: np.ndarray, points=None) -> np.ndarray:
+        """Velocity (n_points, nt) of the shot at the samples nearest to ``times`` (s), as a
+        scanning vibrometer repeating it would see it (m/s); ``points``: grid indices (default all)."""
+        idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self.velocity.shape[1] - 1)
+        shapes = self.plant.model.shapes if points is None else self.plant.model.shapes[:, np.atleast_1d(points)]
+        field = shapes.T @ self.velocity[:, idx]
+        return field + self.scan_noise * self.rng.standard_normal(field.shape) if self.scan_noise else field
+
     def _play(self, n: int, target: np.ndarray) -> np.ndarray:
         s, start = self.schedule, self.sample
         t = (start + np.arange(n)) / self.sample_rate
@@ -141,5 +156,6 @@ class HILBoard:
         measured = self.plant.sensors(velocity)
         if self.noise:
             measured = measured + self.noise * self.rng.standard_normal(measured.shape)
+        self.sensed[:, start:start + n] = measured
         envelopes = self.lockin.process(s.sensors @ measured, phases)
         return envelopes[:, -1] if envelopes.shape[1] else None

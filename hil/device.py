@@ -44,7 +44,7 @@ class SimDevice:
         self.truth = perturb(model, perturbation)
         self.state, self.sample_rate, self.info, self.capabilities = "unconfigured", None, {}, None
         self._noise_sigma = None
-        self._voltages = self._modal = None
+        self._voltages = self._modal = self._board = None
         self._kept = np.arange(model.n_modes)
         self._rng = np.random.default_rng(perturbation.seed + 1)
 
@@ -90,7 +90,7 @@ class SimDevice:
             raise DeviceError(f"{self.url}: {u.shape[0]} waveforms for {channels} channels")
         if not np.all(np.isfinite(u)):
             raise DeviceError(f"{self.url}: waveform contains non-finite samples")
-        self._voltages, self._played = u, None
+        self._voltages, self._played, self._board = u, None, None
 
     def trigger(self, progress: bool = False) -> Capture:
         """Play the uploaded waveforms and record the sensors (the plant from rest)."""
@@ -121,11 +121,28 @@ class SimDevice:
         self._noise_sigma = self._sigma(self._field_peak())
         self._played = plant.sensors(self._modal)
 
+    def phasor_board(self, level: float, control_rate: float, latency: int = 0, drift=None):
+        """The board in phasor mode (closed loop) on the same truth, for a shot whose field peaks
+        near ``level`` (m/s): sensor and vibrometer noise ``snr_db`` below it, the same rails and
+        amplifier. Returns an :class:`~modalctl.hil.board.HILBoard` at the configured sample rate."""
+        from .board import HILBoard
+
+        if self.sample_rate is None:
+            raise DeviceError(f"{self.url}: configure before asking for the phasor mode")
+        p = self.perturbation
+        sigma = self._sigma(level)
+        self._board = HILBoard(self.truth, self.sample_rate, noise=sigma, voltage_limit=p.voltage_limit,
+                               latency=latency, drift=drift, amplifier_bandwidth=p.amplifier_bandwidth,
+                               scan_noise=sigma, seed=p.seed + 1)
+        return self._board
+
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:
         """Velocity (n_points, nt) at the samples nearest to ``times`` of the last shot (m/s).
 
         ``points``: grid indices to measure (default all), like moving the vibrometer's spot.
         """
+        if self._board is not None:  # the last shot ran in phasor mode
+            return self._board.scan(times, points)
         if self._modal is None:
             raise DeviceError(f"{self.url}: no shot to scan")
         idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._modal.shape[1] - 1)

@@ -94,6 +94,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="post-transient window recorded and checked (default 4ms)")
     p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=1e6, help="DAC rate (1MHz)")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
+    loop = p.add_argument_group("closed loop")
+    loop.add_argument("--loop", choices=("open", "closed"), default="open",
+                      help="open: feed-forward only (the thesis); closed: per-mode feedback on top")
+    loop.add_argument("--control-rate", type=_quantity("Hz", "control-rate"), default=20e3,
+                      help="loop rate, a divisor of the sample rate (20kHz)")
+    loop.add_argument("--slew-limit", type=_quantity("V/s", "slew-limit"), help="largest output slope, e.g. 2e6V/s")
+    loop.add_argument("--authority", type=float, default=0.5,
+                      help="largest feedback per mode, as a fraction of its planned drive (0.5)")
+    loop.add_argument("--latency", type=int, default=0, help="extra periods the board takes to use a command (0)")
     truth = p.add_argument_group("simulator truth (sim:// only)")
     truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
     truth.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
@@ -208,18 +217,24 @@ def _run(args) -> int:
 
     from .device import open_device
     from .hil.scenario import Perturbation
-    from .run import run_open_loop
+    from .run import run_closed_loop, run_open_loop
 
     model, shape = _model_and_shape(args)
     perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
                                 args.rails, args.seed)
     truth = load_scene(args.truth) if args.truth else model
     device = open_device(args.transport, model=truth, perturbation=perturbation)
-    shot = run_open_loop(model, shape, device, args.focus_time, modes=args.modes, tau_min=args.tau_target,
-                         margin=args.margin, voltage_limit=args.voltage_limit, sample_rate=args.sample_rate,
-                         progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake, after=args.after)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    common = dict(modes=args.modes, tau_min=args.tau_target, margin=args.margin, voltage_limit=args.voltage_limit,
+                  sample_rate=args.sample_rate, progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake,
+                  after=args.after)
+    if args.loop == "closed":
+        shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
+                               slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
+                               log=out / "log", **common)
+    else:
+        shot = run_open_loop(model, shape, device, args.focus_time, **common)
     metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,
                "params": dict(args.param), "truth": perturbation.describe(), "out": str(out)}
     centre = int(np.argmax(np.abs(shot.focus_field) * shape.target_mask))
@@ -240,10 +255,18 @@ def _run(args) -> int:
 
         metrics["pictures"] = write_run_report(shot, out, focus_velocity, args.sample_rate,
                                                float(model.grid.points[centre, 0]))
+        if args.loop == "closed":
+            from .report import plot_loop
+
+            metrics["pictures"]["loop"] = str(plot_loop(out / "log", out / "loop.png"))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_jsonable))
+    fault = metrics.get("loop", {}).get("fault")
+    if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
+        print(f"modalctl run: the supervisor stopped the shot: {fault}; outputs ramped to zero, "
+              f"log in {out}/log.json + log.bin", file=sys.stderr)
     if args.json:
         print(json.dumps(metrics, default=_jsonable))
-        return 0
+        return DEVICE if fault else 0
     m = metrics
     print(f"{m['scene']}, {args.shape} {' '.join(f'{k}={v}' for k, v in args.param)}, T_F {args.focus_time * 1e3:g} ms, "
           f"truth: {m['truth']}")
@@ -253,10 +276,16 @@ def _run(args) -> int:
           f"{m['margin_criterion']:g}); planned {m['predicted_margin_ratio']:.3f} on the kept modes, "
           f"{m['whole_model_margin_ratio']:.3f} predicted on the whole model; peak voltage {m['peak_voltage']:.1f} V")
     print(f"plan {m['plan_seconds']:.2f} s, device {m['sim_seconds']:.2f} s")
+    if "loop" in m:
+        lp = m["loop"]
+        print(f"closed loop at {lp['control_rate_hz'] / 1e3:g} kHz: {lp['state']}"
+              + (f" ({lp['fault']})" if lp["fault"] else "") + f", {lp['periods']} periods, "
+              f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update, crossovers "
+              f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
     for w in m["decoupling_warnings"]:
         print("warning: " + w)
     print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in m else ")"))
-    return 0
+    return DEVICE if fault else 0
 
 
 def _identify(args) -> int:

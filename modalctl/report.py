@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from .decompose import Decomposition  # noqa: E402
 
 __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
-           "plot_spectrogram", "write_run_report"]
+           "plot_spectrogram", "write_run_report", "plot_loop"]
 
 
 def _save(fig, path) -> Path:
@@ -218,6 +218,33 @@ def plot_spectrogram(shot, velocity: np.ndarray, sample_rate: float, where: floa
     ax.set_ylabel("frequency (kHz)")
     ax.set_title(f"velocity at x = {where * 1e3:.1f} mm (dotted: kept resonances, red: T_F)", fontsize=10)
     fig.colorbar(im, ax=ax, label="dB (m/s)^2/Hz")
+    return _save(fig, path)
+
+
+def plot_loop(log, path) -> Path:
+    """A closed-loop run from its log: each mode's envelope, planned (reference) and measured, and
+    the feedback command against the time; the fault, if any, marked."""
+    from .recorder import read_log
+
+    records, header = read_log(log)
+    meta = header["meta"]
+    t = (records["period"] + 1) / meta["control_rate_hz"] * 1e3
+    k = records["reference"].shape[1]
+    fig, axes = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    for i in range(k):
+        line, = axes[0].plot(t, np.abs(records["reference"][:, i]), lw=0.9, label=f"mode {meta['modes'][i]}")
+        axes[0].plot(t, np.abs(records["measured"][:, i]), lw=0.7, ls="--", color=line.get_color())
+        axes[1].plot(t, np.abs(records["command"][:, i]), lw=0.8, color=line.get_color())
+    axes[0].set(ylabel="|envelope| (m/s)", title="per-mode envelopes: reference (solid) and measured (dashed)")
+    axes[0].legend(fontsize=7, ncol=4)
+    axes[1].set(xlabel="time (ms)", ylabel="|feedback command| (modal force)",
+                title="feedback commands (each at most its authority)")
+    failed = np.flatnonzero(records["state"] == 3)
+    for ax in axes:
+        for n in failed:
+            ax.axvline(t[n], color="r", lw=1)
+    if failed.size:
+        axes[0].text(t[failed[0]], axes[0].get_ylim()[1] * 0.9, " fault: outputs ramped to zero", color="r")
     return _save(fig, path)
 
 

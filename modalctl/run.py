@@ -19,7 +19,7 @@ from .model import ModalModel
 from .planner import Plan, PlanError, plan
 from .shape import Shape
 
-__all__ = ["Shot", "run_open_loop", "THESIS_MARGIN"]
+__all__ = ["Shot", "run_open_loop", "run_closed_loop", "THESIS_MARGIN"]
 
 THESIS_MARGIN = 0.5
 
@@ -82,6 +82,19 @@ def _plan_growing(dec: Decomposition, focus_time, margin, grow: bool, **options)
                           rule=dec.rule + f", plus modes for the {margin:g} margin")
 
 
+def _plan_on(model, shape, device, focus_time, modes, tau_min, margin, voltage_limit, sample_rate, plan_options):
+    """Configure ``device``, decompose and plan (adding modes for the margin if needed)."""
+    caps = device.configure(sample_rate)
+    if caps.voltage_limit is not None:
+        voltage_limit = caps.voltage_limit if voltage_limit is None else min(voltage_limit, caps.voltage_limit)
+    if not caps.can_scan:
+        raise DeviceError(f"{device.url}: focus runs measure the field, and this device cannot scan it")
+    dec = decompose(model, shape, modes, tau_min=tau_min)
+    the_plan, dec = _plan_growing(dec, focus_time, margin, grow=modes == "auto", voltage_limit=voltage_limit,
+                                  sample_rate=sample_rate, **plan_options)
+    return caps, voltage_limit, dec, the_plan
+
+
 def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: float, *, modes="auto",
                   tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
                   sample_rate: float = 1e6, progress: bool = False, **plan_options) -> Shot:
@@ -105,14 +118,8 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
     plan_options
         Passed to :func:`modalctl.planner.plan` (``kappa``, ``brake``, ``after``...).
     """
-    caps = device.configure(sample_rate)
-    if caps.voltage_limit is not None:
-        voltage_limit = caps.voltage_limit if voltage_limit is None else min(voltage_limit, caps.voltage_limit)
-    if not caps.can_scan:
-        raise DeviceError(f"{device.url}: open-loop runs measure the field, and this device cannot scan it")
-    dec = decompose(model, shape, modes, tau_min=tau_min)
-    the_plan, dec = _plan_growing(dec, focus_time, margin, grow=modes == "auto", voltage_limit=voltage_limit,
-                                  sample_rate=sample_rate, **plan_options)
+    caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
+                                                  voltage_limit, sample_rate, plan_options)
     voltages = the_plan.voltages()
     start = _time.perf_counter()
     device.activate()
@@ -123,7 +130,60 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
         field = device.scan(times, scan_indices(caps, model.grid.points, device.url))
     finally:
         device.deactivate()
-    sim_seconds = _time.perf_counter() - start
+    return _shot(dec, the_plan, shape, capture, times, field, margin, device, _time.perf_counter() - start)
+
+
+def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time: float, *, modes="auto",
+                    tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
+                    slew_limit: float | None = None, sample_rate: float = 1e6, control_rate: float = 20e3,
+                    authority: float = 0.5, latency: int = 0, drift=None, log=None, progress: bool = False,
+                    **plan_options) -> Shot:
+    """Plan the shape's focus and play it on ``device`` with per-mode feedback (its phasor mode).
+
+    Parameters are those of :func:`run_open_loop`, and
+    control_rate : float
+        Loop rate (Hz); it must divide ``sample_rate``.
+    slew_limit : float, optional
+        Largest output slope (V/s) the supervisor allows.
+    authority : float
+        Largest feedback per mode as a fraction of its planned drive.
+    latency : int
+        Extra control periods the board takes to use a command.
+    drift : callable, optional
+        Simulator only: ``drift(t, k)`` relative resonance shifts during the shot.
+    log : path, optional
+        Every control period recorded there (``.json`` + ``.bin``).
+    """
+    from .loop import closed_shot, loop_parts
+
+    if not hasattr(device, "phasor_board"):
+        raise DeviceError(f"{device.url}: this device has no phasor mode, so it cannot run a closed loop")
+    caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
+                                                  voltage_limit, sample_rate, plan_options)
+    board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
+    start = _time.perf_counter()
+    parts = loop_parts(the_plan, control_rate, board.noise, authority, latency)
+    result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, log=log,
+                         progress=progress)
+    board.play_out()
+    times = np.union1d(the_plan.check_times(), [focus_time])
+    field = board.scan(times, scan_indices(caps, model.grid.points, device.url))
+    seconds = _time.perf_counter() - start
+    capture = Capture(the_plan.times, board.sensed, board.applied)
+    shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, seconds)
+    shot.metrics["loop"] = {
+        "state": result.state.name.lower(), "fault": result.reason, "periods": result.periods,
+        "control_rate_hz": control_rate, "limited_periods": result.limited,
+        "step_seconds_median": float(np.median(result.step_seconds)) if result.step_seconds.size else None,
+        "crossover_hz": parts.design.crossover_hz.tolist(), "phase_margin_deg": parts.design.phase_margin_deg.tolist(),
+        "gain_margin_db": parts.design.gain_margin_db.tolist(),
+        "real_time_factor": seconds / the_plan.duration}
+    return shot
+
+
+def _shot(dec, the_plan, shape, capture, times, field, margin, device, sim_seconds) -> Shot:
+    """Metrics of a measured field (open or closed loop) and the Shot that holds them."""
+    model, focus_time = dec.model, the_plan.focus_time
     focus = field[:, np.argmin(np.abs(times - focus_time))]
     ratio, worst = margin_ratio(field, times, focus_time, shape.target_mask)
     criterion = THESIS_MARGIN if margin is None else margin
@@ -137,7 +197,7 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
         "peak_voltage": float(np.max(np.abs(capture.voltages))),
         "modes_used": [int(model.labels[k]) for k in the_plan.modes],
         "kappa": the_plan.kappa.tolist(), "brake": the_plan.brake.tolist(),
-        "focus_time_s": focus_time, "sample_rate_hz": sample_rate,
+        "focus_time_s": focus_time, "sample_rate_hz": the_plan.sample_rate,
         "plan_seconds": the_plan.info["plan_seconds"], "sim_seconds": sim_seconds,
         "predicted_margin_ratio": the_plan.info["predicted_margin_ratio"],
         "whole_model_margin_ratio": the_plan.info["whole_model_margin_ratio"],

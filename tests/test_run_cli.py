@@ -36,6 +36,30 @@ def test_run_writes_metrics_fields_and_pictures(capsys, tmp_path):
         assert (tmp_path / f"{name}.png").stat().st_size > 10_000
 
 
+def test_closed_loop_run_recovers_the_drifted_focus_and_logs_every_period(capsys, tmp_path):
+    from modalctl.recorder import read_log
+
+    args = [*RUN, "--focus-time", "25ms", "--drift", "1%", "--damping-error", "20%", "--snr", "40",
+            "--sample-rate", "500kHz"]
+    code, _, err = run(capsys, *args, "--out", str(tmp_path / "open"), "--json", "--no-plots")
+    assert code == 0, err
+    code, _, err = run(capsys, *args, "--loop", "closed", "--out", str(tmp_path / "closed"), "--json")
+    assert code == 0, err
+    opened = json.loads((tmp_path / "open" / "metrics.json").read_text())
+    closed = json.loads((tmp_path / "closed" / "metrics.json").read_text())
+    assert opened["tau"] < 0.85 and closed["tau"] > 0.95
+    assert closed["loop"]["state"] == "inactive" and closed["loop"]["fault"] is None
+    records, header = read_log(tmp_path / "closed" / "log")
+    assert records.size == closed["loop"]["periods"] == header["meta"]["control_rate_hz"] * 0.029
+    assert (tmp_path / "closed" / "loop.png").stat().st_size > 10_000
+
+
+def test_closed_loop_rate_must_divide_the_sample_rate(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--loop", "closed", "--control-rate", "30kHz",
+                       "--out", str(tmp_path))
+    assert code == 2 and "must divide" in err
+
+
 def test_focus_time_too_short_for_the_voltage_limit(capsys, tmp_path):
     code, _, err = run(capsys, *RUN, "--focus-time", "1ms", "--voltage-limit", "2V", "--out", str(tmp_path))
     assert code == 1 and "above the 2 V limit" in err
