@@ -1,8 +1,8 @@
-"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``, ``identify``, ``run``.
+"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``, ``identify``, ``run``, ``sweep``.
 
 Exit codes: 0 success, 1 a target that cannot be met (no mode set or no plan meets it: the
 message says by how much), 2 bad input (unknown scene, shape or parameter, bad units,
-unreadable file), 3 a device error.
+unreadable file), 3 a device error or a closed-loop shot stopped by the supervisor.
 """
 
 from __future__ import annotations
@@ -117,6 +117,29 @@ def build_parser() -> argparse.ArgumentParser:
     truth.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="directory for metrics.json, fields.npz and the pictures")
     p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("sweep", help="run a focus case over a grid of scenarios on the HIL and map where methods fail")
+    p.add_argument("--scene", default="thesis-al-cc", help="scene (default thesis-al-cc)")
+    p.add_argument("--points", type=int, default=211, help="grid points of a beam scene (211)")
+    p.add_argument("--shape", default="sinc", help="shape generator (sinc)")
+    p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
+                   help="shape parameter with units (default width=18mm center=24mm)")
+    p.add_argument("--focus-time", type=_quantity("s", "focus-time"), default=25e-3, help="T_F (25ms)")
+    p.add_argument("--margin", type=_quantity("1", "margin"), help="transient margin to plan for")
+    p.add_argument("--vary", action="append", default=[], type=_parse_param, metavar="NAME=V1,V2,...",
+                   help="a swept parameter and its values: " + ", ".join(SWEPT) + " (one or two)")
+    p.add_argument("--methods", default="open,closed,tracked", help="open, closed, tracked (all three)")
+    p.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="fixed drift when not swept")
+    p.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0)
+    p.add_argument("--snr", type=float, default=40.0, help="sensor noise, dB below the focus peak (40)")
+    p.add_argument("--control-rate", type=_quantity("Hz", "control-rate"), default=20e3)
+    p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=500e3)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--scheduler", help="dask.distributed scheduler address (default: a local process pool)")
+    p.add_argument("--workers", type=int, help="local processes (default: every core)")
+    p.add_argument("--out", required=True, help="directory for sweep.json, sweep.md and maps.png")
+    p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("identify", help="identify a structure's modes from FRFs measured through a device")
@@ -288,6 +311,69 @@ def _run(args) -> int:
     return DEVICE if fault else 0
 
 
+# swept parameter -> (Case field, unit of its values)
+SWEPT = {"drift": ("drift", "1"), "damping-error": ("damping_error", "1"), "finger": ("finger", "N s/m"),
+         "latency": ("latency", None), "snr": ("snr_db", None), "focus-time": ("focus_time", "s"),
+         "seed": ("seed", None)}
+
+
+def _swept_values(name: str, text: str) -> tuple[str, list]:
+    if name not in SWEPT:
+        raise ParamError(f"cannot sweep {name!r}; choose from {', '.join(SWEPT)}")
+    field, unit = SWEPT[name]
+    values = []
+    for item in text.split(","):
+        if unit is not None:
+            values.append(parse_quantity(item, unit, name))
+        else:
+            try:
+                values.append(int(item) if field in ("latency", "seed") else float(item))
+            except ValueError:
+                raise ParamError(f"{name}: expected numbers separated by commas, got {item!r}") from None
+    return field, values
+
+
+def _sweep(args) -> int:
+    import itertools
+    from dataclasses import replace
+
+    from .executor import executor_for
+    from .hil.sweep import METHODS, Case, run_case
+
+    if not 1 <= len(args.vary) <= 2:
+        raise ParamError("give one or two --vary NAME=V1,V2,... (e.g. --vary drift=0,1%,2%)")
+    axes = [_swept_values(name, text) for name, text in args.vary]
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = set(methods) - set(METHODS)
+    if unknown:
+        raise ParamError(f"unknown method(s) {', '.join(sorted(unknown))}; choose from {', '.join(METHODS)}")
+    get_shape(args.shape)  # a clear error before any work
+    load_scene(args.scene, args.points)
+    params = tuple(args.param) or (("width", "18mm"), ("center", "24mm"))
+    base = Case(args.scene, args.shape, params, args.focus_time, "open", args.drift, args.damping_error,
+                snr_db=args.snr, margin=args.margin, points=args.points, control_rate=args.control_rate,
+                sample_rate=args.sample_rate, seed=args.seed)
+    cases = [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
+             for m in methods for values in itertools.product(*[v for _, v in axes])]
+    executor = executor_for(args.scheduler, args.workers)
+    rows = executor.map(run_case, cases, progress=not args.quiet)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {"axes": {f: v for f, v in axes}, "methods": methods, "rows": rows,
+               "executor": type(executor).__name__}
+    (out / "sweep.json").write_text(json.dumps(summary, indent=2, default=_jsonable))
+    from .report import plot_sweep_maps, sweep_table
+
+    (out / "sweep.md").write_text(sweep_table(rows, [f for f, _ in axes]))
+    summary["pictures"] = {"maps": str(plot_sweep_maps(rows, [f for f, _ in axes], methods, out / "maps.png"))}
+    if args.json:
+        print(json.dumps(summary, default=_jsonable))
+    else:
+        print((out / "sweep.md").read_text())
+        print(f"report: {out}/ (sweep.json, sweep.md, maps.png)")
+    return 0
+
+
 def _identify(args) -> int:
     import numpy as np
 
@@ -360,7 +446,7 @@ def _jsonable(value):
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run,
-                "identify": _identify}
+                "identify": _identify, "sweep": _sweep}
     try:
         return handlers[args.command](args)
     except DeviceError as exc:

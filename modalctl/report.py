@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from .decompose import Decomposition  # noqa: E402
 
 __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
-           "plot_spectrogram", "write_run_report", "plot_loop"]
+           "plot_spectrogram", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table"]
 
 
 def _save(fig, path) -> Path:
@@ -245,6 +245,71 @@ def plot_loop(log, path) -> Path:
             ax.axvline(t[n], color="r", lw=1)
     if failed.size:
         axes[0].text(t[failed[0]], axes[0].get_ylim()[1] * 0.9, " fault: outputs ramped to zero", color="r")
+    return _save(fig, path)
+
+
+_AXIS_LABELS = {"drift": "drift (%)", "damping_error": "damping error (%)", "finger": "finger damping (N s/m)",
+                "latency": "extra latency (periods)", "snr_db": "SNR (dB)", "focus_time": "focus time (ms)",
+                "seed": "seed"}
+_AXIS_SCALE = {"drift": 100, "damping_error": 100, "focus_time": 1e3}
+
+
+def _axis_values(rows, name):
+    return sorted({r[name] for r in rows})
+
+
+def sweep_table(rows, axes) -> str:
+    """Markdown: one row per scenario, tau (margin ratio) of each method side by side."""
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    by = {(r["method"], *(r[a] for a in axes)): r for r in rows}
+    keys = sorted({tuple(r[a] for a in axes) for r in rows})
+    head = [_AXIS_LABELS.get(a, a) for a in axes] + [f"{m}: tau (margin)" for m in methods]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for key in keys:
+        cells = [f"{v * _AXIS_SCALE.get(a, 1):g}" for a, v in zip(axes, key)]
+        for m in methods:
+            r = by.get((m, *key))
+            cells.append("" if r is None else f"{r['tau']:.3f} ({r['margin_ratio']:.2f})"
+                         + ("" if r["state"] != "error" else " stopped"))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_sweep_maps(rows, axes, methods, path) -> Path:
+    """tau and margin ratio of each method over one or two swept parameters: maps (two) or curves (one)."""
+    fig, grid = plt.subplots(2, len(methods), figsize=(4.2 * len(methods), 7.2), squeeze=False, layout="constrained")
+    x_name = axes[0]
+    xs = _axis_values(rows, x_name)
+    ys = _axis_values(rows, axes[1]) if len(axes) == 2 else [None]
+    for col, method in enumerate(methods):
+        for row, (metric, good, label) in enumerate((("tau", 0.95, "tau"), ("margin_ratio", 0.5, "margin ratio"))):
+            ax = grid[row, col]
+            table = np.full((len(ys), len(xs)), np.nan)
+            for r in rows:
+                if r["method"] == method:
+                    j = xs.index(r[x_name])
+                    i = ys.index(r[axes[1]]) if len(axes) == 2 else 0
+                    table[i, j] = r[metric]
+            if len(axes) == 2:
+                cmap = "RdYlGn" if metric == "tau" else "RdYlGn_r"
+                image = ax.imshow(table, origin="lower", aspect="auto", cmap=cmap,
+                                  vmin=0.5 if metric == "tau" else 0.3, vmax=1.0)
+                for i in range(len(ys)):
+                    for j in range(len(xs)):
+                        ok = table[i, j] >= good if metric == "tau" else table[i, j] <= good
+                        ax.text(j, i, f"{table[i, j]:.2f}" + ("" if ok else "\n✗"), ha="center", va="center",
+                                fontsize=8)
+                ax.set_xticks(range(len(xs)), [f"{v * _AXIS_SCALE.get(x_name, 1):g}" for v in xs])
+                ax.set_yticks(range(len(ys)), [f"{v * _AXIS_SCALE.get(axes[1], 1):g}" for v in ys])
+                ax.set_ylabel(_AXIS_LABELS.get(axes[1], axes[1]))
+                fig.colorbar(image, ax=ax, shrink=0.8)
+            else:
+                ax.plot(np.array(xs) * _AXIS_SCALE.get(x_name, 1), table[0], "o-")
+                ax.axhline(good, color="k", ls=":", lw=0.8)
+                ax.set_ylabel(label)
+            ax.set_xlabel(_AXIS_LABELS.get(x_name, x_name))
+            ax.set_title(f"{method}: {label} (" + ("at least" if metric == "tau" else "at most") + f" {good:g})")
+    fig.suptitle("where each method fails (✗: criterion not met)")
     return _save(fig, path)
 
 

@@ -174,9 +174,10 @@ class Runtime:
             return self.state
         reference = self.schedule.reference[:, n]
         error = reference - (measured - self.leak * self.command)
-        if self.tracker is not None:
+        if self.tracker is not None:  # the mode's own answer: the other modes' predicted share removed
             drive = (self.schedule.drive[:, n] + self.command) * self.held
-            self.tracker.update((measured - self.leak * drive)[:, None], drive[:, None])
+            own = measured - (reference - self.schedule.own[:, n]) - self.leak * self.command
+            self.tracker.update(own[:, None], drive[:, None])
         wanted = self.controller.update(error, self.authority[:, n])
         phasors = self.weights * wanted  # (a, k)
         fraction = self.supervisor.limit(self.phasors, phasors, n)

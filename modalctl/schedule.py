@@ -44,6 +44,9 @@ class Schedule:
         Envelope each mode's reading should have at the end of each period (m/s).
     drive : ndarray, shape (k, n)
         Envelope of each mode's planned modal force (the loops' authority scales with it).
+    own : ndarray, shape (k, n)
+        Envelope of each mode's own modal velocity in the model: ``reference - own`` is what the
+        other modes add to the reading (a tracker removes it).
     feedforward_peak, feedforward_slope : ndarray, shape (a, n)
         Largest feed-forward voltage (V) and slope (V/s) of each channel over each period and the next.
     feedforward : ndarray, shape (a, n * decimation)
@@ -57,6 +60,7 @@ class Schedule:
     sensors: np.ndarray
     reference: np.ndarray
     drive: np.ndarray
+    own: np.ndarray
     feedforward_peak: np.ndarray
     feedforward_slope: np.ndarray
     feedforward: np.ndarray
@@ -93,14 +97,16 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     carriers = plan.model.frequencies[plan.modes]
     phases = Oscillators(carriers, fs).advance(t.size)
     expected = Plant(plan.model, fs, hold=HOLD)
-    readings = sensors @ expected.sensors(expected.step(volts))
-    reference = LockIn(bandwidths, fs, decimation, closing=True).process(readings, phases)
-    planned = LockIn(bandwidths, fs, decimation, closing=True).process(drive, phases)
+    velocity = expected.step(volts)
+    lockin = lambda signals: LockIn(bandwidths, fs, decimation, closing=True).process(signals, phases)  # noqa: E731
+    reference = lockin(sensors @ expected.sensors(velocity))
+    planned = lockin(drive)
+    own = lockin(velocity[plan.modes])
     per_period = volts.reshape(volts.shape[0], n, decimation)
     peak = np.abs(per_period).max(axis=2)
     slope = np.abs(np.diff(volts, axis=1, append=volts[:, -1:])).reshape(per_period.shape).max(axis=2) * fs
     return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),
-                    reference, planned, _with_next(peak), _with_next(slope), volts)
+                    reference, planned, own, _with_next(peak), _with_next(slope), volts)
 
 
 def _with_next(x: np.ndarray) -> np.ndarray:

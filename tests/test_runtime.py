@@ -28,7 +28,7 @@ def _step_runtime(model, mode, periods=240, step_at=20, size=1e-4, log=None):
     a = weights.shape[0]
     reference = np.where(np.arange(periods) >= step_at, size, 0.0)[None, :] + 0j
     zeros = np.zeros((a, periods))
-    schedule = Schedule(RATE, D, model.frequencies[modes], bands, sensors, reference, reference,
+    schedule = Schedule(RATE, D, model.frequencies[modes], bands, sensors, reference, reference, reference,
                         zeros, zeros, np.zeros((a, periods * D)))
     design = design_loops(model.frequencies[modes], model.damping[modes], bands, RATE)
     supervisor = Supervisor(Limits(np.inf), schedule.carriers, RATE, zeros, zeros, np.full(1, size))

@@ -1,0 +1,52 @@
+"""Sweeps: executors (local pool, dask.distributed) and ``modalctl sweep`` end to end."""
+
+import json
+
+import pytest
+
+from modalctl.cli import main
+from modalctl.executor import DaskExecutor, LocalExecutor, executor_for
+
+
+def square(x):
+    return x * x
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_local_pool_keeps_the_order(workers):
+    assert LocalExecutor(workers).map(square, range(7)) == [x * x for x in range(7)]
+
+
+def test_dask_local_cluster_runs_the_same_map():
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cluster:
+        with distributed.Client(cluster) as client:
+            assert DaskExecutor(client).map(square, range(7)) == [x * x for x in range(7)]
+            by_address = executor_for(cluster.scheduler_address)  # how the CLI's --scheduler reaches it
+            try:
+                assert isinstance(by_address, DaskExecutor) and by_address.map(square, [3]) == [9]
+            finally:
+                by_address.client.close()
+
+
+def test_sweep_maps_open_against_closed(capsys, tmp_path):
+    code = main(["sweep", "--vary", "drift=0,2%", "--methods", "open,closed", "--damping-error", "20%",
+                 "--workers", "2", "--out", str(tmp_path), "--json", "--quiet"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    summary = json.loads((tmp_path / "sweep.json").read_text())
+    tau = {(r["method"], r["drift"]): r["tau"] for r in summary["rows"]}
+    assert len(tau) == 4 and summary["executor"] == "LocalExecutor"
+    assert tau[("closed", 0.02)] > tau[("open", 0.02)] + 0.1  # the loops recover what 2% drift spoils
+    assert tau[("open", 0.0)] > tau[("open", 0.02)]
+    assert (tmp_path / "maps.png").stat().st_size > 10_000 and "| drift (%) |" in (tmp_path / "sweep.md").read_text()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--vary", "speed=1,2"], "cannot sweep 'speed'"),
+    (["--vary", "drift=0,1%", "--methods", "magic"], "unknown method"),
+    (["--vary", "latency=one"], "expected numbers"),
+])
+def test_sweep_refuses_bad_input(capsys, tmp_path, args, message):
+    code = main(["sweep", *args, "--out", str(tmp_path), "--quiet"])
+    assert code == 2 and message in capsys.readouterr().err
