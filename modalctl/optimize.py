@@ -49,6 +49,9 @@ class Problem:
     offset : ndarray, shape (n_out, nt), optional
         Off-target field the kept modes' closed forms do not carry (cross-talk into the other
         modes, found by simulating the whole model), added to theirs (m/s).
+    offset_slope : ndarray, shape (n_out, nt, 2 m), optional
+        Its derivative with respect to ``(kappa, brake)`` at ``offset_at`` (shape (2 m,)): the
+        offset is then taken as ``offset + offset_slope @ ((kappa, brake) - offset_at)``.
     """
 
     targets: np.ndarray
@@ -64,6 +67,8 @@ class Problem:
     kappa_bounds: np.ndarray
     brake_bounds: np.ndarray
     offset: np.ndarray | None = None
+    offset_slope: np.ndarray | None = None
+    offset_at: np.ndarray | None = None
 
 
 @dataclass
@@ -93,7 +98,10 @@ def evaluate(problem: Problem, kappa, brake, offset=None):
     velocity, drive = modal_response(problem.times, problem.targets, problem.omega, problem.zeta, kappa, brake,
                                      problem.focus_time)
     off = problem.shapes_out.T @ velocity
-    offset = problem.offset if offset is None else offset
+    if offset is None:
+        offset = problem.offset
+        if offset is not None and problem.offset_slope is not None:
+            offset = offset + problem.offset_slope @ (np.r_[kappa, brake] - problem.offset_at)
     return (off if offset is None else off + offset), problem.weights @ drive
 
 
@@ -189,7 +197,11 @@ def _ipopt(problem: Problem, field_set, volt_set, kappa0, brake0, scale_v: float
     cols = [column[j] for _, j in pairs]
     off = casadi.sum1(casadi.DM(problem.shapes_out[:, rows]) * vel[:, cols]).T
     if problem.offset is not None:
-        off = off + casadi.DM(problem.offset[rows, [j for _, j in pairs]])
+        times = [j for _, j in pairs]
+        off = off + casadi.DM(problem.offset[rows, times])
+        if problem.offset_slope is not None:
+            step = casadi.vertcat(kappa, brake) - casadi.DM(problem.offset_at)
+            off = off + casadi.mtimes(casadi.DM(problem.offset_slope[rows, times]), step)
     off = off / problem.peak
     vpairs = sorted(volt_set)
     volts = casadi.sum1(casadi.DM(problem.weights[[a for a, _ in vpairs]].T) * drv[:, [column[j] for _, j in vpairs]]).T

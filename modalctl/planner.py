@@ -313,25 +313,33 @@ def _optimize(proto: Plan, margin: float, voltage_limit, brake: bool, gap_fracti
                       voltage_limit, kappa_bounds, brake_bounds)
     kappa, brake_rates = np.clip(proto.kappa, *kappa_bounds.T), brake_bounds[:, 0].copy()
     seconds, verified = 0.0, []
-    for _ in range(4 if verify == "whole" else 1):
+    for _ in range(WHOLE_ROUNDS if verify == "whole" else 1):
         result = solve(problem, kappa0=kappa, brake0=brake_rates)
         seconds += result.seconds
         if not result.ok:  # non-convex: try again from fast envelopes before giving up
-            retry = solve(problem, kappa0=np.sqrt(kappa_bounds.prod(axis=1)), brake0=brake_bounds.mean(axis=1))
+            retry = solve(problem, kappa0=np.sqrt(problem.kappa_bounds.prod(axis=1)),
+                          brake0=problem.brake_bounds.mean(axis=1))
             seconds += retry.seconds
             result = retry if retry.ok or retry.ratio < result.ratio else result
         kappa, brake_rates = result.kappa, result.brake
-        if not result.ok:
+        if not result.ok and verify == "planned":
             break
         offset = crosstalk_field(proto, kappa, brake_rates, times)[outside]
         whole = np.max(np.abs(evaluate(problem, kappa, brake_rates, offset)[0])) / proto.focus_peak
         verified.append(float(whole))
         if whole <= margin * 1.001:
             break
-        problem.offset = offset
+        # linearize the whole model's cross-talk around this plan and solve again within a trust region
+        start = _time.perf_counter()
+        problem.offset, problem.offset_at = offset, np.r_[kappa, brake_rates]
+        problem.offset_slope = _crosstalk_slope(proto, kappa, brake_rates, times, outside, offset, brake)
+        problem.kappa_bounds = _trust(kappa, kappa_bounds)
+        problem.brake_bounds = _trust(brake_rates, brake_bounds)
+        seconds += _time.perf_counter() - start
     result.seconds = seconds
     ok = result.ok and (verify == "planned" or verified[-1] <= margin * 1.001)
     if not ok:
+        problem.kappa_bounds, problem.brake_bounds = kappa_bounds, brake_bounds
         best = solve(Problem(**{**problem.__dict__, "margin": None}), kappa0=kappa, brake0=brake_rates)
         hint = "" if brake else "; allowing braking after the focus may help"
         volts = f" within {voltage_limit:g} V" if voltage_limit is not None else ""
@@ -341,6 +349,31 @@ def _optimize(proto: Plan, margin: float, voltage_limit, brake: bool, gap_fracti
                         f"{reach:.3f} (over by {reach - margin:.3f}){counted}{hint}", reach, margin)
     result.history.append({"whole_model_ratio": verified})
     return kappa, brake_rates, result
+
+
+WHOLE_ROUNDS = 8  # linearizations of the whole model's cross-talk at most
+TRUST = 0.3  # each round moves every rate by at most this fraction
+
+
+def _trust(values: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """Bounds within ``TRUST`` of ``values`` and inside ``bounds`` (rows: lower, upper)."""
+    return np.column_stack([np.maximum(bounds[:, 0], values * (1 - TRUST)),
+                            np.minimum(bounds[:, 1], values * (1 + TRUST))])
+
+
+def _crosstalk_slope(proto: Plan, kappa, brake_rates, times, outside, offset, brake: bool, step: float = 0.01):
+    """Derivative of the whole model's off-target cross-talk (n_out, nt) with respect to each
+    rate, ``kappa`` then ``brake`` (columns of zeros where braking is off): shape (n_out, nt, 2 m),
+    by forward differences of ``step`` (relative) on the exact plant."""
+    m = kappa.size
+    slope = np.zeros((*offset.shape, 2 * m))
+    for i in range(2 * m if brake else m):
+        k, b = kappa.copy(), brake_rates.copy()
+        rates = k if i < m else b
+        h = step * rates[i % m]
+        rates[i % m] += h
+        slope[:, :, i] = (crosstalk_field(proto, k, b, times)[outside] - offset) / h
+    return slope
 
 
 def min_focus_time(dec: Decomposition, voltage_limit: float, *, margin: float | None = None,
