@@ -90,11 +90,11 @@ def design_loops(frequencies, damping, bandwidths, control_rate: float, phase_ma
         below = np.flatnonzero(phase > -180)
         w180 = below[-1] + 1 if below[-1] + 1 < omega.size else below[-1]
         margin_db = 20 * np.log10(np.abs(shape) / np.abs(shape[w180]))  # gain margin were the crossover here
-        ok = (180 + phase >= phase_margin) & (margin_db >= gain_margin) & (omega > sigma)
-        if not ok.any():
+        ok = (180 + phase >= phase_margin) & (margin_db >= gain_margin)
+        if not ok[0]:
             raise ValueError(f"no PI loop for the mode at {f:g} Hz keeps {phase_margin:g} deg and "
                              f"{gain_margin:g} dB at {control_rate:g} Hz: raise the control rate")
-        c = np.flatnonzero(~ok & (omega > sigma))
+        c = np.flatnonzero(~ok)
         c = (c[0] if c.size else omega.size) - 1  # the last good frequency before the first bad one
         gain = 1 / np.abs(shape[c])
         row = (gain, gain * sigma)
@@ -127,22 +127,29 @@ class PIControl:
     """
 
     def __init__(self, design: LoopDesign, control_rate: float):
-        self.kp, self.ki = design.kp, design.ki
+        self.kp, self.ki = np.array(design.kp, float), np.array(design.ki, float)
         self.period = 1 / control_rate
-        self.integral = np.zeros(self.kp.size, complex)
+        self.integral = np.zeros(self.kp.size, complex)  # ki times the integrated error
 
     def reset(self) -> None:
-        self.integral[:] = 0
+        self.integral = np.zeros(self.kp.size, complex)
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         """Feedback command envelopes (k,) complex from the envelope errors (k,), reference minus
         measured, each at most ``limit`` (k,) in magnitude; a loop whose limit is zero rests."""
-        trial = self.integral + error * self.period
-        command = self.kp * error + self.ki * trial
-        over = np.abs(command) > limit
-        pushing = np.real(np.conj(command) * error) > 0
-        self.integral = np.where(over & pushing, self.integral, trial)  # anti-windup
-        self.integral = np.where(limit > 0, self.integral, 0)
-        command = self.kp * error + self.ki * self.integral
+        trial = self.integral + (self.ki * self.period) * error
+        command = self.kp * error + trial
         size = np.abs(command)
-        return np.where(size > limit, command * limit / np.maximum(size, 1e-300), command)
+        over = size > limit
+        if not np.count_nonzero(over):  # the usual case: seven array operations
+            self.integral = trial
+            return command
+        held = over & (np.real(np.conj(command) * error) > 0)  # anti-windup: hold while pushing further
+        trial[held] = self.integral[held]
+        trial[limit <= 0] = 0  # a loop with no authority rests
+        self.integral = trial
+        command = self.kp * error + trial
+        size = np.abs(command)
+        over = size > limit
+        command[over] *= limit[over] / size[over]
+        return command

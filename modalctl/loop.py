@@ -102,7 +102,7 @@ def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limi
     controller.kp, controller.ki = controller.kp * gain_scale, controller.ki * gain_scale
     supervisor = Supervisor(Limits(voltage_limit or np.inf, slew_limit), s.carriers, s.control_rate,
                             s.feedforward_peak, s.feedforward_slope,
-                            np.abs(s.reference).max(axis=1) + 5 * parts.noise, lead=1 + latency)
+                            np.abs(s.reference).max(axis=1) + 5 * parts.noise, plan.weights, lead=1 + latency)
     k, a = s.carriers.size, plan.weights.shape[0]
     recorder = None if log is None else Recorder(log, log_fields(k, a), meta={
         "control_rate_hz": s.control_rate, "sample_rate_hz": plan.sample_rate, "carriers_hz": s.carriers.tolist(),

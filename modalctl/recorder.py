@@ -43,16 +43,18 @@ class Recorder:
                   "meta": meta or {}}
         self.path.with_suffix(".json").write_text(json.dumps(header, indent=1))
         self._file = open(self.path.with_suffix(".bin"), "wb")
-        self._record = np.zeros((), self.dtype)
+        self._record = np.zeros(1, self.dtype)
+        self._fields = {name: self._record[name][0] if self._record[name][0].ndim else self._record[name]
+                        for name in self.dtype.names}  # writable views into the one record
         self.records = 0
 
     def write(self, **values) -> None:
         """Append one record (fields not given are zero) and hand it to the operating system."""
-        record = self._record
-        record[...] = 0
+        if len(values) != len(self._fields):
+            self._record[...] = 0
         for name, value in values.items():
-            record[name] = value
-        self._file.write(record.tobytes())
+            self._fields[name][...] = value
+        self._file.write(self._record.data)
         self._file.flush()
         self.records += 1
 

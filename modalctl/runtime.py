@@ -119,7 +119,11 @@ class Runtime:
                  weights: np.ndarray, leak: np.ndarray, authority: np.ndarray, recorder: Recorder | None = None,
                  tracker=None, held: np.ndarray | None = None):
         self.board, self.schedule, self.controller, self.supervisor = board, schedule, controller, supervisor
-        self.weights, self.leak, self.authority = np.asarray(weights), np.asarray(leak), np.asarray(authority)
+        self.weights, self.leak = np.asarray(weights), np.asarray(leak)
+        # one contiguous row per period: the loop reads them period by period
+        self._reference, self._authority = (np.ascontiguousarray(np.asarray(x).T)
+                                            for x in (schedule.reference, authority))
+        self._gains = np.abs(self.weights)
         self.recorder, self.tracker = recorder, tracker
         self.held = np.ones(schedule.carriers.size) if held is None else held
         self.state = State.UNCONFIGURED
@@ -172,16 +176,16 @@ class Runtime:
         if reason is not None:
             self.fault(reason)
             return self.state
-        reference = self.schedule.reference[:, n]
-        error = reference - (measured - self.leak * self.command)
+        reference = self._reference[n]
+        error = reference - measured + self.leak * self.command
         if self.tracker is not None:  # the mode's own answer: the other modes' predicted share removed
             drive = (self.schedule.drive[:, n] + self.command) * self.held
             own = measured - (reference - self.schedule.own[:, n]) - self.leak * self.command
             self.tracker.update(own[:, None], drive[:, None])
-        wanted = self.controller.update(error, self.authority[:, n])
-        phasors = self.weights * wanted  # (a, k)
-        fraction = self.supervisor.limit(self.phasors, phasors, n)
-        self.phasors, self.command = fraction * phasors, fraction * wanted
+        wanted = self.controller.update(error, self._authority[n])
+        fraction = self.supervisor.limit(self.command, wanted, n)
+        self.command = wanted if fraction == 1.0 else fraction * wanted
+        self.phasors = self.weights * self.command  # the dispatch: (a, k)
         cost = time.perf_counter() - tic
         self.board.write(self.phasors)
         self._costs.append(cost)
@@ -193,9 +197,9 @@ class Runtime:
         if self.recorder is None:
             return
         n = min(self.period, self.schedule.periods - 1)
-        self.recorder.write(period=self.period, state=int(self.state), reference=self.schedule.reference[:, n],
+        self.recorder.write(period=self.period, state=int(self.state), reference=self._reference[n],
                             measured=0 if measured is None else measured, command=self.command,
-                            fraction=fraction, phasor_sum=np.abs(self.phasors).sum(axis=1), compute=cost)
+                            fraction=fraction, phasor_sum=self._gains @ np.abs(self.command), compute=cost)
 
     def run(self, progress: bool = False) -> RunResult:
         """Configure if needed, activate, update until the schedule ends or a fault, deactivate."""

@@ -31,7 +31,7 @@ def _step_runtime(model, mode, periods=240, step_at=20, size=1e-4, log=None):
     schedule = Schedule(RATE, D, model.frequencies[modes], bands, sensors, reference, reference, reference,
                         zeros, zeros, np.zeros((a, periods * D)))
     design = design_loops(model.frequencies[modes], model.damping[modes], bands, RATE)
-    supervisor = Supervisor(Limits(np.inf), schedule.carriers, RATE, zeros, zeros, np.full(1, size))
+    supervisor = Supervisor(Limits(np.inf), schedule.carriers, RATE, zeros, zeros, np.full(1, size), weights)
     recorder = None if log is None else Recorder(log, log_fields(1, a))
     sigma = model.omega[mode] * model.damping[mode]
     authority = np.full((1, periods), 100 * 2 * sigma * size)
