@@ -17,10 +17,12 @@ from collections import deque
 
 import numpy as np
 
-from modalctl.lockin import LockIn, Oscillators
+from modalctl.lockin import Oscillators
 from modalctl.model import ModalModel
 from modalctl.propagate import Plant
 from modalctl.schedule import HOLD, Schedule
+
+from .block import BlockLockIn, BlockPlant
 
 __all__ = ["HILBoard"]
 
@@ -56,6 +58,7 @@ class HILBoard:
     def __init__(self, truth, sample_rate: float, noise: float = 0.0, voltage_limit: float | None = None,
                  latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3,
                  amplifier_bandwidth: float | None = None, scan_noise: float = 0.0, seed: int = 0):
+        self.truth, self.voltage_limit, self.amplifier_bandwidth = truth, voltage_limit, amplifier_bandwidth
         self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=voltage_limit,
                            amplifier_bandwidth=amplifier_bandwidth) if isinstance(truth, ModalModel) else truth
         self.scan_noise = float(scan_noise)
@@ -71,6 +74,8 @@ class HILBoard:
             raise ValueError(f"board runs at {self.sample_rate:g} Hz, the schedule at "
                              f"{schedule.decimation} x {schedule.control_rate:g} Hz")
         self.schedule = schedule
+        if isinstance(self.truth, ModalModel) and self.amplifier_bandwidth is None:  # one product per period
+            self.plant = BlockPlant(self.truth, self.sample_rate, HOLD, self.voltage_limit)
 
     def start(self) -> None:
         s = self.schedule
@@ -78,7 +83,7 @@ class HILBoard:
             raise RuntimeError("board: start before configure")
         self.plant.reset()
         self.osc = Oscillators(s.carriers, self.sample_rate)
-        self.lockin = LockIn(s.bandwidths, self.sample_rate, s.decimation, closing=True)
+        self.lockin = BlockLockIn(s.bandwidths, self.sample_rate, s.decimation)
         a, k = s.feedforward.shape[0], s.carriers.size
         self.current = np.zeros((a, k), complex)
         self.queue = deque([np.zeros((a, k), complex)] * self.latency)
@@ -123,7 +128,7 @@ class HILBoard:
         """Play the rest of the shot (the structure rings down; outputs as they are)."""
         s = self.schedule
         while self.sample < s.feedforward.shape[1]:
-            self._play(min(s.decimation, s.feedforward.shape[1] - self.sample), self.current)
+            self._play(min(s.decimation, s.feedforward.shape[1] - self.sample), self.current, measure=False)
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:
         """Velocity (n_points, nt) of the shot at the samples nearest to ``times`` (s), as a
@@ -133,17 +138,16 @@ class HILBoard:
         field = shapes.T @ self.velocity[:, idx]
         return field + self.scan_noise * self.rng.standard_normal(field.shape) if self.scan_noise else field
 
-    def _play(self, n: int, target: np.ndarray) -> np.ndarray:
+    def _play(self, n: int, target: np.ndarray, measure: bool = True) -> np.ndarray | None:
         s, start = self.schedule, self.sample
-        t = (start + np.arange(n)) / self.sample_rate
         if self.drift is not None:
-            shift = self.drift(t[0], self.plant.model.n_modes)
+            shift = self.drift(start / self.sample_rate, self.plant.model.n_modes)
             if np.any(self.plant.model.frequencies != self._base * (1 + shift)):
                 self.plant.retune(self._base * (1 + shift))
-        phases = self.osc.advance(n)
-        slope = (np.arange(1, n + 1) / n)[None, None, :]
-        phasors = self.current[:, :, None] + (target - self.current)[:, :, None] * slope  # (a, k, n)
-        volts = s.feedforward[:, start:start + n] + np.einsum("akn,kn->an", phasors, np.exp(1j * phases)).real
+        carrier = np.exp(1j * self.osc.advance(n))  # (k, n)
+        ramp = np.arange(1, n + 1) / n  # each phasor moves in a straight line to its new value
+        volts = s.feedforward[:, start:start + n] + (self.current @ carrier).real \
+            + ((target - self.current) @ (carrier * ramp)).real
         if self.ramp is not None:
             first, length = self.ramp
             volts = volts * np.clip(1 - (start + np.arange(1, n + 1) - first) / length, 0, 1)
@@ -157,5 +161,4 @@ class HILBoard:
         if self.noise:
             measured = measured + self.noise * self.rng.standard_normal(measured.shape)
         self.sensed[:, start:start + n] = measured
-        envelopes = self.lockin.process(s.sensors @ measured, phases)
-        return envelopes[:, -1] if envelopes.shape[1] else None
+        return self.lockin.filter(2 * (s.sensors @ measured) * carrier.conj()) if measure else None

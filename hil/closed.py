@@ -21,7 +21,7 @@ __all__ = ["ClosedShot", "run_focus"]
 class ClosedShot:
     """What one shot measured: tau and margin ratio of the truth's field, peak voltage (V),
     clipped samples, the loops' design, the truth's field at the focus (n,), how the runtime
-    ended, and the board (its ``velocity`` and ``applied`` records)."""
+    ended, the board (its ``velocity`` and ``applied`` records) and the loop's wall time (s)."""
 
     tau: float
     margin_ratio: float
@@ -31,6 +31,12 @@ class ClosedShot:
     focus_field: np.ndarray
     result: RunResult
     board: HILBoard
+
+    @property
+    def real_time_factor(self) -> float:
+        """Wall time of the loop (board emulation included) over the time it played: below 1 is
+        faster than real time."""
+        return self.result.loop_seconds / (self.result.periods / self.board.schedule.control_rate)
 
 
 def run_focus(truth, plan, target, closed: bool = True, control_rate: float = 20e3,

@@ -15,8 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from modalctl.model import ModalModel, ModelError
-from modalctl.propagate import hold_coefficients
 from modalctl.schedule import HOLD
+
+from .block import Recursions, clip_rails
 
 __all__ = ["Finger", "FingerPlant", "added_damping"]
 
@@ -51,9 +52,12 @@ class FingerPlant:
         Hz.
     voltage_limit : float or None
         Amplifier rails (V).
+    hold : {"zoh", "foh"}
+        The DAC's hold (the board's by default).
     """
 
-    def __init__(self, model: ModalModel, finger: Finger, sample_rate: float, voltage_limit: float | None = None):
+    def __init__(self, model: ModalModel, finger: Finger, sample_rate: float, voltage_limit: float | None = None,
+                 hold: str = HOLD):
         k = model.n_modes
         damping = np.diag(2 * model.damping * model.omega) + finger.matrix(model)
         a = np.block([[np.zeros((k, k)), np.eye(k)], [-np.diag(model.omega ** 2), -damping]])
@@ -63,33 +67,17 @@ class FingerPlant:
         self.entry = np.linalg.solve(self.vectors, np.vstack([np.zeros((k, model.actuator_gains.shape[1])),
                                                               model.actuator_gains]))  # V^-1 B
         self.exit = self.vectors[k:]  # modal velocities from eigen-coordinates
-        self.e, self.g0, self.g1 = hold_coefficients(self.values, 1 / sample_rate, HOLD)
+        self.coordinates = Recursions(self.values, sample_rate, hold)
         self.model, self.finger, self.sample_rate, self.voltage_limit = model, finger, float(sample_rate), voltage_limit
         self.reset()
 
     def reset(self) -> None:
-        self.z = np.zeros(self.values.size, complex)
-        self.last = None  # the first sample finds the structure at rest, as in Plant
+        self.coordinates.reset()
         self.clipped = 0
 
     def step(self, voltages: np.ndarray) -> np.ndarray:
         """Modal velocities (k, n) for the next chunk of voltages (a, n), V."""
-        u = np.atleast_2d(np.asarray(voltages, float))
-        if self.voltage_limit is not None:
-            self.clipped += int(np.count_nonzero(np.abs(u) > self.voltage_limit))
-            u = np.clip(u, -self.voltage_limit, self.voltage_limit)
-        drive = self.entry @ u  # (2k, n)
-        states = np.empty(drive.shape, complex)
-        z, last = self.z, self.last
-        first = 0
-        if last is None and drive.shape[1]:
-            states[:, 0], last, first = z, drive[:, 0], 1
-        for i in range(first, drive.shape[1]):  # one vector update per sample over all eigen-coordinates
-            z = self.e * z + self.g0 * last + self.g1 * drive[:, i]
-            last = drive[:, i]
-            states[:, i] = z
-        self.z, self.last = z, last
-        return (self.exit @ states).real
+        return (self.exit @ self.coordinates.run(self.entry @ clip_rails(self, voltages))).real
 
     def retune(self, frequencies, damping=None) -> None:
         raise ModelError("finger plant: a drifting truth under a finger is not supported; perturb the model first")

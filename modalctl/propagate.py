@@ -24,7 +24,7 @@ from scipy.signal import lfilter
 
 from .model import ModalModel, ModelError
 
-__all__ = ["Plant", "hold_coefficients", "HOLDS"]
+__all__ = ["Plant", "hold_coefficients", "poles", "phasors_of", "HOLDS"]
 
 HOLDS = ("zoh", "foh")
 
@@ -114,6 +114,23 @@ class _Bank:
         return out
 
 
+def poles(model: ModalModel) -> np.ndarray:
+    """``-zeta w + j w sqrt(1 - zeta^2)`` of every mode (1/s), shape (k,)."""
+    w, z = model.omega, model.damping
+    return -z * w + 1j * w * np.sqrt(1 - z**2)
+
+
+def phasors_of(poles: np.ndarray, displacement: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """The complex states ``z`` of the partial fractions with displacement ``2 Re(z q)`` and velocity
+    ``2 Re(z q lambda)``, ``q = 1 / (lambda - conj(lambda))``: a mode's state in its pole's terms."""
+    q = 1 / (poles - poles.conj())
+    a, b = q, q * poles
+    det = -a.real * b.imag + a.imag * b.real
+    zr = 0.5 * (-displacement * b.imag + velocity * a.imag) / det
+    zi = 0.5 * (a.real * velocity - b.real * displacement) / det
+    return zr + 1j * zi
+
+
 class Plant:
     """Exact sampled simulation of a modal model (the HIL truth).
 
@@ -141,8 +158,7 @@ class Plant:
             raise ModelError(f"hold must be one of {HOLDS}, got {hold!r}")
         self.model, self.sample_rate, self.hold = model, float(sample_rate), hold
         self.amplifier_bandwidth, self.voltage_limit = amplifier_bandwidth, voltage_limit
-        w, z = model.omega, model.damping
-        self.poles = -z * w + 1j * w * np.sqrt(1 - z**2)
+        self.poles = poles(model)
         self.residues = self.poles / (self.poles - self.poles.conj())
         self._amp_pole = None
         if amplifier_bandwidth is not None:
@@ -208,17 +224,10 @@ class Plant:
         eta, velocity = self.modal_state()
         damping = self.model.damping if damping is None else damping
         self.model = replace(self.model, frequencies=np.asarray(frequencies, float), damping=np.asarray(damping, float))
-        w, zeta = self.model.omega, self.model.damping
-        self.poles = -zeta * w + 1j * w * np.sqrt(1 - zeta**2)
+        self.poles = poles(self.model)
         self.residues = self.poles / (self.poles - self.poles.conj())
-        # solve 2 Re(z q) = eta, 2 Re(z q lambda) = velocity for the new poles (q = 1 / (lambda - conj(lambda)))
-        q = 1 / (self.poles - self.poles.conj())
-        a, b = q, q * self.poles
-        det = -a.real * b.imag + a.imag * b.real
-        zr = 0.5 * (-eta * b.imag + velocity * a.imag) / det
-        zi = 0.5 * (a.real * velocity - b.real * eta) / det
         bank = _Bank(self.poles, self.residues, 1 / self.sample_rate, self.hold)
-        bank.set_phasors(zr + 1j * zi, self._last_force)
+        bank.set_phasors(phasors_of(self.poles, eta, velocity), self._last_force)
         self._modes = bank
 
     def simulate(self, voltages: np.ndarray) -> np.ndarray:

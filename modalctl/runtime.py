@@ -74,13 +74,15 @@ class Controller(Protocol):
 @dataclass
 class RunResult:
     """How a run ended: final ``state``, the ``reason`` of a fault (None if it ran out its schedule),
-    the periods played, the compute time of each period's update (s), periods held back by a limit."""
+    the periods played, the compute time of each period's update (s), periods held back by a limit,
+    and the wall time of the loop from the first read to the last write (s)."""
 
     state: State
     reason: str | None
     periods: int
     step_seconds: np.ndarray = field(repr=False)
     limited: int = 0
+    loop_seconds: float = float("nan")
 
 
 def log_fields(k: int, a: int) -> dict:
@@ -206,6 +208,7 @@ class Runtime:
         if self.state == State.UNCONFIGURED:
             self.configure()
         self.activate()
+        start = time.perf_counter()
         periods = range(self.schedule.periods)
         if progress:
             from tqdm import tqdm
@@ -223,4 +226,5 @@ class Runtime:
                 self.deactivate()
             if self.recorder is not None:
                 self.recorder.close()
-        return RunResult(self.state, self.reason, self.period, np.array(self._costs), self.supervisor.scaled)
+        return RunResult(self.state, self.reason, self.period, np.array(self._costs), self.supervisor.scaled,
+                         time.perf_counter() - start)

@@ -21,7 +21,7 @@ from .propagate import Plant
 
 __all__ = ["Schedule", "schedule", "envelope_noise", "HOLD"]
 
-HOLD = "foh"  # the board's DAC interpolates linearly between samples
+HOLD = "zoh"  # the board's DAC holds each sample, as the planner assumes
 
 
 @dataclass(frozen=True)
