@@ -58,6 +58,8 @@ class Case:
     snr_db : float or None
     margin : float or None
         Transient margin the plan is optimized for.
+    modes : int or None
+        Keep the N lowest modes (the thesis's counts); None chooses them automatically.
     points : int or None
         Grid points of a beam scene.
     control_rate, sample_rate : float
@@ -76,6 +78,7 @@ class Case:
     latency: int = 0
     snr_db: float | None = 40.0
     margin: float | None = None
+    modes: int | None = None
     points: int | None = 211
     control_rate: float = 20e3
     sample_rate: float = 500e3
@@ -96,7 +99,7 @@ def _model_shape(scene: str, points, shape: str, params: tuple):
 def _plan(model, target, case: Case):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return plan(decompose(model, target, "auto"), case.focus_time, margin=case.margin,
+        return plan(decompose(model, target, case.modes or "auto"), case.focus_time, margin=case.margin,
                     sample_rate=case.sample_rate)
 
 
