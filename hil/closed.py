@@ -8,13 +8,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modalctl.loop import closed_shot, loop_parts
+from modalctl.control import PIControl, design_loops
+from modalctl.dispatch import dispatch
+from modalctl.lockin import lockin_bandwidths
+from modalctl.loop import LOCKIN_FRACTION, LOCKIN_IMAGE, closed_shot, loop_parts
 from modalctl.metrics import margin_ratio, tau
-from modalctl.runtime import RunResult
+from modalctl.recorder import Recorder
+from modalctl.runtime import RunResult, Runtime, log_fields
+from modalctl.schedule import Schedule
+from modalctl.supervisor import Limits, Supervisor
+from modalctl.track import feedthrough, sensor_weights
 
 from .board import HILBoard
 
-__all__ = ["ClosedShot", "run_focus"]
+__all__ = ["ClosedShot", "run_focus", "step_runtime"]
 
 
 @dataclass
@@ -90,3 +97,30 @@ def _measure(board: HILBoard, plan, target, design, result: RunResult) -> Closed
     clipped = getattr(board.plant, "clipped", 0)
     return ClosedShot(float(tau(target.values, field)), float(ratio), float(np.abs(board.applied).max()),
                       clipped, design, field, result, board)
+
+
+def step_runtime(model, mode: int, truth=None, control_rate: float = 20e3, sample_rate: float = 500e3,
+                 periods: int = 240, step_at: int = 20, size: float = 1e-4, latency: int = 0, log=None):
+    """One mode's loop alone, no feed-forward, its reference a step of ``size`` (m/s) at period
+    ``step_at``: the loop designed on ``model`` for no extra latency, the board on ``truth``
+    (default ``model``) taking ``latency`` extra periods. Returns ``(runtime, design, sigma, band)``:
+    the runtime ready to run, the loop's design, the mode's ``zeta w`` (1/s) and lock-in corner (Hz)."""
+    modes = np.array([mode])
+    sensors = sensor_weights(model, modes)
+    bands = lockin_bandwidths(model.frequencies, control_rate, LOCKIN_FRACTION, LOCKIN_IMAGE)[modes]
+    weights = dispatch(model, modes)
+    a = weights.shape[0]
+    reference = np.where(np.arange(periods) >= step_at, size, 0.0)[None, :] + 0j
+    zeros = np.zeros((a, periods))
+    decimation = int(round(sample_rate / control_rate))
+    schedule = Schedule(control_rate, decimation, model.frequencies[modes], bands, sensors, reference, reference,
+                        reference, zeros, zeros, np.zeros((a, periods * decimation)))
+    design = design_loops(model.frequencies[modes], model.damping[modes], bands, control_rate)
+    supervisor = Supervisor(Limits(np.inf), schedule.carriers, control_rate, zeros, zeros, np.full(1, size), weights)
+    recorder = None if log is None else Recorder(log, log_fields(1, a))
+    sigma = model.omega[mode] * model.damping[mode]
+    authority = np.full((1, periods), 100 * 2 * sigma * size)
+    board = HILBoard(model if truth is None else truth, sample_rate, latency=latency)
+    runtime = Runtime(board, schedule, PIControl(design, control_rate), supervisor, weights,
+                      feedthrough(model, modes, sensors, weights), authority, recorder)
+    return runtime, design, sigma, bands[0]

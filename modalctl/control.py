@@ -17,7 +17,7 @@ import control
 import numpy as np
 from scipy.signal import butter
 
-__all__ = ["LoopDesign", "design_loops", "loop_response", "lockin_filter", "settling_time", "PIControl"]
+__all__ = ["LoopDesign", "design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "PIControl"]
 
 
 def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
@@ -114,6 +114,22 @@ def settling_time(design: LoopDesign, index: int, sigma: float, bandwidth: float
     delay = control.ss(control.tf(*control.pade(latency / control_rate, 5)))
     loop = control.series(_loop((design.kp[index], design.ki[index]), sigma, bandwidth), delay)
     return float(control.step_info(control.feedback(loop, 1), SettlingTimeThreshold=band)["SettlingTime"])
+
+
+def loop_poles(design: LoopDesign, index: int, sigma: float, bandwidth: float, control_rate: float,
+               latency: float = 1.0, detuning: float = 0.0) -> np.ndarray:
+    """Closed-loop poles (1/s) of loop ``index`` when its mode sits ``detuning`` (rad/s) off the
+    carrier and commands arrive ``latency`` control periods late (fifth-order Pade).
+
+    In the carrier's frame a detuned mode's envelope turns: on the real I/Q pair
+    ``x' = [[-sigma, -detuning], [detuning, -sigma]] x + u / 2``; each channel has the lock-in's
+    low-pass, the delay and the PI. The loop is stable when every pole has a negative real part."""
+    plant = control.ss([[-sigma, -detuning], [detuning, -sigma]], 0.5 * np.eye(2), np.eye(2), np.zeros((2, 2)))
+    pi = control.ss(control.tf([design.kp[index], design.ki[index]], [1, 0]))
+    delay = control.ss(control.tf(*control.pade(latency / control_rate, 5)))
+    lock = lockin_filter(bandwidth)
+    loop = control.series(control.append(pi, pi), plant, control.append(lock, lock), control.append(delay, delay))
+    return control.poles(control.feedback(loop, np.eye(2)))
 
 
 class PIControl:

@@ -3,41 +3,19 @@
 import numpy as np
 import pytest
 
-from modalctl.control import PIControl, design_loops, settling_time
-from modalctl.dispatch import dispatch
-from modalctl.hil.board import HILBoard
-from modalctl.hil.closed import run_focus
+from modalctl.hil.closed import run_focus, step_runtime
 from modalctl.hil.scenario import Perturbation, perturb
-from modalctl.lockin import lockin_bandwidths
+from modalctl.control import settling_time
 from modalctl.recorder import Recorder, read_log
-from modalctl.runtime import LifecycleError, Runtime, State, log_fields
-from modalctl.schedule import Schedule
-from modalctl.supervisor import Limits, Supervisor
-from modalctl.track import feedthrough, sensor_weights
+from modalctl.runtime import LifecycleError, State
+from modalctl.supervisor import Limits
 
 FS, RATE = 500e3, 20e3
 D = int(FS / RATE)
 
 
-def _step_runtime(model, mode, periods=240, step_at=20, size=1e-4, log=None):
-    """One mode's loop, no feed-forward, its reference a step of ``size`` at period ``step_at``."""
-    modes = np.array([mode])
-    sensors = sensor_weights(model, modes)
-    bands = lockin_bandwidths(model.frequencies, RATE, fraction=1.0, image=0.5)[modes]
-    weights = dispatch(model, modes)
-    a = weights.shape[0]
-    reference = np.where(np.arange(periods) >= step_at, size, 0.0)[None, :] + 0j
-    zeros = np.zeros((a, periods))
-    schedule = Schedule(RATE, D, model.frequencies[modes], bands, sensors, reference, reference, reference,
-                        zeros, zeros, np.zeros((a, periods * D)))
-    design = design_loops(model.frequencies[modes], model.damping[modes], bands, RATE)
-    supervisor = Supervisor(Limits(np.inf), schedule.carriers, RATE, zeros, zeros, np.full(1, size), weights)
-    recorder = None if log is None else Recorder(log, log_fields(1, a))
-    sigma = model.omega[mode] * model.damping[mode]
-    authority = np.full((1, periods), 100 * 2 * sigma * size)
-    runtime = Runtime(HILBoard(model, FS), schedule, PIControl(design, RATE), supervisor, weights,
-                      feedthrough(model, modes, sensors, weights), authority, recorder)
-    return runtime, design, sigma, bands[0]
+def _step_runtime(model, mode, log=None):
+    return step_runtime(model, mode, control_rate=RATE, sample_rate=FS, log=log)
 
 
 @pytest.mark.parametrize("mode", [1, 4])
