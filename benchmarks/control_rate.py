@@ -1,0 +1,97 @@
+"""Speed against accuracy in closed loop: tau against the control rate and the compute per period.
+
+    python benchmarks/control_rate.py   # writes benchmarks/results/control_rate.{json,md,png}
+
+The thesis's sinc 18 mm at 24 mm (T_F 25 ms, kappa = 1) on a truth with every resonance +1%,
+damping +20% and 40 dB of sensor noise, DAC 500 kHz; the loops at 2-50 kHz (each redesigned for
+its rate: lock-in corners and crossovers follow it). For each rate, three noise seeds: tau, the
+runtime's compute per period (median, the board excluded) and the real-time factor of the whole
+loop with the emulated board (wall time over played time; below 1 is faster than real time).
+Open loop for reference.
+"""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from common import RESULTS, save_figure, target, write_json  # noqa: E402
+from modalctl.decompose import decompose  # noqa: E402
+from modalctl.hil.closed import run_focus  # noqa: E402
+from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
+from modalctl.planner import plan  # noqa: E402
+from modalctl.scenes import load_scene  # noqa: E402
+
+RATES = (2e3, 5e3, 10e3, 20e3, 50e3)
+SEEDS = (0, 1, 2)
+FS = 500e3
+
+
+def main() -> None:
+    import warnings
+
+    warnings.simplefilter("ignore")
+    model = load_scene("thesis-al-cc", 211)
+    shape = target(model, "sinc", width="18mm", center="24mm")
+    shot = plan(decompose(model, shape, "auto"), 0.025, sample_rate=FS)
+    truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
+    open_tau = [run_focus(truth, shot, shape, closed=False, seed=s).tau for s in SEEDS]
+    rows = []
+    for rate in RATES:
+        for seed in SEEDS:
+            r = run_focus(truth, shot, shape, control_rate=rate, seed=seed)
+            rows.append({"rate_hz": rate, "seed": seed, "tau": r.tau, "margin_ratio": r.margin_ratio,
+                         "step_seconds": float(np.median(r.result.step_seconds)),
+                         "real_time_factor": r.real_time_factor,
+                         "crossover_hz": [float(v) for v in (r.design.crossover_hz.min(), r.design.crossover_hz.max())]})
+            print(f"{rate / 1e3:4g} kHz seed {seed}: tau {r.tau:.3f}, {1e6 * rows[-1]['step_seconds']:.0f} us/period, "
+                  f"real time x{r.real_time_factor:.2f}")
+    summary = []
+    for rate in RATES:
+        mine = [r for r in rows if r["rate_hz"] == rate]
+        summary.append({"rate_hz": rate, "tau_median": float(np.median([r["tau"] for r in mine])),
+                        "tau_min": float(min(r["tau"] for r in mine)), "tau_max": float(max(r["tau"] for r in mine)),
+                        "step_seconds": float(np.median([r["step_seconds"] for r in mine])),
+                        "real_time_factor": float(np.median([r["real_time_factor"] for r in mine])),
+                        "crossover_hz": mine[0]["crossover_hz"]})
+    path = write_json("control_rate", {"rows": rows, "summary": summary, "open_loop_tau": open_tau})
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    rates = np.array([s["rate_hz"] for s in summary]) / 1e3
+    for ax, x, label in ((left, rates, "control rate (kHz)"),
+                         (right, [1e6 * s["step_seconds"] * s["rate_hz"] / 1e6 for s in summary],
+                          "runtime's compute per second of control (s)")):
+        y = np.array([s["tau_median"] for s in summary])
+        err = np.array([[s["tau_median"] - s["tau_min"], s["tau_max"] - s["tau_median"]] for s in summary]).T
+        ax.errorbar(x, y, yerr=err, fmt="o-", capsize=3, label="closed loop (3 noise seeds)")
+        ax.axhline(np.median(open_tau), color="C3", ls="--", label="open loop")
+        ax.axhline(0.95, color="k", ls=":", lw=0.8)
+        ax.set(xlabel=label, ylabel="tau on the truth", xscale="log")
+        ax.minorticks_off()
+        ax.set_xticks(x, [f"{v:.3g}" for v in x])
+        for s, xi, yi in zip(summary, x, y):
+            ax.annotate(f"x{s['real_time_factor']:.1f} RT", (xi, yi), textcoords="offset points", xytext=(4, -12),
+                        fontsize=7)
+    left.set_title("tau against the loop rate (annotated: HIL wall time / real time)")
+    right.set_title("tau against the runtime's compute load")
+    left.legend(fontsize=8)
+    save_figure(fig, "control_rate")
+    md = ["# Closed loop: tau against control rate and compute", "",
+          "Command: `python benchmarks/control_rate.py`. sinc 18 mm at 24 mm, truth +1% / +20% damping / 40 dB, "
+          f"DAC 500 kHz. Open loop tau {np.median(open_tau):.3f}.", "",
+          "| rate (kHz) | tau median (min-max, 3 seeds) | crossovers (Hz) | runtime us/period | HIL wall / real time |",
+          "|---|---|---|---|---|"]
+    md += [f"| {s['rate_hz'] / 1e3:g} | {s['tau_median']:.3f} ({s['tau_min']:.3f}-{s['tau_max']:.3f}) | "
+           f"{s['crossover_hz'][0]:.0f}-{s['crossover_hz'][1]:.0f} | {1e6 * s['step_seconds']:.0f} | "
+           f"{s['real_time_factor']:.2f} |" for s in summary]
+    md += ["", "The wall time includes the emulated board (plant at 500 kHz, lock-in, modulation), one Python "
+           "pass per period.", ""]
+    (RESULTS / "control_rate.md").write_text("\n".join(md))
+    print("\n".join(md))
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
