@@ -50,7 +50,7 @@ def run_focus(truth, plan, target, closed: bool = True, control_rate: float = 20
               snr_db: float | None = 40.0, voltage_limit: float | None = None, slew_limit: float | None = None,
               amplifier_clips: bool = True, authority: float = 0.5, latency: int = 0, drift=None,
               fail_after: int | None = None, gain_scale: float = 1.0, tracker=None, log=None,
-              seed: int = 0) -> ClosedShot:
+              controller: str = "pi", seed: int = 0) -> ClosedShot:
     """Play ``plan`` (planned on the controller's model, sampled at the plant rate) on ``truth``.
 
     Parameters
@@ -75,10 +75,12 @@ def run_focus(truth, plan, target, closed: bool = True, control_rate: float = 20
         A tracker that learns from the shot (see :mod:`modalctl.track`).
     log : path, optional
         Record every period to ``log.json`` / ``log.bin``.
+    controller : str
+        Controller plugin.
     """
     fs = plan.sample_rate
     sigma = 0.0 if snr_db is None else plan.focus_peak / 10 ** (snr_db / 20)
-    parts = loop_parts(plan, control_rate, sigma, authority, latency)
+    parts = loop_parts(plan, control_rate, sigma, authority, latency, controller)
     board = HILBoard(truth, fs, noise=sigma, voltage_limit=voltage_limit if amplifier_clips else None,
                      latency=latency, drift=drift, fail_after=fail_after, seed=seed)
     result = closed_shot(plan, board, parts, closed, voltage_limit, slew_limit, latency, gain_scale, tracker, log)

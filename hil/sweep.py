@@ -64,6 +64,8 @@ class Case:
         Grid points of a beam scene.
     control_rate, sample_rate : float
         Hz.
+    controller : str
+        Controller plugin of the closed loops.
     seed : int
     """
 
@@ -82,6 +84,7 @@ class Case:
     points: int | None = 211
     control_rate: float = 20e3
     sample_rate: float = 500e3
+    controller: str = "pi"
     seed: int = 0
 
     def __post_init__(self):
@@ -121,7 +124,8 @@ def run_case(case: Case) -> dict:
         finger = Finger(int(np.argmax(np.abs(target.values))), case.finger)
         added = float(np.max(added_damping(truth, finger)[shot.modes] / truth.damping[shot.modes]))
         truth = FingerPlant(truth, finger, case.sample_rate)
-    options = dict(control_rate=case.control_rate, snr_db=case.snr_db, latency=case.latency, seed=case.seed)
+    options = dict(control_rate=case.control_rate, snr_db=case.snr_db, latency=case.latency, seed=case.seed,
+                   controller=case.controller)
     first = None
     if case.method == "tracked":
         modes = shot.modes

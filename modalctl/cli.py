@@ -16,7 +16,7 @@ from .decompose import decompose
 from .device import DeviceError
 from .planner import PlanError
 from .model import ModalModel, ModelError
-from .plugin import PluginError, get_shape, plugin_table, shape_generators
+from .plugin import PluginError, get_controller, get_shape, plugin_table, shape_generators
 from .reduction import ReductionError
 from .scenes import SCENES, UnknownScene, load_scene
 from .shape import ParamError, parse_params
@@ -103,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     loop.add_argument("--authority", type=float, default=0.5,
                       help="largest feedback per mode, as a fraction of its planned drive (0.5)")
     loop.add_argument("--latency", type=int, default=0, help="extra periods the board takes to use a command (0)")
+    loop.add_argument("--controller", default="pi", help="per-mode controller plugin: pi (default) or lqg")
     truth = p.add_argument_group("simulator truth (sim:// only)")
     truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
     truth.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
@@ -135,6 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--snr", type=float, default=40.0, help="sensor noise, dB below the focus peak (40)")
     p.add_argument("--control-rate", type=_quantity("Hz", "control-rate"), default=20e3)
     p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=500e3)
+    p.add_argument("--controller", default="pi", help="per-mode controller plugin of the closed loops (pi)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--scheduler", help="dask.distributed scheduler address (default: a local process pool)")
     p.add_argument("--workers", type=int, help="local processes (default: every core)")
@@ -255,7 +257,7 @@ def _run(args) -> int:
     if args.loop == "closed":
         shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
                                slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
-                               log=out / "log", **common)
+                               log=out / "log", controller=args.controller, **common)
     else:
         shot = run_open_loop(model, shape, device, args.focus_time, **common)
     metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,
@@ -352,7 +354,8 @@ def _sweep(args) -> int:
     params = tuple(args.param) or (("width", "18mm"), ("center", "24mm"))
     base = Case(args.scene, args.shape, params, args.focus_time, "open", args.drift, args.damping_error,
                 snr_db=args.snr, margin=args.margin, points=args.points, control_rate=args.control_rate,
-                sample_rate=args.sample_rate, seed=args.seed)
+                sample_rate=args.sample_rate, controller=args.controller, seed=args.seed)
+    get_controller(args.controller)
     cases = [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
              for m in methods for values in itertools.product(*[v for _, v in axes])]
     executor = executor_for(args.scheduler, args.workers)

@@ -17,7 +17,8 @@ import control
 import numpy as np
 from scipy.signal import butter
 
-__all__ = ["LoopDesign", "design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "PIControl"]
+__all__ = ["LoopDesign", "LoopPlant", "ControllerFactory", "design_loops", "loop_response", "lockin_filter",
+           "settling_time", "loop_poles", "PIControl", "pi_controller"]
 
 
 def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
@@ -38,6 +39,59 @@ def _loop(row: tuple, sigma: float, bandwidth: float) -> control.StateSpace:
     kp, ki = row
     pi = control.ss(control.tf([kp, ki], [1, 0]))
     return control.series(pi, control.ss(control.tf([0.5], [1, sigma])), lockin_filter(bandwidth))
+
+
+@dataclass(frozen=True)
+class LoopPlant:
+    """What a per-mode controller is designed for (controller plugins receive it).
+
+    Attributes
+    ----------
+    frequencies, damping : ndarray, shape (k,)
+        The model's modes (Hz, ratios); the carriers sit on them.
+    bandwidths : ndarray, shape (k,)
+        Lock-in corners (Hz).
+    control_rate : float
+        Hz.
+    latency : float
+        Control periods from a measurement to the command's use (1, plus a slow board's).
+    noise : ndarray, shape (k,), optional
+        Standard deviation of each measured envelope.
+    level : ndarray, shape (k,), optional
+        Largest planned envelope of each mode (same units).
+    drift : float
+        Relative resonance error expected.
+    detuning : ndarray, shape (k,), optional
+        Known offset of each resonance from its carrier (rad/s), e.g. from a tracker.
+    """
+
+    frequencies: np.ndarray
+    damping: np.ndarray
+    bandwidths: np.ndarray
+    control_rate: float
+    latency: float = 1.0
+    noise: np.ndarray | None = None
+    level: np.ndarray | None = None
+    drift: float = 0.01
+    detuning: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class ControllerFactory:
+    """A per-mode controller as plugins provide them (hook ``modalctl_controllers``).
+
+    Attributes
+    ----------
+    name, summary : str
+    create : callable
+        ``create(plant: LoopPlant, **options)`` returning an object with ``reset()``,
+        ``update(error, limit) -> command`` (all (k,) complex envelopes in the carriers' frames),
+        ``scale(factor)`` and a ``design`` (:class:`LoopDesign`, for the report).
+    """
+
+    name: str
+    summary: str
+    create: object
 
 
 @dataclass(frozen=True)
@@ -143,12 +197,17 @@ class PIControl:
     """
 
     def __init__(self, design: LoopDesign, control_rate: float):
+        self.design = design
         self.kp, self.ki = np.array(design.kp, float), np.array(design.ki, float)
         self.period = 1 / control_rate
         self.integral = np.zeros(self.kp.size, complex)  # ki times the integrated error
 
     def reset(self) -> None:
         self.integral = np.zeros(self.kp.size, complex)
+
+    def scale(self, factor: float) -> None:
+        """Multiply both gains (a stability test)."""
+        self.kp, self.ki = self.kp * factor, self.ki * factor
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         """Feedback command envelopes (k,) complex from the envelope errors (k,), reference minus
@@ -169,3 +228,10 @@ class PIControl:
         over = size > limit
         command[over] *= limit[over] / size[over]
         return command
+
+
+def pi_controller(plant: LoopPlant, phase_margin: float = 50.0, gain_margin: float = 6.0) -> PIControl:
+    """The PI loops of :func:`design_loops` for ``plant`` (the ``pi`` controller plugin)."""
+    design = design_loops(plant.frequencies, plant.damping, plant.bandwidths, plant.control_rate, phase_margin,
+                          gain_margin, plant.latency)
+    return PIControl(design, plant.control_rate)

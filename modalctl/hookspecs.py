@@ -16,7 +16,7 @@ from typing import Any, Callable, TypeVar, cast
 import pluggy
 
 __all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports", "modalctl_identifiers",
-           "modalctl_trackers"]
+           "modalctl_trackers", "modalctl_controllers"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _spec = pluggy.HookspecMarker("modalctl")
@@ -81,4 +81,19 @@ def modalctl_trackers():
         Objects with ``name``, ``summary`` and ``create(frequencies, damping, control_rate,
         **options)``; the tracker has ``update(response, drive)`` (lock-in envelopes, shape
         (k, m) complex), ``frequencies``, ``damping``, ``carriers`` and ``status`` per mode.
+    """
+
+
+@hookspec
+def modalctl_controllers():
+    """Return the per-mode controllers this plugin provides (the closed loop's low level).
+
+    Returns
+    -------
+    iterable of modalctl.control.ControllerFactory
+        Objects with ``name``, ``summary`` and ``create(plant, **options)``: ``plant`` is a
+        :class:`modalctl.control.LoopPlant` (the modes, lock-in corners, rate, latency, noise);
+        the controller has ``reset()``, ``update(error, limit)`` (envelope errors and command
+        limits, shape (k,), in the carriers' frames; returns the commands), ``scale(factor)``
+        and ``design`` (a :class:`modalctl.control.LoopDesign` for the report).
     """

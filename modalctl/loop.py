@@ -1,7 +1,8 @@
 """A focus shot under per-mode feedback: from the planner's plan to a runtime on a board.
 
 The plan becomes the references of each control period (:mod:`modalctl.schedule`), each kept
-mode gets a PI loop designed for its lock-in and the link's latency (:mod:`modalctl.control`),
+mode gets a loop from a controller plugin, designed for its lock-in and the link's latency
+(``pi``: :mod:`modalctl.control`; ``lqg``: :mod:`modalctl.lqg`),
 the supervisor gets the limits and the feed-forward's headroom (:mod:`modalctl.supervisor`), and
 :class:`~modalctl.runtime.Runtime` runs the shot on any :class:`~modalctl.runtime.PhasorBoard`:
 the HIL emulator or a transport to a real board. Nothing here opens a port or draws.
@@ -13,8 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .control import LoopDesign, PIControl, design_loops
+from .control import LoopDesign, LoopPlant
 from .lockin import hold_gain, lockin_bandwidths
+from .plugin import get_controller
 from .recorder import Recorder
 from .runtime import RunResult, Runtime, log_fields
 from .schedule import HOLD, Schedule, envelope_noise, schedule
@@ -37,6 +39,8 @@ class LoopParts:
     Attributes
     ----------
     schedule : Schedule
+    controller : object
+        The per-mode controller (a :class:`~modalctl.runtime.Controller` from a plugin).
     design : LoopDesign
     authority : ndarray, shape (k, n)
         Largest feedback command per mode and period.
@@ -47,14 +51,16 @@ class LoopParts:
     """
 
     schedule: Schedule
+    controller: object
     design: LoopDesign
     authority: np.ndarray
     leak: np.ndarray
     noise: np.ndarray
 
 
-def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, latency: int = 0) -> LoopParts:
-    """Schedule, loop design, authority and leak for ``plan`` at ``control_rate`` (Hz).
+def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, latency: int = 0,
+               controller: str = "pi", drift: float = 0.01) -> LoopParts:
+    """Schedule, controller, authority and leak for ``plan`` at ``control_rate`` (Hz).
 
     Parameters
     ----------
@@ -65,16 +71,23 @@ def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, 
         a loop rests while its mode's reference is within a few noise deviations of zero.
     latency : int
         Periods the board adds between a command and its use (the design allows for them).
+    controller : str
+        Controller plugin (``pi``, ``lqg``, or a third party's).
+    drift : float
+        Relative resonance error the controller should expect.
     """
     model, modes = plan.model, plan.modes
     sensors = sensor_weights(model, modes)
     bands = lockin_bandwidths(model.frequencies, control_rate, LOCKIN_FRACTION, LOCKIN_IMAGE)[modes]
     plan_schedule = schedule(plan, sensors, bands, control_rate)
-    design = design_loops(model.frequencies[modes], model.damping[modes], bands, control_rate, latency=1 + latency)
     noise = envelope_noise(sigma, sensors, bands, plan.sample_rate)
+    level = np.abs(plan_schedule.reference).max(axis=1)
+    loops = get_controller(controller).create(LoopPlant(model.frequencies[modes], model.damping[modes], bands,
+                                                        control_rate, 1 + latency, noise, level, drift))
     trust = np.clip((np.abs(plan_schedule.reference) - 3 * noise[:, None]) / (7 * noise[:, None] + 1e-300), 0, 1)
     limit = authority * np.abs(plan_schedule.drive) * trust
-    return LoopParts(plan_schedule, design, limit, feedthrough(model, modes, sensors, plan.weights), noise)
+    return LoopParts(plan_schedule, loops, loops.design, limit, feedthrough(model, modes, sensors, plan.weights),
+                     noise)
 
 
 def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limit: float | None = None,
@@ -91,15 +104,16 @@ def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limi
     latency : int
         Periods the board adds between a command and its use.
     gain_scale : float
-        Multiplies the designed gains (a stability test: a divergent loop must be caught).
+        Multiplies the controller's gains (a stability test: a divergent loop must be caught).
     tracker : optional
         Learns the resonances from the shot (:mod:`modalctl.track`).
     log : path, optional
         Record every period to ``log.json`` / ``log.bin``.
     """
     s = parts.schedule
-    controller = PIControl(parts.design, s.control_rate)
-    controller.kp, controller.ki = controller.kp * gain_scale, controller.ki * gain_scale
+    controller = parts.controller
+    if gain_scale != 1.0:
+        controller.scale(gain_scale)
     supervisor = Supervisor(Limits(voltage_limit or np.inf, slew_limit), s.carriers, s.control_rate,
                             s.feedforward_peak, s.feedforward_slope,
                             np.abs(s.reference).max(axis=1) + 5 * parts.noise, plan.weights, lead=1 + latency)

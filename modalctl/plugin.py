@@ -14,7 +14,7 @@ from . import hookspecs
 from .shape import ShapeGenerator
 
 __all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "identifiers", "get_identifier",
-           "trackers", "get_tracker",
+           "trackers", "get_tracker", "controllers", "get_controller",
            "plugin_table"]
 
 ENTRY_POINT_GROUP = "modalctl"
@@ -77,6 +77,16 @@ def trackers(manager: pluggy.PluginManager | None = None) -> dict:
 def get_tracker(name: str, manager: pluggy.PluginManager | None = None):
     """The tracker called ``name``; the error lists the installed ones."""
     return _pick(trackers(manager), name, "tracker")
+
+
+def controllers(manager: pluggy.PluginManager | None = None) -> dict:
+    """All installed per-mode controllers (:class:`modalctl.control.ControllerFactory`) by name."""
+    return _by_name((manager or plugin_manager()).hook.modalctl_controllers(), "controller")
+
+
+def get_controller(name: str, manager: pluggy.PluginManager | None = None):
+    """The controller called ``name``; the error lists the installed ones."""
+    return _pick(controllers(manager), name, "controller")
 
 
 def plugin_table(manager: pluggy.PluginManager | None = None) -> list[dict]:

@@ -137,7 +137,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
                     tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
                     slew_limit: float | None = None, sample_rate: float = 1e6, control_rate: float = 20e3,
                     authority: float = 0.5, latency: int = 0, drift=None, log=None, progress: bool = False,
-                    **plan_options) -> Shot:
+                    controller: str = "pi", **plan_options) -> Shot:
     """Plan the shape's focus and play it on ``device`` with per-mode feedback (its phasor mode).
 
     Parameters are those of :func:`run_open_loop`, and
@@ -153,6 +153,8 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         Simulator only: ``drift(t, k)`` relative resonance shifts during the shot.
     log : path, optional
         Every control period recorded there (``.json`` + ``.bin``).
+    controller : str
+        Controller plugin (``pi``, ``lqg``...).
     """
     from .loop import closed_shot, loop_parts
 
@@ -162,7 +164,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
                                                   voltage_limit, sample_rate, plan_options)
     board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
     start = _time.perf_counter()
-    parts = loop_parts(the_plan, control_rate, board.noise, authority, latency)
+    parts = loop_parts(the_plan, control_rate, board.noise, authority, latency, controller)
     result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, log=log,
                          progress=progress)
     board.play_out()
@@ -172,7 +174,8 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     capture = Capture(the_plan.times, board.sensed, board.applied)
     shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, seconds)
     shot.metrics["loop"] = {
-        "state": result.state.name.lower(), "fault": result.reason, "periods": result.periods,
+        "controller": controller, "state": result.state.name.lower(), "fault": result.reason,
+        "periods": result.periods, "loop_seconds": result.loop_seconds,
         "control_rate_hz": control_rate, "limited_periods": result.limited,
         "step_seconds_median": float(np.median(result.step_seconds)) if result.step_seconds.size else None,
         "crossover_hz": parts.design.crossover_hz.tolist(), "phase_margin_deg": parts.design.phase_margin_deg.tolist(),
