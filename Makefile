@@ -17,13 +17,17 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm \
 		--focus-time 25ms --margin 0.5 --out demo/run
-	@echo "demo: report in demo/run/ (metrics.json, fields.npz, spacetime.png, modal_bars.png, voltages.png, spectrogram.png)"
+	$(BIN)/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm \
+		--focus-time 25ms --drift 1% --damping-error 20% --snr 40 --loop closed --out demo/closed
+	@echo "demo: open loop in demo/run/ (metrics.json, fields.npz, spacetime.png, modal_bars.png, voltages.png, spectrogram.png)"
+	@echo "demo: closed loop on a drifted beam in demo/closed/ (the same, plus loop.png and the log)"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 BENCHMARKS := modes_needed decompose_speed plant_speed margin_case thesis_table focus_time \
-	identify_accuracy identify_limits identify_cycle tracking closed_loop control_step
+	identify_accuracy identify_limits identify_cycle tracking closed_loop closed_maps stability control_rate \
+	control_step
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'

@@ -52,3 +52,15 @@ def test_kalman_lq_controller_is_stable_by_design_and_recovers_the_focus(sinc18)
     pi = run_focus(truth, shot, shape, controller="pi")
     kalman = run_focus(truth, shot, shape, controller="lqg")
     assert kalman.tau > 0.95 and abs(kalman.tau - pi.tau) < 0.02
+
+
+def test_feedback_holds_the_focus_while_the_resonances_ramp(sinc18):
+    """The truth drifts during the shot, 0 to 2% by the focus (a ramp of 0.8 per second): the loops follow."""
+    from modalctl.hil.tracking import ramp
+
+    model, shape, shot = sinc18
+    drifting = ramp(0.0, 0.8)
+    open_loop = run_focus(model, shot, shape, closed=False, drift=drifting)
+    closed = run_focus(model, shot, shape, closed=True, drift=drifting)
+    assert open_loop.tau < 0.85
+    assert closed.tau > open_loop.tau + 0.05
