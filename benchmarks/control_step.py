@@ -70,11 +70,11 @@ def runtime(model, log=None):
     readings = list(reference.T[:1000] * (1 + 0.01 * rng.standard_normal((1000, k))))
     ff = np.full((a, STEPS + 1), 50.0)
     schedule = Schedule(RATE, 25, model.frequencies, bands, np.zeros((k, 4)), reference, reference, reference,
-                        ff, ff * 2 * np.pi * 2e4, np.zeros((a, 1)))
+                        ff, ff * 2 * np.pi * 2e4, np.zeros((a, 1)), weights)
     supervisor = Supervisor(Limits(100.0, 5e7), model.frequencies, RATE, ff, ff * 2 * np.pi * 2e4,
                             np.full(k, 1e-3), weights)
     recorder = None if log is None else Recorder(log, log_fields(k, a))
-    rt = Runtime(StubBoard(readings), schedule, PIControl(design, RATE), supervisor, weights,
+    rt = Runtime(StubBoard(readings), schedule, PIControl(design, RATE), supervisor,
                  np.zeros(k), np.full((k, STEPS + 1), 1.0), recorder)
     rt.configure()
     rt.activate()
@@ -135,7 +135,7 @@ def main() -> None:
           "is a stub (its time is not counted).", "",
           "| implementation | median per period (us) |", "|---|---|",
           *[f"| {name} | {1e6 * s:.1f} |" for name, s in med.items()], "",
-          f"The runtime does watchdog, divergence check, errors, PI loops with anti-windup, voltage and slew",
+          "The runtime does watchdog, divergence check, errors, PI loops with anti-windup, voltage and slew",
           f"limits and dispatch; the peer only the PI loops and the dispatch. Ratio peer/ours "
           f"{data['ratio_peer_over_ours']:.2f}; target 50 us: {'met' if data['target_met'] else 'NOT met'}.", ""]
     (RESULTS / "control_step.md").write_text("\n".join(md))

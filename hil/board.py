@@ -116,8 +116,9 @@ class HILBoard:
             return None
         return envelopes
 
-    def write(self, phasors: np.ndarray) -> None:
-        self.pending = np.array(phasors, complex)
+    def write(self, commands: np.ndarray) -> None:
+        """Per-mode commands (k,) for the next period, dispatched to the channels."""
+        self.pending = self.schedule.weights * np.asarray(commands, complex)[None, :]
         self.idle = 0
 
     def ramp_down(self, seconds: float) -> None:

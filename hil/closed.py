@@ -116,13 +116,13 @@ def step_runtime(model, mode: int, truth=None, control_rate: float = 20e3, sampl
     zeros = np.zeros((a, periods))
     decimation = int(round(sample_rate / control_rate))
     schedule = Schedule(control_rate, decimation, model.frequencies[modes], bands, sensors, reference, reference,
-                        reference, zeros, zeros, np.zeros((a, periods * decimation)))
+                        reference, zeros, zeros, np.zeros((a, periods * decimation)), weights)
     design = design_loops(model.frequencies[modes], model.damping[modes], bands, control_rate)
     supervisor = Supervisor(Limits(np.inf), schedule.carriers, control_rate, zeros, zeros, np.full(1, size), weights)
     recorder = None if log is None else Recorder(log, log_fields(1, a))
     sigma = model.omega[mode] * model.damping[mode]
     authority = np.full((1, periods), 100 * 2 * sigma * size)
     board = HILBoard(model if truth is None else truth, sample_rate, latency=latency)
-    runtime = Runtime(board, schedule, PIControl(design, control_rate), supervisor, weights,
+    runtime = Runtime(board, schedule, PIControl(design, control_rate), supervisor,
                       feedthrough(model, modes, sensors, weights), authority, recorder)
     return runtime, design, sigma, bands[0]

@@ -123,6 +123,6 @@ def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limi
         "modes": [str(plan.model.labels[m]) for m in plan.modes], "closed": closed,
         "voltage_limit_v": voltage_limit, "slew_limit_v_per_s": slew_limit})
     authority = parts.authority if closed else np.zeros_like(parts.authority)
-    runtime = Runtime(board, s, controller, supervisor, plan.weights, parts.leak, authority, recorder,
+    runtime = Runtime(board, s, controller, supervisor, parts.leak, authority, recorder,
                       tracker=tracker, held=hold_gain(s.carriers, plan.sample_rate, HOLD))
     return runtime.run(progress=progress)

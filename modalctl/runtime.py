@@ -55,8 +55,9 @@ class PhasorBoard(Protocol):
     def read(self) -> np.ndarray | None:
         """Envelopes (k,) complex at the end of the period just played, or None if nothing came."""
 
-    def write(self, phasors: np.ndarray) -> None:
-        """Feedback phasors (a, k) complex for the next period (V); the board ramps to them."""
+    def write(self, commands: np.ndarray) -> None:
+        """Per-mode command envelopes (k,) complex for the next period; the board maps them to its
+        channels with the schedule's weights and ramps each channel's phasors to them."""
 
     def ramp_down(self, seconds: float) -> None:
         """Bring every output to zero within ``seconds`` and hold it there."""
@@ -103,8 +104,6 @@ class Runtime:
         The planner's references for the shot.
     controller : Controller
     supervisor : Supervisor
-    weights : ndarray, shape (a, k)
-        Dispatch: volts on each channel per unit modal force of each mode.
     leak : ndarray, shape (k,)
         What each mode's reading picks up from its own command through the other modes
         (:func:`modalctl.track.feedthrough`), removed from the error.
@@ -118,14 +117,14 @@ class Runtime:
     """
 
     def __init__(self, board: PhasorBoard, schedule: Schedule, controller: Controller, supervisor: Supervisor,
-                 weights: np.ndarray, leak: np.ndarray, authority: np.ndarray, recorder: Recorder | None = None,
+                 leak: np.ndarray, authority: np.ndarray, recorder: Recorder | None = None,
                  tracker=None, held: np.ndarray | None = None):
         self.board, self.schedule, self.controller, self.supervisor = board, schedule, controller, supervisor
-        self.weights, self.leak = np.asarray(weights), np.asarray(leak)
+        self.leak = np.asarray(leak)
         # one contiguous row per period: the loop reads them period by period
         self._reference, self._authority = (np.ascontiguousarray(np.asarray(x).T)
                                             for x in (schedule.reference, authority))
-        self._gains = np.abs(self.weights)
+        self._gains = np.abs(schedule.weights)
         self.recorder, self.tracker = recorder, tracker
         self.held = np.ones(schedule.carriers.size) if held is None else held
         self.state = State.UNCONFIGURED
@@ -133,7 +132,6 @@ class Runtime:
         self.period = 0
         k = schedule.carriers.size
         self.command = np.zeros(k, complex)
-        self.phasors = np.zeros((self.weights.shape[0], k), complex)
         self._costs: list[float] = []
 
     # -- lifecycle ---------------------------------------------------------------------------
@@ -150,7 +148,6 @@ class Runtime:
         self._expect(State.INACTIVE, to="activate")
         self.controller.reset()
         self.period, self.command[:] = 0, 0
-        self.phasors[:] = 0
         self.board.start()
         self.state = State.ACTIVE
 
@@ -187,9 +184,8 @@ class Runtime:
         wanted = self.controller.update(error, self._authority[n])
         fraction = self.supervisor.limit(self.command, wanted, n)
         self.command = wanted if fraction == 1.0 else fraction * wanted
-        self.phasors = self.weights * self.command  # the dispatch: (a, k)
         cost = time.perf_counter() - tic
-        self.board.write(self.phasors)
+        self.board.write(self.command)
         self._costs.append(cost)
         self._record(measured, fraction, cost)
         self.period += 1

@@ -51,6 +51,8 @@ class Schedule:
         Largest feed-forward voltage (V) and slope (V/s) of each channel over each period and the next.
     feedforward : ndarray, shape (a, n * decimation)
         The feed-forward voltages the board plays (V).
+    weights : ndarray, shape (a, k)
+        Volts on each channel per unit modal command of each mode (the board's dispatch).
     """
 
     control_rate: float
@@ -64,6 +66,7 @@ class Schedule:
     feedforward_peak: np.ndarray
     feedforward_slope: np.ndarray
     feedforward: np.ndarray
+    weights: np.ndarray
 
     @property
     def periods(self) -> int:
@@ -106,7 +109,7 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     peak = np.abs(per_period).max(axis=2)
     slope = np.abs(np.diff(volts, axis=1, append=volts[:, -1:])).reshape(per_period.shape).max(axis=2) * fs
     return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),
-                    reference, planned, own, _with_next(peak), _with_next(slope), volts)
+                    reference, planned, own, _with_next(peak), _with_next(slope), volts, np.asarray(plan.weights))
 
 
 def _with_next(x: np.ndarray) -> np.ndarray:

@@ -1,0 +1,314 @@
+"""The board protocol, version 1: messages, their binary layout, and the serial framing.
+
+Pure encoding and decoding (no ports): the transports (:mod:`modalctl.plugins.transports`) and the
+board emulators (:mod:`modalctl.hil`) share it, so a passing test means the wire format works.
+``docs/protocol.md`` is the specification; this module is its implementation.
+
+A message is ``header | body``: the header is ``version (u8) | type (u8) | sequence (u16)``,
+little-endian, and the body's layout depends on the type. Arrays are float32 (complex64 for
+envelopes and commands). Over a serial line each message is followed by its CRC-32 (ISO-HDLC,
+the one of zlib, Ethernet and PNG), the whole COBS-encoded and ended by a zero byte, so a
+receiver resynchronizes at the next zero after any corruption. Every decoding error is a
+:class:`ProtocolError`, never another exception.
+"""
+
+from __future__ import annotations
+
+import struct
+import zlib
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+from cobs import cobs
+
+__all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", "Upload", "Start", "Commands",
+           "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Field", "Error", "Ack", "encode", "decode",
+           "frame", "Deframer", "MAX_FRAME"]
+
+VERSION = 1
+MAX_FRAME = 1 << 16  # bytes of one encoded message, at most
+_HEADER = struct.Struct("<BBH")
+
+
+class ProtocolError(ValueError):
+    """A frame or message that does not follow the protocol (bad CRC, COBS, type, length...)."""
+
+
+@dataclass
+class Message:
+    """Base of every message: ``seq`` counts messages per sender (wraps at 65536)."""
+
+    TYPE = 0
+    seq: int = 0
+
+
+# -- the message types ---------------------------------------------------------------------------
+# Each subclass lists its fields after ``seq``; _LAYOUT says how each field is packed:
+# "u8", "u16", "u32", "f32" scalars; "f32[]", "c64[]" arrays (u32 count first); "str" (u16 length, UTF-8).
+
+
+@dataclass
+class Hello(Message):
+    """Host -> board: who are you? Answered by :class:`Info`."""
+
+    TYPE = 0x01
+
+
+@dataclass
+class Info(Message):
+    """Board -> host: identity and capabilities."""
+
+    TYPE = 0x81
+    channels: int = 0
+    sensors: int = 0
+    max_sample_rate: float = 0.0
+    voltage_limit: float = float("nan")  # NaN: no rails reported
+    max_modes: int = 0
+    scans: int = 0  # grid points a vibrometer on the bench can measure (0: none)
+    name: str = ""
+
+
+@dataclass
+class Configure(Message):
+    """Host -> board: one shot in phasor mode. ``weights`` (a x k) map modal commands to channels,
+    ``sensors`` (k x s) combine the sensors per mode before the lock-in (row-major)."""
+
+    TYPE = 0x02
+    sample_rate: float = 0.0
+    control_rate: float = 0.0
+    modes: int = 0
+    carriers: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    bandwidths: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    sensors: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    samples: int = 0  # feed-forward samples per channel to be uploaded
+
+
+@dataclass
+class Upload(Message):
+    """Host -> board: feed-forward samples of one channel from ``offset`` (V)."""
+
+    TYPE = 0x03
+    channel: int = 0
+    offset: int = 0
+    samples: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+
+
+@dataclass
+class Start(Message):
+    """Host -> board: arm and trigger; the board answers the first period's :class:`Envelopes`."""
+
+    TYPE = 0x04
+
+
+@dataclass
+class Commands(Message):
+    """Host -> board: per-mode command envelopes (modal forces) for the next period."""
+
+    TYPE = 0x05
+    period: int = 0
+    commands: np.ndarray = field(default_factory=lambda: np.zeros(0, np.complex64))
+
+
+@dataclass
+class Envelopes(Message):
+    """Board -> host: per-mode demodulated envelopes at the end of ``period`` (m/s)."""
+
+    TYPE = 0x85
+    period: int = 0
+    envelopes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.complex64))
+
+
+@dataclass
+class Heartbeat(Message):
+    """Either way: I am alive; ``state`` is the sender's lifecycle state."""
+
+    TYPE = 0x06
+    state: int = 0
+
+
+@dataclass
+class RampDown(Message):
+    """Host -> board: bring every output to zero within ``seconds`` and hold it."""
+
+    TYPE = 0x07
+    seconds: float = 0.0
+
+
+@dataclass
+class Stop(Message):
+    """Host -> board: emergency stop, outputs to zero at once."""
+
+    TYPE = 0x08
+
+
+@dataclass
+class Scan(Message):
+    """Host -> bench vibrometer: the field of the last shot at ``times`` (s) on grid points ``points``."""
+
+    TYPE = 0x09
+    times: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    points: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+
+
+@dataclass
+class Field(Message):
+    """Bench -> host: one block of a scan, ``rows`` points x ``len(times)`` values from point ``first`` (m/s)."""
+
+    TYPE = 0x89
+    first: int = 0
+    rows: int = 0
+    values: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+
+
+@dataclass
+class Ack(Message):
+    """Board -> host: the message of type ``of`` and sequence ``ack_seq`` was accepted."""
+
+    TYPE = 0x8A
+    of: int = 0
+    ack_seq: int = 0
+
+
+@dataclass
+class Error(Message):
+    """Board -> host: a request failed or the board stopped; ``code`` (see docs/protocol.md) and text."""
+
+    TYPE = 0x8F
+    code: int = 0
+    text: str = ""
+
+
+_TYPES = {cls.TYPE: cls for cls in (Hello, Info, Configure, Upload, Start, Commands, Envelopes, Heartbeat,
+                                    RampDown, Stop, Scan, Field, Ack, Error)}
+_LAYOUT = {
+    Info: ("u8", "u8", "f32", "f32", "u8", "u32", "str"),
+    Configure: ("f32", "f32", "u8", "f32[]", "f32[]", "f32[]", "f32[]", "u32"),
+    Upload: ("u8", "u32", "f32[]"),
+    Commands: ("u32", "c64[]"),
+    Envelopes: ("u32", "c64[]"),
+    Heartbeat: ("u8",),
+    RampDown: ("f32",),
+    Scan: ("f32[]", "f32[]"),
+    Field: ("u32", "u32", "f32[]"),
+    Ack: ("u8", "u16"),
+    Error: ("u16", "str"),
+}
+_SCALARS = {"u8": struct.Struct("<B"), "u16": struct.Struct("<H"), "u32": struct.Struct("<I"),
+            "f32": struct.Struct("<f")}
+_ARRAYS = {"f32[]": np.dtype("<f4"), "c64[]": np.dtype("<c8")}
+
+
+def _body_fields(cls) -> list[str]:
+    return [f.name for f in fields(cls) if f.name != "seq"]
+
+
+def encode(message: Message) -> bytes:
+    """The message's bytes (header and body)."""
+    cls = type(message)
+    out = [_HEADER.pack(VERSION, cls.TYPE, message.seq & 0xFFFF)]
+    for name, kind in zip(_body_fields(cls), _LAYOUT.get(cls, ())):
+        value = getattr(message, name)
+        if kind in _SCALARS:
+            out.append(_SCALARS[kind].pack(value))
+        elif kind in _ARRAYS:
+            array = np.ascontiguousarray(np.ravel(value), _ARRAYS[kind])
+            out += [struct.pack("<I", array.size), array.tobytes()]
+        else:  # str
+            text = value.encode("utf-8")[:0xFFFF]
+            out += [struct.pack("<H", len(text)), text]
+    data = b"".join(out)
+    if len(data) > MAX_FRAME:
+        raise ProtocolError(f"{cls.__name__}: {len(data)} bytes, above the {MAX_FRAME}-byte frame limit")
+    return data
+
+
+def decode(data: bytes) -> Message:
+    """The message in ``data``; :class:`ProtocolError` for anything that is not a valid message."""
+    if len(data) < _HEADER.size:
+        raise ProtocolError(f"message of {len(data)} bytes, shorter than its header")
+    version, kind, seq = _HEADER.unpack_from(data)
+    if version != VERSION:
+        raise ProtocolError(f"protocol version {version}, this side speaks {VERSION}")
+    cls = _TYPES.get(kind)
+    if cls is None:
+        raise ProtocolError(f"unknown message type 0x{kind:02x}")
+    pos, values = _HEADER.size, {}
+    try:
+        for name, layout in zip(_body_fields(cls), _LAYOUT.get(cls, ())):
+            if layout in _SCALARS:
+                (values[name],) = _SCALARS[layout].unpack_from(data, pos)
+                pos += _SCALARS[layout].size
+            elif layout in _ARRAYS:
+                (count,) = struct.unpack_from("<I", data, pos)
+                pos += 4
+                size = count * _ARRAYS[layout].itemsize
+                if pos + size > len(data):
+                    raise ProtocolError(f"{cls.__name__}.{name}: {count} values announced, {len(data) - pos} bytes left")
+                values[name] = np.frombuffer(data, _ARRAYS[layout], count, pos).copy()
+                pos += size
+            else:
+                (length,) = struct.unpack_from("<H", data, pos)
+                pos += 2
+                if pos + length > len(data):
+                    raise ProtocolError(f"{cls.__name__}.{name}: text runs past the message")
+                values[name] = data[pos:pos + length].decode("utf-8", errors="replace")
+                pos += length
+    except struct.error as exc:
+        raise ProtocolError(f"{cls.__name__}: truncated ({exc})") from None
+    if pos != len(data):
+        raise ProtocolError(f"{cls.__name__}: {len(data) - pos} bytes left over")
+    return cls(seq=seq, **values)
+
+
+def frame(message: Message) -> bytes:
+    """Serial framing: COBS(message bytes | CRC-32 little-endian) followed by a zero byte."""
+    data = encode(message)
+    return cobs.encode(data + struct.pack("<I", zlib.crc32(data))) + b"\x00"
+
+
+class Deframer:
+    """Splits a serial byte stream into messages.
+
+    :meth:`feed` takes whatever bytes arrived and returns the messages completed, each a
+    :class:`Message` or, for a corrupted frame, the :class:`ProtocolError` that describes it (the
+    stream resynchronizes at the next zero byte; nothing is raised, so one bad frame never stops
+    a link). A frame longer than :data:`MAX_FRAME` is dropped as an error.
+    """
+
+    def __init__(self):
+        self._buffer = bytearray()
+        self._overflow = False
+
+    def feed(self, data: bytes) -> list:
+        out = []
+        self._buffer += data
+        while True:
+            end = self._buffer.find(b"\x00")
+            if end < 0:
+                if len(self._buffer) > 2 * MAX_FRAME:  # no delimiter in sight: drop and say so once
+                    self._buffer.clear()
+                    if not self._overflow:
+                        out.append(ProtocolError(f"no frame delimiter in {2 * MAX_FRAME} bytes"))
+                    self._overflow = True
+                return out
+            chunk, self._buffer = bytes(self._buffer[:end]), self._buffer[end + 1:]
+            self._overflow = False
+            if chunk:
+                out.append(self._message(chunk))
+
+    @staticmethod
+    def _message(chunk: bytes):
+        try:
+            raw = cobs.decode(chunk)
+        except cobs.DecodeError as exc:
+            return ProtocolError(f"bad COBS frame: {exc}")
+        if len(raw) < 4:
+            return ProtocolError(f"frame of {len(raw)} bytes, too short for its CRC")
+        data, (crc,) = raw[:-4], struct.unpack("<I", raw[-4:])
+        if zlib.crc32(data) != crc:
+            return ProtocolError("CRC mismatch: the frame was corrupted")
+        try:
+            return decode(data)
+        except ProtocolError as exc:
+            return exc

@@ -1,0 +1,97 @@
+"""The board protocol's codec: round trips, an independent CRC, and random or corrupted frames."""
+
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from modalctl import protocol as p
+
+EXAMPLES = [
+    p.Hello(seq=1),
+    p.Info(seq=2, channels=8, sensors=4, max_sample_rate=1e6, voltage_limit=150.0, max_modes=32, scans=211,
+           name="modalctl emulator"),
+    p.Configure(seq=3, sample_rate=5e5, control_rate=2e4, modes=2, carriers=np.array([963.0, 2253.0]),
+                bandwidths=np.array([400.0, 900.0]), weights=np.arange(16.0), sensors=np.arange(8.0), samples=14500),
+    p.Upload(seq=4, channel=3, offset=4096, samples=np.linspace(-1, 1, 1000)),
+    p.Start(seq=5),
+    p.Commands(seq=6, period=123, commands=np.array([1 + 2j, -3j])),
+    p.Envelopes(seq=7, period=124, envelopes=np.array([1e-4 + 1e-5j, 2e-5])),
+    p.Heartbeat(seq=8, state=2), p.RampDown(seq=9, seconds=5e-5), p.Stop(seq=10),
+    p.Scan(seq=11, times=np.array([0.025]), points=np.array([0.0, 5.0])),
+    p.Field(seq=12, first=0, rows=2, values=np.array([1.0, 2.0])),
+    p.Ack(seq=13, of=0x02, ack_seq=3), p.Error(seq=14, code=3, text="watchdog: no command for 3 periods"),
+]
+
+
+def _same(a, b):
+    assert type(a) is type(b)
+    for key, value in vars(a).items():
+        other = getattr(b, key)
+        if isinstance(value, np.ndarray):
+            np.testing.assert_allclose(other, value.astype(other.dtype), rtol=1e-7)
+        elif isinstance(value, float) and np.isnan(value):
+            assert np.isnan(other)
+        else:
+            assert other == pytest.approx(value, rel=1e-7) if isinstance(value, float) else other == value
+
+
+@pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_every_message_survives_encode_frame_deframe_decode(message):
+    _same(message, p.decode(p.encode(message)))
+    deframer = p.Deframer()
+    stream = p.frame(message)
+    got = [m for i in range(0, len(stream), 7) for m in deframer.feed(stream[i:i + 7])]  # arrives in pieces
+    assert len(got) == 1
+    _same(message, got[0])
+
+
+def test_the_crc_is_crc32_iso_hdlc_as_computed_independently():
+    """zlib's CRC on the wire against the `crc` package's table-driven CRC-32 (ISO-HDLC)."""
+    from crc import Calculator, Crc32
+
+    calculator = Calculator(Crc32.CRC32)
+    for message in EXAMPLES:
+        data = p.encode(message)
+        raw = __import__("cobs.cobs", fromlist=["cobs"]).decode(p.frame(message)[:-1])
+        assert raw[:-4] == data
+        assert struct.unpack("<I", raw[-4:])[0] == calculator.checksum(data)
+
+
+def test_a_corrupted_byte_is_reported_and_the_next_frame_still_arrives():
+    good, next_one = p.frame(EXAMPLES[5]), p.frame(EXAMPLES[6])
+    bad = bytearray(good)
+    bad[5] ^= 0x40
+    out = p.Deframer().feed(bytes(bad) + next_one)
+    assert isinstance(out[0], p.ProtocolError) and isinstance(out[1], p.Envelopes)
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.binary(max_size=600))
+def test_random_bytes_give_messages_or_protocol_errors_only(data):
+    for item in p.Deframer().feed(data + b"\x00"):
+        assert isinstance(item, (p.Message, p.ProtocolError))
+    try:
+        p.decode(data)
+    except p.ProtocolError:
+        pass
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from(EXAMPLES), st.integers(0, 10_000), st.integers(1, 255), st.integers(0, 40))
+def test_corrupted_truncated_frames_never_crash_or_pass_as_good(message, where, flip, cut):
+    stream = bytearray(p.frame(message))
+    i = where % (len(stream) - 1)
+    stream[i] ^= flip
+    stream = stream[:max(1, len(stream) - 1 - cut)] + b"\x00"
+    for item in p.Deframer().feed(bytes(stream)):
+        assert isinstance(item, p.ProtocolError)  # never a message: the CRC catches every change
+
+
+def test_a_stream_without_delimiters_is_dropped_not_hoarded():
+    deframer = p.Deframer()
+    out = deframer.feed(b"\x01" * (2 * p.MAX_FRAME + 10))
+    assert len(out) == 1 and "delimiter" in str(out[0])
+    assert deframer.feed(p.frame(EXAMPLES[0]))[-1] == EXAMPLES[0]
