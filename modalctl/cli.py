@@ -104,6 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="largest feedback per mode, as a fraction of its planned drive (0.5)")
     loop.add_argument("--latency", type=int, default=0, help="extra periods the board takes to use a command (0)")
     loop.add_argument("--controller", default="pi", help="per-mode controller plugin: pi (default) or lqg")
+    loop.add_argument("--watchdog", type=int, default=1,
+                      help="periods without a measurement before the supervisor stops the shot (1)")
     truth = p.add_argument_group("simulator truth (sim:// only)")
     truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
     truth.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
@@ -257,7 +259,7 @@ def _run(args) -> int:
     if args.loop == "closed":
         shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
                                slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
-                               log=out / "log", controller=args.controller, **common)
+                               log=out / "log", controller=args.controller, watchdog=args.watchdog, **common)
     else:
         shot = run_open_loop(model, shape, device, args.focus_time, **common)
     metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,

@@ -92,7 +92,7 @@ def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, 
 
 def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limit: float | None = None,
                 slew_limit: float | None = None, latency: int = 0, gain_scale: float = 1.0, tracker=None,
-                log=None, progress: bool = False) -> RunResult:
+                log=None, progress: bool = False, watchdog: int = 1) -> RunResult:
     """Run ``plan`` on ``board`` with the loops of ``parts``.
 
     Parameters
@@ -109,12 +109,15 @@ def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limi
         Learns the resonances from the shot (:mod:`modalctl.track`).
     log : path, optional
         Record every period to ``log.json`` / ``log.bin``.
+    watchdog : int
+        Periods without a measurement before the supervisor stops the shot (a lost reading
+        before that holds the commands one more period).
     """
     s = parts.schedule
     controller = parts.controller
     if gain_scale != 1.0:
         controller.scale(gain_scale)
-    supervisor = Supervisor(Limits(voltage_limit or np.inf, slew_limit), s.carriers, s.control_rate,
+    supervisor = Supervisor(Limits(voltage_limit or np.inf, slew_limit, watchdog), s.carriers, s.control_rate,
                             s.feedforward_peak, s.feedforward_slope,
                             np.abs(s.reference).max(axis=1) + 5 * parts.noise, plan.weights, lead=1 + latency)
     k, a = s.carriers.size, plan.weights.shape[0]

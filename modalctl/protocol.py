@@ -22,7 +22,7 @@ import numpy as np
 from cobs import cobs
 
 __all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", "Upload", "Start", "Commands",
-           "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Field", "Error", "Ack", "encode", "decode",
+           "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Field", "Error", "Ack", "encode", "decode",
            "frame", "Deframer", "MAX_FRAME"]
 
 VERSION = 1
@@ -65,6 +65,7 @@ class Info(Message):
     voltage_limit: float = float("nan")  # NaN: no rails reported
     max_modes: int = 0
     scans: int = 0  # grid points a vibrometer on the bench can measure (0: none)
+    snr_db: float = float("nan")  # a simulated board's sensor noise below the shot's peak (NaN: a real board)
     name: str = ""
 
 
@@ -82,6 +83,7 @@ class Configure(Message):
     weights: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     sensors: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     samples: int = 0  # feed-forward samples per channel to be uploaded
+    level: float = 0.0  # the planned field peak (m/s): a simulated board sets its noise from it
 
 
 @dataclass
@@ -152,12 +154,26 @@ class Scan(Message):
 
 
 @dataclass
+class Capture(Message):
+    """Host -> board: the last shot's record, ``what`` = 0 the applied voltages (V), 1 the sensors
+    (m/s), one row per channel or sensor (``rows``: which ones, all when empty); answered by
+    :class:`Field` blocks."""
+
+    TYPE = 0x0A
+    what: int = 0
+    rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+
+
+@dataclass
 class Field(Message):
-    """Bench -> host: one block of a scan, ``rows`` points x ``len(times)`` values from point ``first`` (m/s)."""
+    """Board -> host: one block of a scan or a capture: ``rows`` rows from row ``first`` (counted in
+    the request's list of points or rows) and the columns from ``offset`` on, row-major
+    (``values.size / rows`` columns)."""
 
     TYPE = 0x89
     first: int = 0
     rows: int = 0
+    offset: int = 0
     values: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
 
 
@@ -180,17 +196,18 @@ class Error(Message):
 
 
 _TYPES = {cls.TYPE: cls for cls in (Hello, Info, Configure, Upload, Start, Commands, Envelopes, Heartbeat,
-                                    RampDown, Stop, Scan, Field, Ack, Error)}
+                                    RampDown, Stop, Scan, Capture, Field, Ack, Error)}
 _LAYOUT = {
-    Info: ("u8", "u8", "f32", "f32", "u8", "u32", "str"),
-    Configure: ("f32", "f32", "u8", "f32[]", "f32[]", "f32[]", "f32[]", "u32"),
+    Info: ("u8", "u8", "f32", "f32", "u8", "u32", "f32", "str"),
+    Configure: ("f32", "f32", "u8", "f32[]", "f32[]", "f32[]", "f32[]", "u32", "f32"),
     Upload: ("u8", "u32", "f32[]"),
     Commands: ("u32", "c64[]"),
     Envelopes: ("u32", "c64[]"),
     Heartbeat: ("u8",),
     RampDown: ("f32",),
     Scan: ("f32[]", "f32[]"),
-    Field: ("u32", "u32", "f32[]"),
+    Capture: ("u8", "f32[]"),
+    Field: ("u32", "u32", "u32", "f32[]"),
     Ack: ("u8", "u16"),
     Error: ("u16", "str"),
 }

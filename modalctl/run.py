@@ -137,7 +137,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
                     tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
                     slew_limit: float | None = None, sample_rate: float = 1e6, control_rate: float = 20e3,
                     authority: float = 0.5, latency: int = 0, drift=None, log=None, progress: bool = False,
-                    controller: str = "pi", **plan_options) -> Shot:
+                    controller: str = "pi", watchdog: int = 1, **plan_options) -> Shot:
     """Plan the shape's focus and play it on ``device`` with per-mode feedback (its phasor mode).
 
     Parameters are those of :func:`run_open_loop`, and
@@ -155,6 +155,8 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         Every control period recorded there (``.json`` + ``.bin``).
     controller : str
         Controller plugin (``pi``, ``lqg``...).
+    watchdog : int
+        Periods without a measurement before the shot is stopped.
     """
     from .loop import closed_shot, loop_parts
 
@@ -166,12 +168,18 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     start = _time.perf_counter()
     parts = loop_parts(the_plan, control_rate, board.noise, authority, latency, controller)
     result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, log=log,
-                         progress=progress)
+                         progress=progress, watchdog=watchdog)
     board.play_out()
     times = np.union1d(the_plan.check_times(), [focus_time])
-    field = board.scan(times, scan_indices(caps, model.grid.points, device.url))
+    try:
+        field = board.scan(times, scan_indices(caps, model.grid.points, device.url))
+        capture = Capture(the_plan.times, board.sensed, board.applied)
+    except DeviceError as exc:
+        if result.reason is None:
+            raise
+        raise DeviceError(f"the supervisor stopped the shot ({result.reason}); every period up to it is in "
+                          f"{log}.json/.bin; the field could not be measured afterwards: {exc}") from None
     seconds = _time.perf_counter() - start
-    capture = Capture(the_plan.times, board.sensed, board.applied)
     shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, seconds)
     shot.metrics["loop"] = {
         "controller": controller, "state": result.state.name.lower(), "fault": result.reason,

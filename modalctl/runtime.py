@@ -175,6 +175,11 @@ class Runtime:
         if reason is not None:
             self.fault(reason)
             return self.state
+        if measured is None:  # a lost reading the watchdog tolerates: hold the commands one more period
+            self.board.write(self.command)
+            self._record(None, 1.0, time.perf_counter() - tic)
+            self.period += 1
+            return self.state
         reference = self._reference[n]
         error = reference - measured + self.leak * self.command
         if self.tracker is not None:  # the mode's own answer: the other modes' predicted share removed

@@ -1,4 +1,4 @@
-"""First-party transports: ``sim://``, the embedded HIL board."""
+"""First-party transports: ``sim://``, the embedded HIL board; ``serial://``, a board on a serial line."""
 
 from __future__ import annotations
 
@@ -11,6 +11,12 @@ def _sim(url, **context):
     return SimDevice.from_url(url, **context)
 
 
+def _serial(url, **context):
+    from modalctl.transports.serial import SerialDevice
+
+    return SerialDevice.from_url(url, **context)
+
+
 @hookimpl
 def modalctl_transports():
-    return {"sim": _sim}
+    return {"sim": _sim, "serial": _serial}

@@ -1,0 +1,1 @@
+"""Transports to boards, installed as ``modalctl.transports``: they open ports; the core does not."""
