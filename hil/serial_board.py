@@ -25,6 +25,7 @@ from modalctl.model import ModalModel
 from modalctl.schedule import Schedule
 
 from .board import HILBoard
+from .device import SimDevice
 from .scenario import Perturbation, perturb
 
 __all__ = ["SerialBoardEmulator", "ERRORS"]
@@ -60,6 +61,8 @@ class SerialBoardEmulator:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="serial board", daemon=True)
         self.board: HILBoard | None = None
+        self.sim = SimDevice(model, perturbation)  # open-loop shots: the simulator's own board
+        self.capture = None
         self.config: p.Configure | None = None
         self.feedforward: np.ndarray | None = None
         self.sent = 0
@@ -169,6 +172,15 @@ class SerialBoardEmulator:
         if c is None:
             self._refuse("state", "start before configure")
             return
+        if c.modes == 0:  # an open-loop shot: the whole waveform, then the record
+            self.board = None
+            self.sim.configure(float(c.sample_rate))
+            self.sim.activate()
+            self.sim.upload(self.feedforward)
+            self.capture = self.sim.trigger()
+            self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+            return
+        self.capture = None
         k, decimation = c.modes, int(round(c.sample_rate / c.control_rate))
         periods = self.feedforward.shape[1] // decimation
         dummy, flat = np.zeros((k, periods), complex), np.zeros((1, periods))
@@ -213,19 +225,24 @@ class SerialBoardEmulator:
         self._send(p.Heartbeat(state=0 if self.board is None else 2))
 
     def _on_scan(self, message: p.Scan) -> None:
-        if self.board is None:
-            self._refuse("state", "no shot to scan")
-            return
-        self.board.play_out()
         points = None if message.points.size == 0 else message.points.astype(int)
-        self._send_rows(self.board.scan(message.times.astype(float), points))
+        if self.capture is not None:
+            self._send_rows(self.sim.scan(message.times, points))
+        elif self.board is not None:
+            self.board.play_out()
+            self._send_rows(self.board.scan(message.times, points))
+        else:
+            self._refuse("state", "no shot to scan")
 
     def _on_capture(self, message: p.Capture) -> None:
-        if self.board is None:
+        if self.capture is not None:
+            record = self.capture.voltages if message.what == 0 else self.capture.sensors
+        elif self.board is not None:
+            self.board.play_out()
+            record = self.board.applied if message.what == 0 else self.board.sensed
+        else:
             self._refuse("state", "no shot to capture")
             return
-        self.board.play_out()
-        record = self.board.applied if message.what == 0 else self.board.sensed
         self._send_rows(record if message.rows.size == 0 else record[message.rows.astype(int)])
 
     def _send_rows(self, values: np.ndarray) -> None:

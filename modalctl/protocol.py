@@ -44,7 +44,7 @@ class Message:
 
 # -- the message types ---------------------------------------------------------------------------
 # Each subclass lists its fields after ``seq``; _LAYOUT says how each field is packed:
-# "u8", "u16", "u32", "f32" scalars; "f32[]", "c64[]" arrays (u32 count first); "str" (u16 length, UTF-8).
+# "u8", "u16", "u32", "f32" scalars; "f32[]", "f64[]", "c64[]" arrays (u32 count first); "str" (u16 length, UTF-8).
 
 
 @dataclass
@@ -98,7 +98,8 @@ class Upload(Message):
 
 @dataclass
 class Start(Message):
-    """Host -> board: arm and trigger; the board answers the first period's :class:`Envelopes`."""
+    """Host -> board: arm and trigger. In phasor mode the board answers the first period's
+    :class:`Envelopes`; a shot configured with no modes is played open loop, whole, and acknowledged."""
 
     TYPE = 0x04
 
@@ -205,7 +206,7 @@ _LAYOUT = {
     Envelopes: ("u32", "c64[]"),
     Heartbeat: ("u8",),
     RampDown: ("f32",),
-    Scan: ("f32[]", "f32[]"),
+    Scan: ("f64[]", "f32[]"),
     Capture: ("u8", "f32[]"),
     Field: ("u32", "u32", "u32", "f32[]"),
     Ack: ("u8", "u16"),
@@ -213,7 +214,7 @@ _LAYOUT = {
 }
 _SCALARS = {"u8": struct.Struct("<B"), "u16": struct.Struct("<H"), "u32": struct.Struct("<I"),
             "f32": struct.Struct("<f")}
-_ARRAYS = {"f32[]": np.dtype("<f4"), "c64[]": np.dtype("<c8")}
+_ARRAYS = {"f32[]": np.dtype("<f4"), "f64[]": np.dtype("<f8"), "c64[]": np.dtype("<c8")}
 
 
 def _body_fields(cls) -> list[str]:

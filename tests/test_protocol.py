@@ -20,7 +20,7 @@ EXAMPLES = [
     p.Commands(seq=6, period=123, commands=np.array([1 + 2j, -3j])),
     p.Envelopes(seq=7, period=124, envelopes=np.array([1e-4 + 1e-5j, 2e-5])),
     p.Heartbeat(seq=8, state=2), p.RampDown(seq=9, seconds=5e-5), p.Stop(seq=10),
-    p.Scan(seq=11, times=np.array([0.025]), points=np.array([0.0, 5.0])),
+    p.Scan(seq=11, times=np.array([0.025, 0.0250021]), points=np.array([0.0, 5.0])),
     p.Field(seq=12, first=0, rows=2, offset=8000, values=np.array([1.0, 2.0])), p.Capture(seq=15, what=1, rows=np.array([0.0, 3.0])),
     p.Ack(seq=13, of=0x02, ack_seq=3), p.Error(seq=14, code=3, text="watchdog: no command for 3 periods"),
 ]

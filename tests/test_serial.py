@@ -40,6 +40,18 @@ def test_closed_loop_over_serial_measures_what_sim_measures(model, tmp_path, cap
     assert serial["loop"]["periods"] == sim["loop"]["periods"]
 
 
+def test_open_loop_over_serial_measures_what_sim_measures(model, tmp_path, capsys):
+    """The thesis's set-up over the wire: upload, trigger, the synchronized record, the bench's scan."""
+    open_run = [a for a in RUN if a not in ("closed", "--control-rate", "2kHz")]
+    open_run[open_run.index("--loop") + 1:open_run.index("--loop") + 1] = ["open"]
+    assert main([*open_run, *TRUTH, "--out", str(tmp_path / "sim")]) == 0
+    with SerialBoardEmulator(model, PERTURBATION) as board:
+        assert main([*open_run, "--transport", f"serial://{board.path}", "--out", str(tmp_path / "serial")]) == 0
+    sim, serial = _metrics(tmp_path / "sim"), _metrics(tmp_path / "serial")
+    assert abs(serial["tau"] - sim["tau"]) < 1e-4 and abs(serial["margin_ratio"] - sim["margin_ratio"]) < 1e-4
+    assert abs(serial["peak_voltage"] - sim["peak_voltage"]) < 1e-4 * sim["peak_voltage"]
+
+
 def test_a_corrupted_frame_is_skipped_and_the_watchdog_rides_it_out(model, tmp_path, capsys):
     with SerialBoardEmulator(model, PERTURBATION, faults={"corrupt": 20}) as board:
         code = main([*RUN, "--watchdog", "3", "--transport", f"serial://{board.path}?timeout=0.1",

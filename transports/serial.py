@@ -1,8 +1,9 @@
 """``serial://``: a board over a serial line (pyserial), speaking the protocol of :mod:`modalctl.protocol`.
 
 ``serial:///dev/ttyUSB0?baud=3000000&timeout=0.5`` (any path pyserial opens: a USB adapter, a
-pty of the emulator). :class:`SerialDevice` implements the device interface for identification
-and field scans, and hands out a :class:`SerialPhasorBoard` for closed-loop shots: per-mode
+pty of the emulator). :class:`SerialDevice` implements the device interface (identification,
+open-loop shots: upload, trigger, the synchronized record; field scans from a bench vibrometer),
+and hands out a :class:`SerialPhasorBoard` for closed-loop shots: per-mode
 commands down, per-mode envelopes up, one exchange per control period. A period whose envelopes
 do not arrive within the timeout reads as None, so the runtime's watchdog stops the shot; a board
 error ends it with :class:`~modalctl.device.DeviceError`; corrupted frames are counted and skipped.
@@ -16,12 +17,13 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 
 from modalctl import protocol as p
-from modalctl.device import Capabilities, DeviceError
+from modalctl.device import Capabilities, Capture, DeviceError
 from modalctl.schedule import Schedule
 
 __all__ = ["SerialDevice", "SerialPhasorBoard", "link_budget"]
 
 UPLOAD_SAMPLES = 4000  # float32 per upload frame (16 kB)
+SCAN_TIMES = 4000  # instants per scan request (32 kB)
 
 
 def link_budget(baud: float, modes: int) -> float:
@@ -133,17 +135,40 @@ class SerialDevice:
         pass
 
     def upload(self, voltages) -> None:
-        raise DeviceError(f"{self.url}: open-loop waveform shots over serial are not in protocol v1 yet; "
-                          "use --loop closed")
+        """Load one open-loop shot, (channels, n) V: a configuration with no modes, then the waveforms."""
+        u = np.atleast_2d(np.asarray(voltages, float))
+        if self.capabilities is None:
+            raise DeviceError(f"{self.url}: configure before upload")
+        if u.shape[0] != self.capabilities.channels:
+            raise DeviceError(f"{self.url}: {u.shape[0]} waveforms for {self.capabilities.channels} channels")
+        if not np.all(np.isfinite(u)):
+            raise DeviceError(f"{self.url}: waveform contains non-finite samples")
+        self.request(p.Configure(sample_rate=self.sample_rate, control_rate=self.sample_rate, modes=0,
+                                 samples=u.shape[1]), (p.Ack,))
+        self._send_waveforms(u)
 
-    def trigger(self, progress: bool = False):
-        raise DeviceError(f"{self.url}: open-loop waveform shots over serial are not in protocol v1 yet")
+    def _send_waveforms(self, u: np.ndarray) -> None:
+        self.samples = u.shape[1]
+        for channel, wave in enumerate(u):
+            for offset in range(0, wave.size, UPLOAD_SAMPLES):
+                self.request(p.Upload(channel=channel, offset=offset, samples=wave[offset:offset + UPLOAD_SAMPLES]),
+                             (p.Ack,))
+
+    def trigger(self, progress: bool = False) -> Capture:
+        """Play the uploaded shot and bring back its record (the thesis's synchronized capture)."""
+        self.send(p.Start())
+        if self.receive((p.Ack,), timeout=max(self.timeout, 60.0)) is None:
+            raise DeviceError(f"{self.url}: the board did not finish the shot")
+        times = np.arange(self.samples) / self.sample_rate
+        return Capture(times, self.capture("sensors"), self.capture("voltages"))
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:
         """The last shot's field (n_points, nt) from the bench vibrometer (m/s)."""
         times = np.asarray(times, float)
         rows = np.arange(self.scans) if points is None else np.atleast_1d(points)
-        return self._rows(lambda subset: p.Scan(times=times, points=subset), rows, times.size)
+        blocks = [self._rows(lambda subset, t=times[i:i + SCAN_TIMES]: p.Scan(times=t, points=subset), rows,
+                             times[i:i + SCAN_TIMES].size) for i in range(0, times.size, SCAN_TIMES)]
+        return np.hstack(blocks) if blocks else np.zeros((rows.size, 0))
 
     def capture(self, what: str) -> np.ndarray:
         """The last shot's record from the board: ``"voltages"`` (channels, n) V or ``"sensors"`` (sensors, n) m/s."""
@@ -198,11 +223,7 @@ class SerialPhasorBoard:
         d.request(p.Configure(sample_rate=d.sample_rate, control_rate=s.control_rate, modes=s.carriers.size,
                               carriers=s.carriers, bandwidths=s.bandwidths, weights=s.weights, sensors=s.sensors,
                               samples=s.feedforward.shape[1], level=self.level), (p.Ack,))
-        d.samples = s.feedforward.shape[1]
-        for channel, wave in enumerate(s.feedforward):
-            for offset in range(0, wave.size, UPLOAD_SAMPLES):
-                d.request(p.Upload(channel=channel, offset=offset, samples=wave[offset:offset + UPLOAD_SAMPLES]),
-                          (p.Ack,))
+        d._send_waveforms(s.feedforward)
 
     def start(self) -> None:
         self.period = 0
