@@ -1,4 +1,4 @@
-"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``, ``identify``, ``run``, ``sweep``.
+"""The ``modalctl`` command: ``scenes``, ``plugins``, ``decompose``, ``identify``, ``run``, ``sweep``, ``emulate``.
 
 Exit codes: 0 success, 1 a target that cannot be met (no mode set or no plan meets it: the
 message says by how much), 2 bad input (unknown scene, shape or parameter, bad units,
@@ -145,6 +145,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="directory for sweep.json, sweep.md and maps.png")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("emulate", help="serve the HIL board on a serial device path (a pty) until interrupted")
+    p.add_argument("--scene", default="thesis-al-cc", help="the structure (thesis-al-cc)")
+    p.add_argument("--points", type=int, help="grid points of a beam scene (default: the scene's)")
+    p.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
+    p.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0)
+    p.add_argument("--snr", type=float, help="sensor noise, dB below the shot's peak")
+    p.add_argument("--rails", type=_quantity("V", "rails"), help="amplifier rails")
+    p.add_argument("--latency", type=int, default=0, help="extra periods before a command is used")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--for", dest="seconds", type=_quantity("s", "for"), help="stop after this long (default: never)")
 
     p = sub.add_parser("identify", help="identify a structure's modes from FRFs measured through a device")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
@@ -379,6 +390,26 @@ def _sweep(args) -> int:
     return 0
 
 
+def _emulate(args) -> int:
+    import time
+
+    from .hil.scenario import Perturbation
+    from .hil.serial_board import SerialBoardEmulator
+
+    model = load_scene(args.scene, args.points)
+    perturbation = Perturbation(args.drift, 0.0, args.damping_error, args.snr, None, args.rails, args.seed)
+    with SerialBoardEmulator(model, perturbation, args.latency) as board:
+        print(f"board emulator for {args.scene} ({perturbation.describe()}) on {board.path}", flush=True)
+        print(f"use: modalctl run ... --transport serial://{board.path}   (Ctrl-C to stop)", flush=True)
+        start = time.monotonic()
+        try:
+            while args.seconds is None or time.monotonic() - start < args.seconds:
+                time.sleep(0.1)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
 def _identify(args) -> int:
     import numpy as np
 
@@ -451,7 +482,7 @@ def _jsonable(value):
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run,
-                "identify": _identify, "sweep": _sweep}
+                "identify": _identify, "sweep": _sweep, "emulate": _emulate}
     try:
         return handlers[args.command](args)
     except DeviceError as exc:

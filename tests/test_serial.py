@@ -86,3 +86,8 @@ def test_bad_serial_urls_say_what_is_wrong():
         open_device("serial:///dev/does-not-exist")
     with pytest.raises(DeviceError, match="unknown option"):
         open_device("serial:///dev/null?speed=9600")
+
+
+def test_modalctl_emulate_serves_a_pty_and_says_where(capsys):
+    assert main(["emulate", "--drift", "1%", "--for", "0.2s"]) == 0
+    assert "serial:///dev/pts/" in capsys.readouterr().out
