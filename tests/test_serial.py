@@ -52,14 +52,17 @@ def test_open_loop_over_serial_measures_what_sim_measures(model, tmp_path, capsy
     assert abs(serial["peak_voltage"] - sim["peak_voltage"]) < 1e-4 * sim["peak_voltage"]
 
 
-def test_a_corrupted_frame_is_skipped_and_the_watchdog_rides_it_out(model, tmp_path, capsys):
-    with SerialBoardEmulator(model, PERTURBATION, faults={"corrupt": 20}) as board:
+@pytest.mark.parametrize("fault", ["corrupt", "drop", "truncate"])
+def test_a_lost_frame_is_skipped_and_the_watchdog_rides_it_out(model, tmp_path, capsys, fault):
+    """Every 20th frame the board sends is corrupted, dropped or cut short: requests are repeated,
+    missing scan rows asked again, and a lost period's commands held over."""
+    with SerialBoardEmulator(model, PERTURBATION, faults={fault: 20}) as board:
         code = main([*RUN, "--watchdog", "3", "--transport", f"serial://{board.path}?timeout=0.1",
                      "--out", str(tmp_path)])
     assert code == 0
     records, _ = read_log(tmp_path / "log")
     lost = np.flatnonzero(np.all(records["measured"] == 0, axis=1) & (records["period"] > 0))
-    assert lost.size >= 1  # the corrupted envelopes were held over, not used
+    assert lost.size >= 1  # the lost envelopes were held over, not used
     assert _metrics(tmp_path)["tau"] > 0.85
 
 
