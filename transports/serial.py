@@ -1,29 +1,22 @@
 """``serial://``: a board over a serial line (pyserial), speaking the protocol of :mod:`modalctl.protocol`.
 
 ``serial:///dev/ttyUSB0?baud=3000000&timeout=0.5`` (any path pyserial opens: a USB adapter, a
-pty of the emulator). :class:`SerialDevice` implements the device interface (identification,
-open-loop shots: upload, trigger, the synchronized record; field scans from a bench vibrometer),
-and hands out a :class:`SerialPhasorBoard` for closed-loop shots: per-mode
-commands down, per-mode envelopes up, one exchange per control period. A period whose envelopes
-do not arrive within the timeout reads as None, so the runtime's watchdog stops the shot; a board
-error ends it with :class:`~modalctl.device.DeviceError`; corrupted frames are counted and skipped.
+pty of the emulator). Each message travels COBS-framed with its CRC; what the device does with
+them is :class:`~modalctl.transports.board.ProtocolDevice`.
 """
 
 from __future__ import annotations
 
-import time
 from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
 from modalctl import protocol as p
-from modalctl.device import Capabilities, Capture, DeviceError
-from modalctl.schedule import Schedule
+from modalctl.device import DeviceError
 
-__all__ = ["SerialDevice", "SerialPhasorBoard", "link_budget"]
+from .board import ProtocolDevice
 
-UPLOAD_SAMPLES = 4000  # float32 per upload frame (16 kB)
-SCAN_TIMES = 4000  # instants per scan request (32 kB)
+__all__ = ["SerialDevice", "link_budget"]
 
 
 def link_budget(baud: float, modes: int) -> float:
@@ -33,7 +26,7 @@ def link_budget(baud: float, modes: int) -> float:
     return baud / 10 / (2 * frame)
 
 
-class SerialDevice:
+class SerialDevice(ProtocolDevice):
     """A board on a serial line.
 
     Parameters
@@ -51,207 +44,30 @@ class SerialDevice:
         if unknown:
             raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: baud, timeout")
         try:
-            self.baud, self.timeout = int(query.get("baud", 3_000_000)), float(query.get("timeout", 0.5))
+            baud, timeout = int(query.get("baud", 3_000_000)), float(query.get("timeout", 0.5))
         except ValueError:
             raise DeviceError(f"{url}: baud must be an integer and timeout a number of seconds") from None
-        self.url, self.path = url, parts.path or parts.netloc
+        super().__init__(url, timeout)
+        self.baud, self.path = baud, parts.path or parts.netloc
         try:
             self.port = serial.Serial(self.path, self.baud, timeout=0)
         except (serial.SerialException, OSError) as exc:
             raise DeviceError(f"{url}: cannot open {self.path}: {exc}") from None
-        self.deframer, self.seq, self.corrupted = p.Deframer(), 0, 0
-        self._queue: list = []
-        self.scans = self.samples = 0
-        self.info: dict = {}
-        self.capabilities = None
-        self.sample_rate = None
+        self.deframer = p.Deframer()
 
     @classmethod
     def from_url(cls, url: str, **_context) -> "SerialDevice":
         return cls(url)
 
-    # -- the wire ------------------------------------------------------------------------------
-    def send(self, message: p.Message) -> None:
-        self.seq = (self.seq + 1) & 0xFFFF
-        message.seq = self.seq
+    def _write(self, message: p.Message) -> None:
         self.port.write(p.frame(message))
 
-    def receive(self, kinds: tuple, timeout: float | None = None):
-        """The next message of one of ``kinds`` within ``timeout`` (s), or None; board errors raise."""
-        deadline = time.perf_counter() + (self.timeout if timeout is None else timeout)
-        while True:
-            for item in self._pending():
-                if isinstance(item, p.Error):
-                    raise DeviceError(f"{self.url}: board error {item.code}: {item.text}")
-                if isinstance(item, kinds):
-                    return item
-            if time.perf_counter() > deadline:
-                return None
-            data = self.port.read(self.port.in_waiting or 1)
-            if data:
-                self._queue += self.deframer.feed(data)
-            else:
-                time.sleep(20e-6)
+    def _read(self) -> list:
+        data = self.port.read(self.port.in_waiting or 1)
+        return self.deframer.feed(data) if data else []
 
-    def _pending(self):
-        queue, self._queue = list(self._queue), []
-        for item in queue:
-            if isinstance(item, p.ProtocolError):
-                self.corrupted += 1
-                continue
-            yield item
+    def budget(self, modes: int) -> float:
+        return link_budget(self.baud, modes)
 
-    def request(self, message: p.Message, kinds: tuple, attempts: int = 3):
-        """Send a request the board answers (idempotent: identification, configuration, upload) and
-        wait for the answer, sending it again when the answer is lost or corrupted."""
-        for _ in range(attempts):
-            self.send(message)
-            answer = self.receive(kinds)
-            if answer is not None:
-                return answer
-        raise DeviceError(f"{self.url}: no answer to {type(message).__name__} in {attempts} attempts "
-                          f"of {self.timeout:g} s")
-
-    # -- the device interface ------------------------------------------------------------------
-    def configure(self, sample_rate: float) -> Capabilities:
-        self._queue = []
-        info = self.request(p.Hello(), (p.Info,))
-        if not 0 < sample_rate <= info.max_sample_rate:
-            raise DeviceError(f"{self.url}: sample rate {sample_rate:g} Hz outside (0, {info.max_sample_rate:g}]")
-        self.sample_rate = float(sample_rate)
-        self.info = {"board": info.name, "snr_db": info.snr_db, "baud": self.baud}
-        limit = None if np.isnan(info.voltage_limit) else float(info.voltage_limit)
-        self.capabilities = Capabilities(info.name, info.channels, info.sensors, info.max_sample_rate, limit,
-                                         info.scans > 0)
-        self._snr = None if np.isnan(info.snr_db) else float(info.snr_db)
-        self.scans = info.scans
-        return self.capabilities
-
-    def activate(self) -> None:
-        if self.capabilities is None:
-            raise DeviceError(f"{self.url}: configure before activate")
-
-    def deactivate(self) -> None:
-        pass
-
-    def upload(self, voltages) -> None:
-        """Load one open-loop shot, (channels, n) V: a configuration with no modes, then the waveforms."""
-        u = np.atleast_2d(np.asarray(voltages, float))
-        if self.capabilities is None:
-            raise DeviceError(f"{self.url}: configure before upload")
-        if u.shape[0] != self.capabilities.channels:
-            raise DeviceError(f"{self.url}: {u.shape[0]} waveforms for {self.capabilities.channels} channels")
-        if not np.all(np.isfinite(u)):
-            raise DeviceError(f"{self.url}: waveform contains non-finite samples")
-        self.request(p.Configure(sample_rate=self.sample_rate, control_rate=self.sample_rate, modes=0,
-                                 samples=u.shape[1]), (p.Ack,))
-        self._send_waveforms(u)
-
-    def _send_waveforms(self, u: np.ndarray) -> None:
-        self.samples = u.shape[1]
-        for channel, wave in enumerate(u):
-            for offset in range(0, wave.size, UPLOAD_SAMPLES):
-                self.request(p.Upload(channel=channel, offset=offset, samples=wave[offset:offset + UPLOAD_SAMPLES]),
-                             (p.Ack,))
-
-    def trigger(self, progress: bool = False) -> Capture:
-        """Play the uploaded shot and bring back its record (the thesis's synchronized capture)."""
-        self.send(p.Start())
-        if self.receive((p.Ack,), timeout=max(self.timeout, 60.0)) is None:
-            raise DeviceError(f"{self.url}: the board did not finish the shot")
-        times = np.arange(self.samples) / self.sample_rate
-        return Capture(times, self.capture("sensors"), self.capture("voltages"))
-
-    def scan(self, times: np.ndarray, points=None) -> np.ndarray:
-        """The last shot's field (n_points, nt) from the bench vibrometer (m/s)."""
-        times = np.asarray(times, float)
-        rows = np.arange(self.scans) if points is None else np.atleast_1d(points)
-        blocks = [self._rows(lambda subset, t=times[i:i + SCAN_TIMES]: p.Scan(times=t, points=subset), rows,
-                             times[i:i + SCAN_TIMES].size) for i in range(0, times.size, SCAN_TIMES)]
-        return np.hstack(blocks) if blocks else np.zeros((rows.size, 0))
-
-    def capture(self, what: str) -> np.ndarray:
-        """The last shot's record from the board: ``"voltages"`` (channels, n) V or ``"sensors"`` (sensors, n) m/s."""
-        caps = self.capabilities
-        rows = np.arange(caps.channels if what == "voltages" else caps.sensors)
-        return self._rows(lambda subset: p.Capture(what=0 if what == "voltages" else 1, rows=subset), rows,
-                          self.samples)
-
-    def _rows(self, request, rows: np.ndarray, columns: int, attempts: int = 5) -> np.ndarray:
-        """Assemble (len(rows), columns) from the Field blocks answering ``request(subset of rows)``;
-        rows that do not arrive whole (a lost or corrupted block) are asked for again."""
-        out, filled = np.zeros((rows.size, columns)), np.zeros(rows.size, int)
-        for _ in range(attempts):
-            missing = np.flatnonzero(filled < columns)
-            if missing.size == 0:
-                return out
-            filled[missing] = 0
-            self.send(request(rows[missing].astype(np.float32)))
-            while np.any(filled[missing] < columns):
-                block = self.receive((p.Field,), timeout=max(self.timeout, 1.0))
-                if block is None:
-                    break
-                width = block.values.size // max(block.rows, 1)
-                where = missing[block.first:block.first + block.rows]
-                out[where, block.offset:block.offset + width] = block.values.reshape(block.rows, width)
-                filled[where] += width
-        if np.any(filled < columns):
-            raise DeviceError(f"{self.url}: {int(np.sum(filled < columns))} of {rows.size} rows never arrived whole")
-        return out
-
-    def phasor_board(self, level: float, control_rate: float, latency: int = 0, drift=None):
-        if drift is not None:
-            raise DeviceError(f"{self.url}: a drift during the shot is a simulator scenario; give it to the emulator")
-        return SerialPhasorBoard(self, level)  # the link budget is checked with the shot's modes
-
-
-class SerialPhasorBoard:
-    """The runtime's board (:class:`modalctl.runtime.PhasorBoard`) over a :class:`SerialDevice`."""
-
-    def __init__(self, device: SerialDevice, level: float):
-        self.device, self.level = device, float(level)
-        snr = device._snr
-        self.noise = 0.0 if snr is None else self.level / 10 ** (snr / 20)  # what the controller should expect
-        self.period = 0
-
-    def configure(self, schedule: Schedule) -> None:
-        d, s = self.device, schedule
-        budget = link_budget(d.baud, s.carriers.size)
-        if s.control_rate > budget:
-            raise DeviceError(f"{d.url}: {s.control_rate:g} Hz control with {s.carriers.size} modes needs more than "
-                              f"the line sustains ({budget:.0f} periods/s at {d.baud} baud)")
-        d.request(p.Configure(sample_rate=d.sample_rate, control_rate=s.control_rate, modes=s.carriers.size,
-                              carriers=s.carriers, bandwidths=s.bandwidths, weights=s.weights, sensors=s.sensors,
-                              samples=s.feedforward.shape[1], level=self.level), (p.Ack,))
-        d._send_waveforms(s.feedforward)
-
-    def start(self) -> None:
-        self.period = 0
-        self.device.send(p.Start())
-
-    def read(self):
-        answer = self.device.receive((p.Envelopes,))
-        if answer is None:
-            return None
-        self.period = answer.period + 1
-        return answer.envelopes.astype(complex)
-
-    def write(self, commands: np.ndarray) -> None:
-        self.device.send(p.Commands(period=self.period, commands=np.asarray(commands)))
-
-    def ramp_down(self, seconds: float) -> None:
-        self.device.send(p.RampDown(seconds=seconds))
-
-    def play_out(self) -> None:
-        """The board plays the rest of the shot when it is scanned or captured."""
-
-    def scan(self, times, points=None):
-        return self.device.scan(times, points)
-
-    @property
-    def sensed(self) -> np.ndarray:
-        return self.device.capture("sensors")
-
-    @property
-    def applied(self) -> np.ndarray:
-        return self.device.capture("voltages")
+    def link_description(self) -> str:
+        return f"{self.baud} baud"
