@@ -22,9 +22,7 @@ from .board import HILBoard
 from .device import SimDevice
 from .scenario import Perturbation, perturb
 
-__all__ = ["BoardEmulator", "ERRORS", "FIELD_VALUES"]
-
-FIELD_VALUES = 8000  # float32 values per Field message (32 kB)
+__all__ = ["BoardEmulator", "ERRORS"]
 ERRORS = {"protocol": 1, "unsupported": 2, "state": 3, "config": 4, "internal": 9}
 
 
@@ -44,6 +42,7 @@ class BoardEmulator:
     """
 
     name = "modalctl HIL board"
+    field_values = 8000  # float32 values per Field message (32 kB)
 
     def __init__(self, model: ModalModel, perturbation: Perturbation = Perturbation(), latency: int = 0,
                  faults: dict | None = None):
@@ -205,13 +204,15 @@ class BoardEmulator:
         else:
             self._refuse("state", "no shot to capture")
             return
-        self._send_rows(record if message.rows.size == 0 else record[message.rows.astype(int)])
+        record = record if message.rows.size == 0 else record[message.rows.astype(int)]
+        end = record.shape[1] if message.count == 0 else message.offset + message.count
+        self._send_rows(record[:, message.offset:end])
 
     def _send_rows(self, values: np.ndarray) -> None:
-        """A (rows, n) array in Field blocks of at most FIELD_VALUES values."""
+        """A (rows, n) array in Field blocks of at most ``field_values`` values."""
         values = np.asarray(values, np.float32)
-        columns = min(values.shape[1], FIELD_VALUES)
-        rows = max(1, FIELD_VALUES // max(1, columns))
+        columns = min(values.shape[1], self.field_values)
+        rows = max(1, self.field_values // max(1, columns))
         for first in range(0, values.shape[0], rows):
             for offset in range(0, values.shape[1], columns):
                 block = values[first:first + rows, offset:offset + columns]

@@ -247,8 +247,6 @@ def _decompose(args) -> int:
 def _run(args) -> int:
     import warnings
 
-    import numpy as np
-
     from .dispatch import DecouplingWarning
 
     warnings.simplefilter("ignore", DecouplingWarning)  # printed below from the metrics
@@ -267,12 +265,22 @@ def _run(args) -> int:
     common = dict(modes=args.modes, tau_min=args.tau_target, margin=args.margin, voltage_limit=args.voltage_limit,
                   sample_rate=args.sample_rate, progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake,
                   after=args.after)
-    if args.loop == "closed":
-        shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
-                               slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
-                               log=out / "log", controller=args.controller, watchdog=args.watchdog, **common)
-    else:
-        shot = run_open_loop(model, shape, device, args.focus_time, **common)
+    try:
+        if args.loop == "closed":
+            shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
+                                   slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
+                                   log=out / "log", controller=args.controller, watchdog=args.watchdog, **common)
+        else:
+            shot = run_open_loop(model, shape, device, args.focus_time, **common)
+        return _report(args, model, shape, device, shot, perturbation, out)
+    finally:
+        getattr(device, "close", lambda: None)()
+
+
+def _report(args, model, shape, device, shot, perturbation, out) -> int:
+    """metrics.json, fields.npz and the pictures of a run; the summary on stdout."""
+    import numpy as np
+
     metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,
                "params": dict(args.param), "truth": perturbation.describe(), "out": str(out)}
     centre = int(np.argmax(np.abs(shot.focus_field) * shape.target_mask))

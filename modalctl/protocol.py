@@ -23,7 +23,7 @@ from cobs import cobs
 
 __all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", "Upload", "Start", "Commands",
            "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Field", "Error", "Ack", "encode", "decode",
-           "frame", "Deframer", "MAX_FRAME"]
+           "frame", "Deframer", "MAX_FRAME", "CAN_DATA", "SYNC_ID", "to_board", "to_host", "segments", "Reassembler"]
 
 VERSION = 1
 MAX_FRAME = 1 << 16  # bytes of one encoded message, at most
@@ -157,12 +157,14 @@ class Scan(Message):
 @dataclass
 class Capture(Message):
     """Host -> board: the last shot's record, ``what`` = 0 the applied voltages (V), 1 the sensors
-    (m/s), one row per channel or sensor (``rows``: which ones, all when empty); answered by
-    :class:`Field` blocks."""
+    (m/s), one row per channel or sensor (``rows``: which ones, all when empty), samples
+    ``offset`` to ``offset + count``; answered by :class:`Field` blocks."""
 
     TYPE = 0x0A
     what: int = 0
     rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    offset: int = 0  # first sample
+    count: int = 0  # samples (0: to the end)
 
 
 @dataclass
@@ -207,7 +209,7 @@ _LAYOUT = {
     Heartbeat: ("u8",),
     RampDown: ("f32",),
     Scan: ("f64[]", "f32[]"),
-    Capture: ("u8", "f32[]"),
+    Capture: ("u8", "f32[]", "u32", "u32"),
     Field: ("u32", "u32", "u32", "f32[]"),
     Ack: ("u8", "u16"),
     Error: ("u16", "str"),
@@ -328,5 +330,69 @@ class Deframer:
             return ProtocolError("CRC mismatch: the frame was corrupted")
         try:
             return decode(data)
+        except ProtocolError as exc:
+            return exc
+
+
+# -- over CAN FD -----------------------------------------------------------------------------------
+# A message travels in CAN FD frames of up to 64 data bytes: each frame starts with one byte,
+# the segment's index (0-126) with the top bit set on the last one; the first segment's data starts
+# with the message's length (u16), so padding to a CAN FD length is harmless. CAN's own CRC guards
+# each frame. Identifiers follow CANopen's layout: host -> board node n on 0x200 + n, board n ->
+# host on 0x180 + n, SYNC (every board applies its last commands at once) on 0x080.
+
+CAN_DATA = 64
+SYNC_ID = 0x080
+_FIRST = struct.Struct("<BH")
+
+
+def to_board(node: int) -> int:
+    """CAN identifier of the host's messages to board ``node`` (1-127)."""
+    return 0x200 + node
+
+
+def to_host(node: int) -> int:
+    """CAN identifier of board ``node``'s messages to the host."""
+    return 0x180 + node
+
+
+def segments(message: Message) -> list[bytes]:
+    """The message's CAN FD frames' data, each at most :data:`CAN_DATA` bytes."""
+    data = encode(message)
+    body = struct.pack("<H", len(data)) + data
+    chunks = [body[i:i + CAN_DATA - 1] for i in range(0, len(body), CAN_DATA - 1)]
+    if len(chunks) > 127:
+        raise ProtocolError(f"{type(message).__name__}: {len(data)} bytes need {len(chunks)} CAN frames, at most 127")
+    return [bytes([i | (0x80 if i == len(chunks) - 1 else 0)]) + chunk for i, chunk in enumerate(chunks)]
+
+
+class Reassembler:
+    """Rebuilds messages from one sender's CAN FD frames: :meth:`feed` returns a :class:`Message`,
+    a :class:`ProtocolError` (a frame out of order, a bad length: the partial message is dropped)
+    or None while a message is incomplete."""
+
+    def __init__(self):
+        self._parts: list[bytes] = []
+
+    def feed(self, data: bytes):
+        if not data:
+            return ProtocolError("empty CAN frame")
+        index, last, chunk = data[0] & 0x7F, bool(data[0] & 0x80), bytes(data[1:])
+        if index == 0:
+            self._parts = []  # a new message; an unfinished one before it is lost
+        elif index != len(self._parts):
+            self._parts = []
+            return ProtocolError(f"CAN segment {index} without its predecessors")
+        self._parts.append(chunk)
+        if not last:
+            return None
+        body, self._parts = b"".join(self._parts), []
+        if len(body) < 2:
+            return ProtocolError("CAN message shorter than its length field")
+        (length,) = struct.unpack_from("<H", body)
+        if length > len(body) - 2:
+            return ProtocolError(f"CAN message announces {length} bytes, {len(body) - 2} arrived")
+        try:
+            return decode(body[2:2 + length])
         except ProtocolError as exc:
             return exc

@@ -1,4 +1,5 @@
-"""First-party transports: ``sim://``, the embedded HIL board; ``serial://``, a board on a serial line."""
+"""First-party transports: ``sim://``, the embedded HIL board; ``serial://``, a board on a serial line;
+``can://``, a board on a CAN FD bus."""
 
 from __future__ import annotations
 
@@ -17,6 +18,12 @@ def _serial(url, **context):
     return SerialDevice.from_url(url, **context)
 
 
+def _can(url, **context):
+    from modalctl.transports.can import CanDevice
+
+    return CanDevice.from_url(url, **context)
+
+
 @hookimpl
 def modalctl_transports():
-    return {"sim": _sim, "serial": _serial}
+    return {"sim": _sim, "serial": _serial, "can": _can}

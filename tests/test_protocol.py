@@ -21,7 +21,7 @@ EXAMPLES = [
     p.Envelopes(seq=7, period=124, envelopes=np.array([1e-4 + 1e-5j, 2e-5])),
     p.Heartbeat(seq=8, state=2), p.RampDown(seq=9, seconds=5e-5), p.Stop(seq=10),
     p.Scan(seq=11, times=np.array([0.025, 0.0250021]), points=np.array([0.0, 5.0])),
-    p.Field(seq=12, first=0, rows=2, offset=8000, values=np.array([1.0, 2.0])), p.Capture(seq=15, what=1, rows=np.array([0.0, 3.0])),
+    p.Field(seq=12, first=0, rows=2, offset=8000, values=np.array([1.0, 2.0])), p.Capture(seq=15, what=1, rows=np.array([0.0, 3.0]), offset=8000, count=8000),
     p.Ack(seq=13, of=0x02, ack_seq=3), p.Error(seq=14, code=3, text="watchdog: no command for 3 periods"),
 ]
 
@@ -95,3 +95,31 @@ def test_a_stream_without_delimiters_is_dropped_not_hoarded():
     out = deframer.feed(b"\x01" * (2 * p.MAX_FRAME + 10))
     assert len(out) == 1 and "delimiter" in str(out[0])
     assert deframer.feed(p.frame(EXAMPLES[0]))[-1] == EXAMPLES[0]
+
+
+@pytest.mark.parametrize("message", EXAMPLES, ids=lambda m: type(m).__name__)
+def test_every_message_survives_can_fd_segmentation(message):
+    frames = p.segments(message)
+    assert all(len(f) <= p.CAN_DATA for f in frames)
+    reassembler = p.Reassembler()
+    out = [reassembler.feed(f + b"\x00" * (-len(f) % 4)) for f in frames]  # padded as CAN FD lengths pad
+    assert all(o is None for o in out[:-1])
+    _same(message, out[-1])
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.binary(min_size=0, max_size=64), max_size=20))
+def test_random_can_frames_give_messages_errors_or_nothing(frames):
+    reassembler = p.Reassembler()
+    for data in frames:
+        out = reassembler.feed(data)
+        assert out is None or isinstance(out, (p.Message, p.ProtocolError))
+
+
+def test_a_lost_can_segment_is_reported_not_glued():
+    frames = p.segments(EXAMPLES[3])  # an upload: many frames
+    reassembler = p.Reassembler()
+    results = [reassembler.feed(f) for i, f in enumerate(frames) if i != 2]
+    assert any(isinstance(r, p.ProtocolError) for r in results)
+    assert not any(isinstance(r, p.Message) for r in results)
+    assert isinstance(reassembler.feed(p.segments(EXAMPLES[0])[0]), p.Hello)  # and the next message is fine

@@ -21,10 +21,7 @@ from modalctl import protocol as p
 from modalctl.device import Capabilities, Capture, DeviceError
 from modalctl.schedule import Schedule
 
-__all__ = ["ProtocolDevice", "ProtocolPhasorBoard", "UPLOAD_SAMPLES", "SCAN_TIMES"]
-
-UPLOAD_SAMPLES = 4000  # float32 per upload message (16 kB)
-SCAN_TIMES = 4000  # instants per scan request (32 kB)
+__all__ = ["ProtocolDevice", "ProtocolPhasorBoard"]
 
 
 class ProtocolDevice:
@@ -36,6 +33,10 @@ class ProtocolDevice:
     timeout : float
         Seconds to wait for an answer.
     """
+
+    upload_samples = 4000  # float32 per upload message (16 kB)
+    scan_times = 4000  # instants per scan request (32 kB)
+    capture_samples = 8000  # samples per capture request: one block per row, asked again alone if lost
 
     def __init__(self, url: str, timeout: float):
         self.url, self.timeout = url, float(timeout)
@@ -63,6 +64,9 @@ class ProtocolDevice:
     def link_description(self) -> str:
         return self.url
 
+    def close(self) -> None:
+        """Release the port or bus."""
+
     # -- the wire ------------------------------------------------------------------------------
     def send(self, message: p.Message) -> None:
         self.seq = (self.seq + 1) & 0xFFFF
@@ -73,11 +77,9 @@ class ProtocolDevice:
         """The next message of one of ``kinds`` within ``timeout`` (s), or None; board errors raise."""
         deadline = time.perf_counter() + (self.timeout if timeout is None else timeout)
         while True:
-            for item in self._pending():
-                if isinstance(item, p.Error):
-                    raise DeviceError(f"{self.url}: board error {item.code}: {item.text}")
-                if isinstance(item, kinds):
-                    return item
+            found = self._take(kinds)
+            if found is not None:
+                return found
             if time.perf_counter() > deadline:
                 return None
             items = self._read()
@@ -86,13 +88,23 @@ class ProtocolDevice:
             else:
                 time.sleep(20e-6)
 
-    def _pending(self):
-        queue, self._queue = list(self._queue), []
-        for item in queue:
+    def _take(self, kinds: tuple):
+        """The first queued message of one of ``kinds`` (the others stay queued, in order); protocol
+        errors are counted and dropped; a board's Error raises."""
+        keep = []
+        for i, item in enumerate(self._queue):
             if isinstance(item, p.ProtocolError):
                 self.corrupted += 1
-                continue
-            yield item
+            elif isinstance(item, p.Error):
+                self._queue = keep + self._queue[i + 1:]
+                raise DeviceError(f"{self.url}: board error {item.code}: {item.text}")
+            elif isinstance(item, kinds):
+                self._queue = keep + self._queue[i + 1:]
+                return item
+            else:
+                keep.append(item)
+        self._queue = keep
+        return None
 
     def request(self, message: p.Message, kinds: tuple, attempts: int = 3):
         """Send a request the board answers (idempotent: identification, configuration, upload) and
@@ -112,7 +124,7 @@ class ProtocolDevice:
         if not 0 < sample_rate <= info.max_sample_rate:
             raise DeviceError(f"{self.url}: sample rate {sample_rate:g} Hz outside (0, {info.max_sample_rate:g}]")
         self.sample_rate = float(sample_rate)
-        self.info = {"board": info.name, "snr_db": info.snr_db, "baud": self.baud}
+        self.info = {"board": info.name, "snr_db": info.snr_db, "link": self.link_description()}
         limit = None if np.isnan(info.voltage_limit) else float(info.voltage_limit)
         self.capabilities = Capabilities(info.name, info.channels, info.sensors, info.max_sample_rate, limit,
                                          info.scans > 0)
@@ -143,8 +155,9 @@ class ProtocolDevice:
     def _send_waveforms(self, u: np.ndarray) -> None:
         self.samples = u.shape[1]
         for channel, wave in enumerate(u):
-            for offset in range(0, wave.size, UPLOAD_SAMPLES):
-                self.request(p.Upload(channel=channel, offset=offset, samples=wave[offset:offset + UPLOAD_SAMPLES]),
+            for offset in range(0, wave.size, self.upload_samples):
+                self.request(p.Upload(channel=channel, offset=offset,
+                                      samples=wave[offset:offset + self.upload_samples]),
                              (p.Ack,))
 
     def trigger(self, progress: bool = False) -> Capture:
@@ -159,16 +172,20 @@ class ProtocolDevice:
         """The last shot's field (n_points, nt) from the bench vibrometer (m/s)."""
         times = np.asarray(times, float)
         rows = np.arange(self.scans) if points is None else np.atleast_1d(points)
-        blocks = [self._rows(lambda subset, t=times[i:i + SCAN_TIMES]: p.Scan(times=t, points=subset), rows,
-                             times[i:i + SCAN_TIMES].size) for i in range(0, times.size, SCAN_TIMES)]
+        step = self.scan_times
+        blocks = [self._rows(lambda subset, t=times[i:i + step]: p.Scan(times=t, points=subset), rows,
+                             times[i:i + step].size) for i in range(0, times.size, step)]
         return np.hstack(blocks) if blocks else np.zeros((rows.size, 0))
 
     def capture(self, what: str) -> np.ndarray:
         """The last shot's record from the board: ``"voltages"`` (channels, n) V or ``"sensors"`` (sensors, n) m/s."""
         caps = self.capabilities
         rows = np.arange(caps.channels if what == "voltages" else caps.sensors)
-        return self._rows(lambda subset: p.Capture(what=0 if what == "voltages" else 1, rows=subset), rows,
-                          self.samples)
+        kind, step = 0 if what == "voltages" else 1, self.capture_samples
+        blocks = [self._rows(lambda subset, o=o: p.Capture(what=kind, rows=subset, offset=o,
+                                                             count=min(step, self.samples - o)),
+                             rows, min(step, self.samples - o)) for o in range(0, self.samples, step)]
+        return np.hstack(blocks) if blocks else np.zeros((rows.size, 0))
 
     def _rows(self, request, rows: np.ndarray, columns: int, attempts: int = 5) -> np.ndarray:
         """Assemble (len(rows), columns) from the Field blocks answering ``request(subset of rows)``;
@@ -223,11 +240,13 @@ class ProtocolPhasorBoard:
         self.device.send(p.Start())
 
     def read(self):
-        answer = self.device.receive((p.Envelopes,))
-        if answer is None:
-            return None
-        self.period = answer.period + 1
-        return answer.envelopes.astype(complex)
+        while True:
+            answer = self.device.receive((p.Envelopes,))
+            if answer is None:
+                return None
+            if answer.period >= self.period:  # an answer that came too late for its period is dropped
+                self.period = answer.period + 1
+                return answer.envelopes.astype(complex)
 
     def write(self, commands: np.ndarray) -> None:
         self.device.send(p.Commands(period=self.period, commands=np.asarray(commands)))

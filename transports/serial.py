@@ -71,3 +71,6 @@ class SerialDevice(ProtocolDevice):
 
     def link_description(self) -> str:
         return f"{self.baud} baud"
+
+    def close(self) -> None:
+        self.port.close()

@@ -1,0 +1,119 @@
+"""``can://``: a board on a CAN FD bus (python-can), speaking the protocol of :mod:`modalctl.protocol`.
+
+``can://<interface>/<channel>?node=1&bitrate=1000000&data_bitrate=8000000&timeout=0.5``, e.g.
+``can://socketcan/can0`` or ``can://virtual/bench0`` (python-can's in-process bus, where the
+emulator :class:`~modalctl.hil.can_board.CanBoardEmulator` listens). Each message travels in CAN FD
+frames of 64 bytes at most (:func:`modalctl.protocol.segments`); after each period's commands the
+host sends SYNC, on which the board applies them (CANopen's synchronous update). What the device
+does with the messages is :class:`~modalctl.transports.board.ProtocolDevice`.
+"""
+
+from __future__ import annotations
+
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+
+from modalctl import protocol as p
+from modalctl.device import DeviceError
+
+from .board import ProtocolDevice
+
+__all__ = ["CanDevice", "can_budget"]
+
+
+def frame_seconds(data_bytes: int, bitrate: float, data_bitrate: float) -> float:
+    """Time on the bus of one CAN FD frame with bit-rate switching: about 29 bits of arbitration
+    and end of frame at the nominal rate, the data and a 21-bit CRC with stuffing (x1.2) at the data rate."""
+    return 29 / bitrate + 1.2 * (8 * data_bytes + 21 + 8) / data_bitrate
+
+
+def can_budget(modes: int, bitrate: float = 1e6, data_bitrate: float = 8e6) -> float:
+    """Control periods per second the bus sustains: the Commands frames, SYNC and the Envelopes frames."""
+    down = p.segments(p.Commands(commands=np.zeros(modes, np.complex64)))
+    up = p.segments(p.Envelopes(envelopes=np.zeros(modes, np.complex64)))
+    busy = sum(frame_seconds(len(f), bitrate, data_bitrate) for f in down + up) + frame_seconds(0, bitrate, data_bitrate)
+    return 1 / busy
+
+
+class CanDevice(ProtocolDevice):
+    """A board on a CAN FD bus.
+
+    Parameters
+    ----------
+    url : str
+        ``can://<interface>/<channel>?node=<1-127>&bitrate=<b/s>&data_bitrate=<b/s>&timeout=<s>``.
+    """
+
+    OPTIONS = {"node", "bitrate", "data_bitrate", "timeout"}
+    upload_samples = 1500  # a message is at most 127 frames of 61 bytes (7.7 kB)
+    scan_times = 800
+    capture_samples = 1800
+
+    def __init__(self, url: str):
+        import can
+
+        parts = urlsplit(url)
+        query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+        unknown = set(query) - self.OPTIONS
+        if unknown:
+            raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; "
+                              f"known: {', '.join(sorted(self.OPTIONS))}")
+        try:
+            node, timeout = int(query.get("node", 1)), float(query.get("timeout", 0.5))
+            self.bitrate, self.data_bitrate = float(query.get("bitrate", 1e6)), float(query.get("data_bitrate", 8e6))
+        except ValueError:
+            raise DeviceError(f"{url}: node must be an integer, rates and timeout numbers") from None
+        if not 1 <= node <= 127:
+            raise DeviceError(f"{url}: node {node} outside 1-127")
+        interface, channel = parts.netloc, parts.path.lstrip("/")
+        if not interface or not channel:
+            raise DeviceError(f"{url}: expected can://<interface>/<channel>, e.g. can://socketcan/can0")
+        super().__init__(url, timeout)
+        self.node = node
+        options = {} if interface == "virtual" else {"bitrate": int(self.bitrate), "data_bitrate": int(self.data_bitrate)}
+        try:
+            self.bus = can.Bus(interface=interface, channel=channel, fd=True, **options)
+        except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
+            raise DeviceError(f"{url}: cannot open the {interface} bus {channel!r}: {exc}") from None
+        self.reassembler = p.Reassembler()
+        self._can = can
+
+    @classmethod
+    def from_url(cls, url: str, **_context) -> "CanDevice":
+        return cls(url)
+
+    def _frame(self, identifier: int, data: bytes):
+        return self._can.Message(arbitration_id=identifier, data=data, is_fd=True, bitrate_switch=True,
+                                 is_extended_id=False)
+
+    def _post(self, identifier: int, data: bytes) -> None:
+        try:
+            self.bus.send(self._frame(identifier, data))
+        except self._can.CanError as exc:  # bus-off, a full transmit queue...
+            raise DeviceError(f"{self.url}: the bus refused a frame: {exc}") from None
+
+    def _write(self, message: p.Message) -> None:
+        for data in p.segments(message):
+            self._post(p.to_board(self.node), data)
+
+    def _read(self) -> list:
+        out = []
+        while (frame := self.bus.recv(timeout=0)) is not None:
+            if frame.arbitration_id == p.to_host(self.node):
+                item = self.reassembler.feed(bytes(frame.data))
+                if item is not None:
+                    out.append(item)
+        return out
+
+    def sync(self) -> None:
+        self._post(p.SYNC_ID, b"")
+
+    def budget(self, modes: int) -> float:
+        return can_budget(modes, self.bitrate, self.data_bitrate)
+
+    def link_description(self) -> str:
+        return f"CAN FD {self.bitrate / 1e6:g}/{self.data_bitrate / 1e6:g} Mbit/s"
+
+    def close(self) -> None:
+        self.bus.shutdown()
