@@ -5,9 +5,9 @@
 Per message type (the sizes of a 21-mode, 8-channel board): median time to encode and frame
 (COBS + CRC-32) and to deframe and decode, beside the bare payload (numpy's ``tobytes`` and
 ``frombuffer`` of the same arrays, no header, no framing) as the peer in the same run. Then the
-round trip of one control period over the emulator's pty: Commands down, the emulated board plays
-one 25-sample period of a 21-mode structure, Envelopes up; and a Heartbeat ping (the link and the
-emulator's dispatch alone).
+round trip of one control period over the emulator's pty and over python-can's virtual CAN FD bus
+(with SYNC): Commands down, the emulated board plays one 25-sample period of a 21-mode structure,
+Envelopes up; and a Heartbeat ping (the link and the emulator's dispatch alone).
 """
 
 from __future__ import annotations
@@ -38,10 +38,38 @@ def payload(message) -> np.ndarray:
     return np.zeros(1, np.float32)
 
 
+def _trips(device, board_period, n: int, k: int) -> dict:
+    """Heartbeat pings and control periods (Commands, one emulated period, Envelopes) on ``device``."""
+    times = []
+    for _ in range(n):
+        start = time.perf_counter()
+        device.send(p.Heartbeat(state=2))
+        device.receive((p.Heartbeat,))
+        times.append(time.perf_counter() - start)
+    out = {"heartbeat ping": float(np.median(times))}
+    periods, d = n + 2, 25
+    device.request(p.Configure(sample_rate=500e3, control_rate=20e3, modes=k, carriers=np.linspace(400, 40e3, k),
+                               bandwidths=np.full(k, 300.0), weights=np.ones((A, k)) * 1e-3, sensors=np.ones((k, 4)),
+                               samples=periods * d, level=1e-3), (p.Ack,))
+    device.send(p.Start())
+    device.receive((p.Envelopes,))
+    times = []
+    for i in range(n):
+        start = time.perf_counter()
+        device.send(p.Commands(period=i + 1, commands=np.zeros(k, np.complex64)))
+        device.sync()
+        device.receive((p.Envelopes,))
+        times.append(time.perf_counter() - start)
+    out["control period (Commands, one emulated period, Envelopes)"] = float(np.median(times))
+    return out
+
+
 def round_trips(n: int = 400) -> dict:
+    from modalctl.hil.can_board import CanBoardEmulator
     from modalctl.hil.scenario import Perturbation
     from modalctl.hil.serial_board import SerialBoardEmulator
     from modalctl.scenes import load_scene
+    from modalctl.transports.can import CanDevice
     from modalctl.transports.serial import SerialDevice
 
     model = load_scene("thesis-al-cc", 105)
@@ -49,27 +77,13 @@ def round_trips(n: int = 400) -> dict:
     with SerialBoardEmulator(model, Perturbation()) as board:
         device = SerialDevice(f"serial://{board.path}")
         device.configure(500e3)
-        times = []
-        for _ in range(n):
-            start = time.perf_counter()
-            device.send(p.Heartbeat(state=2))
-            device.receive((p.Heartbeat,))
-            times.append(time.perf_counter() - start)
-        out["heartbeat ping"] = float(np.median(times))
-        k, periods, d = K, n + 2, 25
-        w = np.ones((A, k)) * 1e-3
-        device.request(p.Configure(sample_rate=500e3, control_rate=20e3, modes=k, carriers=np.linspace(400, 40e3, k),
-                                   bandwidths=np.full(k, 300.0), weights=w, sensors=np.ones((k, 4)),
-                                   samples=periods * d, level=1e-3), (p.Ack,))
-        device.send(p.Start())
-        device.receive((p.Envelopes,))
-        times = []
-        for i in range(n):
-            start = time.perf_counter()
-            device.send(p.Commands(period=i + 1, commands=np.zeros(k, np.complex64)))
-            device.receive((p.Envelopes,))
-            times.append(time.perf_counter() - start)
-        out["control period (Commands, one emulated period, Envelopes)"] = float(np.median(times))
+        out |= {f"pty: {name}": s for name, s in _trips(device, board, n, K).items()}
+        device.close()
+    with CanBoardEmulator(model, Perturbation(), channel="speed") as board:
+        device = CanDevice(board.url)
+        device.configure(500e3)
+        out |= {f"virtual CAN FD: {name}": s for name, s in _trips(device, board, n, K).items()}
+        device.close()
     return out
 
 
@@ -97,11 +111,11 @@ def main() -> None:
     md += [f"| {r['message']} | {r['bytes']} | {1e6 * r['encode_seconds']:.1f} | {1e6 * r['decode_seconds']:.1f} | "
            f"{1e6 * r['peer_encode_seconds']:.2f} / {1e6 * r['peer_decode_seconds']:.2f} | "
            f"{r['messages_per_second']:.0f} |" for r in rows]
-    md += ["", "Round trips over the emulator's pty (medians of 400):", ""]
+    md += ["", "Round trips to the emulators (medians of 400; 21 modes):", ""]
     md += [f"- {name}: {1e6 * s:.0f} us" for name, s in trips.items()]
-    md += ["", "A 20 kHz loop has 50 us per period for everything; over a pty with the emulated board in the same "
-           "process group, the exchange alone takes longer, so serial closed loops run at the rate the line and "
-           "the board sustain (the link budget; 2 kHz in tests/test_serial.py).", ""]
+    md += ["", "A 20 kHz loop has 50 us per period for everything; with the emulated board on the same machine the "
+           "exchange alone takes longer, so closed loops over serial or CAN run at the rate the link and the board "
+           "sustain (the link budgets; 2 kHz in tests/test_serial.py and tests/test_can.py).", ""]
     (RESULTS / "protocol_speed.md").write_text("\n".join(md))
     print("\n".join(md))
     print(f"wrote {path}")
