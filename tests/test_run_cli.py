@@ -97,9 +97,9 @@ def test_device_errors_exit_3(capsys, tmp_path):
 
 
 def test_sim_device_lifecycle_and_transport_registry():
-    assert {"sim", "serial"} <= set(transports())
-    with pytest.raises(PluginError, match="installed: serial://, sim://"):
-        open_device("can://virtual/bus0")
+    assert {"sim", "serial", "can"} <= set(transports())
+    with pytest.raises(PluginError, match="installed: can://, serial://, sim://"):
+        open_device("usb://board0")
     model = load_scene("thesis-al-cc", 101)
     device = open_device("sim://", model=model)
     with pytest.raises(DeviceError, match="configure before activate"):
