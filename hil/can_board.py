@@ -1,47 +1,72 @@
-"""A board emulator on a CAN FD bus (python-can), speaking the protocol like a board on the bench.
+"""Board emulators on a CAN FD bus (python-can), speaking the protocol like boards on the bench.
 
 :class:`CanBoardEmulator` listens on a bus (python-can's ``virtual`` interface by default, so tests
-need no hardware) as node ``node``: messages in CAN FD frames (:func:`modalctl.protocol.segments`),
-what it answers is :class:`~modalctl.hil.emulator.BoardEmulator`; in phasor mode it applies the
-last commands on SYNC (0x080), plays the period and answers its envelopes. Faults as the base
-class's (``drop`` loses every n-th frame sent, as CAN's CRC turns a corrupted frame into a lost
-one), plus ``bus_off`` after n periods: the board leaves the bus.
+need no hardware) as one or several nodes sharing one structure, each driving its group of the
+actuators (``nodes = {node: (channels, sensors)}``; the sensors on one node). Messages travel in
+CAN FD frames (:func:`modalctl.protocol.segments`); what the boards answer is
+:class:`~modalctl.hil.emulator.BoardEmulator`'s. In phasor mode each board keeps the last commands
+it received and all apply them on SYNC (0x080): the structure plays the next period under every
+board's outputs and the sensing board answers its envelopes. Faults as the base class's (``drop``
+loses every n-th frame sent: CAN's CRC turns a corrupted frame into a lost one), plus ``bus_off``
+after n periods: the boards leave the bus.
 """
 
 from __future__ import annotations
 
 import threading
 
+import numpy as np
+
 from modalctl import protocol as p
 from modalctl.model import ModalModel
 
-from .emulator import BoardEmulator
+from .emulator import ERRORS, BoardEmulator
 from .scenario import Perturbation
 
 __all__ = ["CanBoardEmulator"]
 
 
 class CanBoardEmulator(BoardEmulator):
-    """The HIL board as CAN FD node ``node`` on ``channel`` (parameters: :class:`~modalctl.hil.emulator.BoardEmulator`).
+    """The HIL boards on ``channel`` (other parameters: :class:`~modalctl.hil.emulator.BoardEmulator`).
 
-    ``url`` is what the host opens: ``can://virtual/<channel>?node=<node>``.
+    Parameters
+    ----------
+    nodes : dict, optional
+        ``{node: (channels, sensors)}``: each board's actuator channels and sensors (global
+        indices, in node order); one board with everything by default (node 1).
+
+    ``url`` is what the host opens: ``can://virtual/<channel>?nodes=<n1,n2,...>``.
     """
 
     name = "modalctl HIL board on CAN FD"
     field_values = 1800  # a message is at most 127 frames of 61 bytes
 
     def __init__(self, model: ModalModel, perturbation: Perturbation = Perturbation(), latency: int = 0,
-                 faults: dict | None = None, channel: str = "bench0", node: int = 1, interface: str = "virtual"):
+                 faults: dict | None = None, channel: str = "bench0", nodes: dict | None = None,
+                 interface: str = "virtual"):
         import can
 
         super().__init__(model, perturbation, latency, faults)
-        self.node, self.channel = int(node), channel
-        self.url = f"can://{interface}/{channel}?node={self.node}"
+        a, s = model.actuator_gains.shape[1], model.sensor_gains.shape[1]
+        nodes = nodes or {1: (range(a), range(s))}
+        self.layout = {int(n): (np.asarray(list(c), int), np.asarray(list(q), int)) for n, (c, q) in nodes.items()}
+        order = np.concatenate([c for c, _ in self.layout.values()])
+        if sorted(order.tolist()) != list(range(a)):
+            raise ValueError(f"the boards' channels must cover the {a} actuators once each")
+        sensing = [n for n, (_, q) in self.layout.items() if q.size]
+        if len(sensing) != 1 or self.layout[sensing[0]][1].size != s:
+            raise ValueError("one board carries every sensor")
+        self.sensing = sensing[0]
+        self.channel = channel
+        self.url = f"can://{interface}/{channel}?nodes={','.join(str(n) for n in self.layout)}"
         self.bus = can.Bus(interface=interface, channel=channel, fd=True)
         self._can = can
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._serve, name="CAN board", daemon=True)
-        self._pending = None  # commands waiting for SYNC
+        self._thread = threading.Thread(target=self._serve, name="CAN boards", daemon=True)
+        self._node = self.sensing  # who answers the message being handled
+        self._configs: dict = {}
+        self._started: set = set()
+        self._commands: dict = {}
 
     def __enter__(self):
         self._thread.start()
@@ -55,33 +80,111 @@ class CanBoardEmulator(BoardEmulator):
         self._thread.join(timeout=2)
         self.bus.shutdown()
 
+    # -- the wire ------------------------------------------------------------------------------
     def _send(self, message: p.Message) -> None:
         for data in p.segments(message):
             data = self._faulty(data)
             if data is not None:
-                self.bus.send(self._can.Message(arbitration_id=p.to_host(self.node), data=data, is_fd=True,
+                self.bus.send(self._can.Message(arbitration_id=p.to_host(self._node), data=data, is_fd=True,
                                                 bitrate_switch=True, is_extended_id=False))
 
     def _serve(self) -> None:
-        reassembler = p.Reassembler()
+        reassemblers = {p.to_board(n): (n, p.Reassembler()) for n in self.layout}
         while not self._stop.is_set():
             frame = self.bus.recv(timeout=0.05)
             if frame is None:
                 continue
             off = self.faults.get("bus_off")
             if off is not None and self.board is not None and self.board.period >= off:
-                continue  # the board has left the bus
+                continue  # the boards have left the bus
             if frame.arbitration_id == p.SYNC_ID:
                 self._sync()
-            elif frame.arbitration_id == p.to_board(self.node):
+            elif frame.arbitration_id in reassemblers:
+                node, reassembler = reassemblers[frame.arbitration_id]
                 item = reassembler.feed(bytes(frame.data))
                 if item is not None:
+                    self._node = node
                     self._receive(item)
 
+    # -- each board its share ------------------------------------------------------------------
+    def _on_hello(self, message: p.Hello) -> None:
+        channels, sensors = self.layout[self._node]
+        limit, snr = self.perturbation.voltage_limit, self.perturbation.snr_db
+        self._send(p.Info(channels=channels.size, sensors=sensors.size, max_sample_rate=10e6,
+                          voltage_limit=float("nan") if limit is None else limit, max_modes=64,
+                          scans=self.model.grid.points.shape[0] if self._node == self.sensing else 0,
+                          snr_db=float("nan") if snr is None else snr, name=f"{self.name}, node {self._node}"))
+
+    def _on_configure(self, message: p.Configure) -> None:
+        channels, sensors = self.layout[self._node]
+        k = message.modes
+        if message.weights.size != channels.size * k or message.sensors.size != k * sensors.size:
+            self._refuse("config", f"configure: node {self._node} has {channels.size} channels and "
+                                   f"{sensors.size} sensors")
+            return
+        self._configs[self._node] = message
+        self._started.clear()
+        self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+        if len(self._configs) == len(self.layout):  # the whole shot: every board's share in one
+            a, s = self.model.actuator_gains.shape[1], self.model.sensor_gains.shape[1]
+            weights, sensing = np.zeros((a, k)), np.zeros((k, s))
+            for node, config in self._configs.items():
+                rows, cols = self.layout[node]
+                weights[rows] = config.weights.reshape(rows.size, k)
+                sensing[:, cols] = config.sensors.reshape(k, cols.size)
+            self.config = p.Configure(sample_rate=message.sample_rate, control_rate=message.control_rate, modes=k,
+                                      carriers=message.carriers, bandwidths=message.bandwidths, weights=weights,
+                                      sensors=sensing, samples=message.samples, level=message.level)
+            self.feedforward, self.board, self.capture = np.zeros((a, message.samples)), None, None
+            self._configs = {}
+
+    def _on_upload(self, message: p.Upload) -> None:
+        channels = self.layout[self._node][0]
+        if self.feedforward is None or message.channel >= channels.size:
+            self._refuse("state", f"upload to node {self._node} channel {message.channel} before its configuration")
+            return
+        super()._on_upload(p.Upload(seq=message.seq, channel=int(channels[message.channel]), offset=message.offset,
+                                    samples=message.samples))
+
+    def _on_start(self, message: p.Start) -> None:
+        self._started.add(self._node)
+        if self._started != set(self.layout):
+            return  # the shot starts when every board is armed
+        self._started.clear()
+        self._commands = {}
+        open_loop = self.config is not None and self.config.modes == 0
+        self._node = self.sensing
+        super()._on_start(message)
+        if open_loop:  # every board reports its part done
+            for node in self.layout:
+                if node != self.sensing:
+                    self._node = node
+                    self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+
     def _on_commands(self, message: p.Commands) -> None:
-        self._pending = message  # applied on SYNC, with every other board on the bus
+        self._commands[self._node] = message.commands.astype(complex)  # applied on SYNC
 
     def _sync(self) -> None:
-        if self._pending is not None and self.board is not None:
-            message, self._pending = self._pending, None
-            super()._on_commands(message)
+        if self.board is None or not self._commands:
+            return
+        k = self.config.modes
+        rows = np.zeros((self.model.actuator_gains.shape[1], k), complex)
+        for node, (channels, _) in self.layout.items():
+            rows[channels] = self._commands.get(node, np.zeros(k))  # a board that missed its commands: none
+        self.board.pending = self.board.schedule.weights * rows
+        self.board.idle = 0
+        self._node = self.sensing
+        self._answer_period()
+
+    def _on_capture(self, message: p.Capture) -> None:
+        channels, sensors = self.layout[self._node]
+        mine = channels if message.what == 0 else sensors
+        rows = mine if message.rows.size == 0 else mine[message.rows.astype(int)]
+        super()._on_capture(p.Capture(seq=message.seq, what=message.what, rows=rows.astype(np.float32),
+                                      offset=message.offset, count=message.count))
+
+    def _on_scan(self, message: p.Scan) -> None:
+        if self._node != self.sensing:
+            self._send(p.Error(code=ERRORS["unsupported"], text=f"node {self._node} has no vibrometer"))
+            return
+        super()._on_scan(message)

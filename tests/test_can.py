@@ -70,3 +70,18 @@ def test_bad_can_urls_say_what_is_wrong():
         open_device("can://virtual/x?node=300")
     with pytest.raises(DeviceError, match="unknown option"):
         open_device("can://virtual/x?speed=1")
+
+
+@pytest.mark.parametrize("loop", [["--loop", "open"], CLOSED], ids=["open", "closed"])
+def test_two_boards_on_one_bus_share_the_shot(model, tmp_path, capsys, loop):
+    """Actuators 1-4 on node 1 (with the sensors), 5-8 on node 2: the host splits the dispatch and the
+    waveforms, both boards apply each period's commands on SYNC, and the shot is the same as on sim://."""
+    assert main([*RUN, *loop, *TRUTH, "--out", str(tmp_path / "sim")]) == 0
+    nodes = {1: (range(4), range(4)), 2: (range(4, 8), [])}
+    with CanBoardEmulator(model, PERTURBATION, channel=f"two-{loop[1]}", nodes=nodes) as boards:
+        assert boards.url.endswith("nodes=1,2")
+        assert main([*RUN, *loop, "--transport", boards.url, "--out", str(tmp_path / "can")]) == 0
+    sim, can = _metrics(tmp_path / "sim"), _metrics(tmp_path / "can")
+    assert can["device_info"]["boards"] == 2
+    assert abs(can["tau"] - sim["tau"]) < 2e-3
+    assert abs(can["peak_voltage"] - sim["peak_voltage"]) < 1e-4 * sim["peak_voltage"]

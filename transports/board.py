@@ -38,8 +38,10 @@ class ProtocolDevice:
     scan_times = 4000  # instants per scan request (32 kB)
     capture_samples = 8000  # samples per capture request: one block per row, asked again alone if lost
 
-    def __init__(self, url: str, timeout: float):
+    def __init__(self, url: str, timeout: float, nodes=(1,)):
         self.url, self.timeout = url, float(timeout)
+        self.nodes = list(nodes)  # boards reached through this device, in channel order
+        self.layout: dict = {}  # node -> (its channels, its sensors) as global index arrays
         self.seq, self.corrupted = 0, 0
         self._queue: list = []
         self.scans = self.samples = 0
@@ -48,10 +50,11 @@ class ProtocolDevice:
         self.sample_rate = None
 
     # -- what a transport provides -----------------------------------------------------------
-    def _write(self, message: p.Message) -> None:
+    def _write(self, message: p.Message, node: int) -> None:
         raise NotImplementedError
 
     def _read(self) -> list:
+        """What arrived: messages (each with a ``node`` attribute, the sender) and protocol errors."""
         raise NotImplementedError
 
     def sync(self) -> None:
@@ -68,16 +71,17 @@ class ProtocolDevice:
         """Release the port or bus."""
 
     # -- the wire ------------------------------------------------------------------------------
-    def send(self, message: p.Message) -> None:
+    def send(self, message: p.Message, node: int | None = None) -> None:
         self.seq = (self.seq + 1) & 0xFFFF
         message.seq = self.seq
-        self._write(message)
+        self._write(message, self.nodes[0] if node is None else node)
 
-    def receive(self, kinds: tuple, timeout: float | None = None):
-        """The next message of one of ``kinds`` within ``timeout`` (s), or None; board errors raise."""
+    def receive(self, kinds: tuple, timeout: float | None = None, node: int | None = None):
+        """The next message of one of ``kinds`` (from ``node``, if given) within ``timeout`` (s), or None;
+        board errors raise."""
         deadline = time.perf_counter() + (self.timeout if timeout is None else timeout)
         while True:
-            found = self._take(kinds)
+            found = self._take(kinds, node)
             if found is not None:
                 return found
             if time.perf_counter() > deadline:
@@ -88,7 +92,7 @@ class ProtocolDevice:
             else:
                 time.sleep(20e-6)
 
-    def _take(self, kinds: tuple):
+    def _take(self, kinds: tuple, node: int | None = None):
         """The first queued message of one of ``kinds`` (the others stay queued, in order); protocol
         errors are counted and dropped; a board's Error raises."""
         keep = []
@@ -98,7 +102,7 @@ class ProtocolDevice:
             elif isinstance(item, p.Error):
                 self._queue = keep + self._queue[i + 1:]
                 raise DeviceError(f"{self.url}: board error {item.code}: {item.text}")
-            elif isinstance(item, kinds):
+            elif isinstance(item, kinds) and (node is None or getattr(item, "node", node) == node):
                 self._queue = keep + self._queue[i + 1:]
                 return item
             else:
@@ -106,12 +110,13 @@ class ProtocolDevice:
         self._queue = keep
         return None
 
-    def request(self, message: p.Message, kinds: tuple, attempts: int = 3):
-        """Send a request the board answers (idempotent: identification, configuration, upload) and
+    def request(self, message: p.Message, kinds: tuple, node: int | None = None, attempts: int = 3):
+        """Send a request a board answers (idempotent: identification, configuration, upload) and
         wait for the answer, sending it again when the answer is lost or corrupted."""
+        node = self.nodes[0] if node is None else node
         for _ in range(attempts):
-            self.send(message)
-            answer = self.receive(kinds)
+            self.send(message, node)
+            answer = self.receive(kinds, node=node)
             if answer is not None:
                 return answer
         raise DeviceError(f"{self.url}: no answer to {type(message).__name__} in {attempts} attempts "
@@ -119,18 +124,31 @@ class ProtocolDevice:
 
     # -- the device interface ------------------------------------------------------------------
     def configure(self, sample_rate: float) -> Capabilities:
+        """Identify every board; the device's channels and sensors are theirs, in node order."""
         self._queue = []
-        info = self.request(p.Hello(), (p.Info,))
-        if not 0 < sample_rate <= info.max_sample_rate:
-            raise DeviceError(f"{self.url}: sample rate {sample_rate:g} Hz outside (0, {info.max_sample_rate:g}]")
+        infos = {node: self.request(p.Hello(), (p.Info,), node) for node in self.nodes}
+        first = infos[self.nodes[0]]
+        fastest = min(i.max_sample_rate for i in infos.values())
+        if not 0 < sample_rate <= fastest:
+            raise DeviceError(f"{self.url}: sample rate {sample_rate:g} Hz outside (0, {fastest:g}]")
         self.sample_rate = float(sample_rate)
-        self.info = {"board": info.name, "snr_db": info.snr_db, "link": self.link_description()}
-        limit = None if np.isnan(info.voltage_limit) else float(info.voltage_limit)
-        self.capabilities = Capabilities(info.name, info.channels, info.sensors, info.max_sample_rate, limit,
-                                         info.scans > 0)
-        self._snr = None if np.isnan(info.snr_db) else float(info.snr_db)
-        self.scans = info.scans
+        channels = sensors = 0
+        for node, info in infos.items():
+            self.layout[node] = (np.arange(channels, channels + info.channels),
+                                 np.arange(sensors, sensors + info.sensors))
+            channels, sensors = channels + info.channels, sensors + info.sensors
+        limits = [i.voltage_limit for i in infos.values() if not np.isnan(i.voltage_limit)]
+        self.info = {"board": first.name, "boards": len(self.nodes), "snr_db": first.snr_db,
+                     "link": self.link_description()}
+        self.capabilities = Capabilities(first.name, channels, sensors, fastest, min(limits) if limits else None,
+                                         first.scans > 0)
+        self._snr = None if np.isnan(first.snr_db) else float(first.snr_db)
+        self.scans = first.scans
         return self.capabilities
+
+    def sensing(self) -> list[int]:
+        """The nodes that have sensors."""
+        return [n for n in self.nodes if self.layout[n][1].size]
 
     def activate(self) -> None:
         if self.capabilities is None:
@@ -148,23 +166,28 @@ class ProtocolDevice:
             raise DeviceError(f"{self.url}: {u.shape[0]} waveforms for {self.capabilities.channels} channels")
         if not np.all(np.isfinite(u)):
             raise DeviceError(f"{self.url}: waveform contains non-finite samples")
-        self.request(p.Configure(sample_rate=self.sample_rate, control_rate=self.sample_rate, modes=0,
-                                 samples=u.shape[1]), (p.Ack,))
+        for node in self.nodes:
+            self.request(p.Configure(sample_rate=self.sample_rate, control_rate=self.sample_rate, modes=0,
+                                     samples=u.shape[1]), (p.Ack,), node)
         self._send_waveforms(u)
 
     def _send_waveforms(self, u: np.ndarray) -> None:
+        """Each board its channels' waveforms (its channel numbers are local)."""
         self.samples = u.shape[1]
-        for channel, wave in enumerate(u):
-            for offset in range(0, wave.size, self.upload_samples):
-                self.request(p.Upload(channel=channel, offset=offset,
-                                      samples=wave[offset:offset + self.upload_samples]),
-                             (p.Ack,))
+        for node in self.nodes:
+            for local, channel in enumerate(self.layout[node][0]):
+                wave = u[channel]
+                for offset in range(0, wave.size, self.upload_samples):
+                    self.request(p.Upload(channel=local, offset=offset,
+                                          samples=wave[offset:offset + self.upload_samples]), (p.Ack,), node)
 
     def trigger(self, progress: bool = False) -> Capture:
         """Play the uploaded shot and bring back its record (the thesis's synchronized capture)."""
-        self.send(p.Start())
-        if self.receive((p.Ack,), timeout=max(self.timeout, 60.0)) is None:
-            raise DeviceError(f"{self.url}: the board did not finish the shot")
+        for node in self.nodes:
+            self.send(p.Start(), node)
+        for node in self.nodes:
+            if self.receive((p.Ack,), timeout=max(self.timeout, 60.0), node=node) is None:
+                raise DeviceError(f"{self.url}: board {node} did not finish the shot")
         times = np.arange(self.samples) / self.sample_rate
         return Capture(times, self.capture("sensors"), self.capture("voltages"))
 
@@ -178,27 +201,34 @@ class ProtocolDevice:
         return np.hstack(blocks) if blocks else np.zeros((rows.size, 0))
 
     def capture(self, what: str) -> np.ndarray:
-        """The last shot's record from the board: ``"voltages"`` (channels, n) V or ``"sensors"`` (sensors, n) m/s."""
-        caps = self.capabilities
-        rows = np.arange(caps.channels if what == "voltages" else caps.sensors)
-        kind, step = 0 if what == "voltages" else 1, self.capture_samples
-        blocks = [self._rows(lambda subset, o=o: p.Capture(what=kind, rows=subset, offset=o,
-                                                             count=min(step, self.samples - o)),
-                             rows, min(step, self.samples - o)) for o in range(0, self.samples, step)]
-        return np.hstack(blocks) if blocks else np.zeros((rows.size, 0))
+        """The last shot's record: ``"voltages"`` (channels, n) V or ``"sensors"`` (sensors, n) m/s,
+        each board's rows in node order."""
+        kind, step = (0, 0) if what == "voltages" else (1, 1)
+        parts = []
+        for node in self.nodes:
+            rows = np.arange(self.layout[node][step].size)
+            if rows.size == 0:
+                continue
+            blocks = [self._rows(lambda subset, o=o: p.Capture(what=kind, rows=subset, offset=o,
+                                                                 count=min(self.capture_samples, self.samples - o)),
+                                 rows, min(self.capture_samples, self.samples - o), node)
+                      for o in range(0, self.samples, self.capture_samples)]
+            parts.append(np.hstack(blocks) if blocks else np.zeros((rows.size, 0)))
+        return np.vstack(parts) if parts else np.zeros((0, self.samples))
 
-    def _rows(self, request, rows: np.ndarray, columns: int, attempts: int = 5) -> np.ndarray:
+    def _rows(self, request, rows: np.ndarray, columns: int, node: int | None = None, attempts: int = 5) -> np.ndarray:
         """Assemble (len(rows), columns) from the Field blocks answering ``request(subset of rows)``;
         rows that do not arrive whole (a lost or corrupted block) are asked for again."""
+        node = self.nodes[0] if node is None else node
         out, filled = np.zeros((rows.size, columns)), np.zeros(rows.size, int)
         for _ in range(attempts):
             missing = np.flatnonzero(filled < columns)
             if missing.size == 0:
                 return out
             filled[missing] = 0
-            self.send(request(rows[missing].astype(np.float32)))
+            self.send(request(rows[missing].astype(np.float32)), node)
             while np.any(filled[missing] < columns):
-                block = self.receive((p.Field,), timeout=max(self.timeout, 1.0))
+                block = self.receive((p.Field,), timeout=max(self.timeout, 1.0), node=node)
                 if block is None:
                     break
                 width = block.values.size // max(block.rows, 1)
@@ -230,30 +260,43 @@ class ProtocolPhasorBoard:
         if s.control_rate > budget:
             raise DeviceError(f"{d.url}: {s.control_rate:g} Hz control with {s.carriers.size} modes needs more than "
                               f"the link sustains ({budget:.0f} periods/s: {d.link_description()})")
-        d.request(p.Configure(sample_rate=d.sample_rate, control_rate=s.control_rate, modes=s.carriers.size,
-                              carriers=s.carriers, bandwidths=s.bandwidths, weights=s.weights, sensors=s.sensors,
-                              samples=s.feedforward.shape[1], level=self.level), (p.Ack,))
+        for node in d.nodes:  # each board: its channels' rows of the dispatch, its sensors' columns
+            channels, sensors = d.layout[node]
+            d.request(p.Configure(sample_rate=d.sample_rate, control_rate=s.control_rate, modes=s.carriers.size,
+                                  carriers=s.carriers, bandwidths=s.bandwidths, weights=s.weights[channels],
+                                  sensors=s.sensors[:, sensors], samples=s.feedforward.shape[1], level=self.level),
+                      (p.Ack,), node)
         d._send_waveforms(s.feedforward)
 
     def start(self) -> None:
         self.period = 0
-        self.device.send(p.Start())
+        for node in self.device.nodes:
+            self.device.send(p.Start(), node)
 
     def read(self):
-        while True:
-            answer = self.device.receive((p.Envelopes,))
-            if answer is None:
-                return None
-            if answer.period >= self.period:  # an answer that came too late for its period is dropped
-                self.period = answer.period + 1
-                return answer.envelopes.astype(complex)
+        """The envelopes of the period: the sum of every sensing board's (the lock-in is linear)."""
+        total = None
+        for node in self.device.sensing():
+            while True:
+                answer = self.device.receive((p.Envelopes,), node=node)
+                if answer is None:
+                    return None
+                if answer.period >= self.period:  # an answer too late for its period is dropped
+                    break
+            total = answer.envelopes.astype(complex) + (0 if total is None else total)
+            period = answer.period
+        self.period = period + 1
+        return total
 
     def write(self, commands: np.ndarray) -> None:
-        self.device.send(p.Commands(period=self.period, commands=np.asarray(commands)))
+        """The same modal commands to every board, then SYNC: all apply them at once."""
+        for node in self.device.nodes:
+            self.device.send(p.Commands(period=self.period, commands=np.asarray(commands)), node)
         self.device.sync()
 
     def ramp_down(self, seconds: float) -> None:
-        self.device.send(p.RampDown(seconds=seconds))
+        for node in self.device.nodes:
+            self.device.send(p.RampDown(seconds=seconds), node)
 
     def play_out(self) -> None:
         """The board plays the rest of the shot when it is scanned or captured."""

@@ -28,12 +28,14 @@ def frame_seconds(data_bytes: int, bitrate: float, data_bitrate: float) -> float
     return 29 / bitrate + 1.2 * (8 * data_bytes + 21 + 8) / data_bitrate
 
 
-def can_budget(modes: int, bitrate: float = 1e6, data_bitrate: float = 8e6) -> float:
-    """Control periods per second the bus sustains: the Commands frames, SYNC and the Envelopes frames."""
+def can_budget(modes: int, bitrate: float = 1e6, data_bitrate: float = 8e6, boards: int = 1,
+               sensing: int = 1) -> float:
+    """Control periods per second the bus sustains: each board's Commands frames, SYNC, and each
+    sensing board's Envelopes frames."""
     down = p.segments(p.Commands(commands=np.zeros(modes, np.complex64)))
     up = p.segments(p.Envelopes(envelopes=np.zeros(modes, np.complex64)))
-    busy = sum(frame_seconds(len(f), bitrate, data_bitrate) for f in down + up) + frame_seconds(0, bitrate, data_bitrate)
-    return 1 / busy
+    seconds = lambda frames: sum(frame_seconds(len(f), bitrate, data_bitrate) for f in frames)  # noqa: E731
+    return 1 / (boards * seconds(down) + sensing * seconds(up) + frame_seconds(0, bitrate, data_bitrate))
 
 
 class CanDevice(ProtocolDevice):
@@ -42,10 +44,11 @@ class CanDevice(ProtocolDevice):
     Parameters
     ----------
     url : str
-        ``can://<interface>/<channel>?node=<1-127>&bitrate=<b/s>&data_bitrate=<b/s>&timeout=<s>``.
+        ``can://<interface>/<channel>?node=<1-127>&bitrate=<b/s>&data_bitrate=<b/s>&timeout=<s>``;
+        several boards sharing the shot (each its group of actuators): ``nodes=1,2,3`` instead of ``node``.
     """
 
-    OPTIONS = {"node", "bitrate", "data_bitrate", "timeout"}
+    OPTIONS = {"node", "nodes", "bitrate", "data_bitrate", "timeout"}
     upload_samples = 1500  # a message is at most 127 frames of 61 bytes (7.7 kB)
     scan_times = 800
     capture_samples = 1800
@@ -60,23 +63,26 @@ class CanDevice(ProtocolDevice):
             raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; "
                               f"known: {', '.join(sorted(self.OPTIONS))}")
         try:
-            node, timeout = int(query.get("node", 1)), float(query.get("timeout", 0.5))
+            nodes = [int(n) for n in query.get("nodes", query.get("node", "1")).split(",")]
+            timeout = float(query.get("timeout", 0.5))
             self.bitrate, self.data_bitrate = float(query.get("bitrate", 1e6)), float(query.get("data_bitrate", 8e6))
         except ValueError:
-            raise DeviceError(f"{url}: node must be an integer, rates and timeout numbers") from None
-        if not 1 <= node <= 127:
-            raise DeviceError(f"{url}: node {node} outside 1-127")
+            raise DeviceError(f"{url}: nodes must be integers, rates and timeout numbers") from None
+        for node in nodes:
+            if not 1 <= node <= 127:
+                raise DeviceError(f"{url}: node {node} outside 1-127")
+        if len(set(nodes)) != len(nodes):
+            raise DeviceError(f"{url}: a node is listed twice")
         interface, channel = parts.netloc, parts.path.lstrip("/")
         if not interface or not channel:
             raise DeviceError(f"{url}: expected can://<interface>/<channel>, e.g. can://socketcan/can0")
-        super().__init__(url, timeout)
-        self.node = node
+        super().__init__(url, timeout, nodes)
         options = {} if interface == "virtual" else {"bitrate": int(self.bitrate), "data_bitrate": int(self.data_bitrate)}
         try:
             self.bus = can.Bus(interface=interface, channel=channel, fd=True, **options)
         except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as exc:
             raise DeviceError(f"{url}: cannot open the {interface} bus {channel!r}: {exc}") from None
-        self.reassembler = p.Reassembler()
+        self.reassemblers = {p.to_host(n): (n, p.Reassembler()) for n in nodes}
         self._can = can
 
     @classmethod
@@ -93,15 +99,18 @@ class CanDevice(ProtocolDevice):
         except self._can.CanError as exc:  # bus-off, a full transmit queue...
             raise DeviceError(f"{self.url}: the bus refused a frame: {exc}") from None
 
-    def _write(self, message: p.Message) -> None:
+    def _write(self, message: p.Message, node: int) -> None:
         for data in p.segments(message):
-            self._post(p.to_board(self.node), data)
+            self._post(p.to_board(node), data)
 
     def _read(self) -> list:
         out = []
         while (frame := self.bus.recv(timeout=0)) is not None:
-            if frame.arbitration_id == p.to_host(self.node):
-                item = self.reassembler.feed(bytes(frame.data))
+            sender = self.reassemblers.get(frame.arbitration_id)
+            if sender is not None:
+                item = sender[1].feed(bytes(frame.data))
+                if isinstance(item, p.Message):
+                    item.node = sender[0]
                 if item is not None:
                     out.append(item)
         return out
@@ -110,7 +119,7 @@ class CanDevice(ProtocolDevice):
         self._post(p.SYNC_ID, b"")
 
     def budget(self, modes: int) -> float:
-        return can_budget(modes, self.bitrate, self.data_bitrate)
+        return can_budget(modes, self.bitrate, self.data_bitrate, len(self.nodes), max(1, len(self.sensing())))
 
     def link_description(self) -> str:
         return f"CAN FD {self.bitrate / 1e6:g}/{self.data_bitrate / 1e6:g} Mbit/s"

@@ -59,12 +59,16 @@ class SerialDevice(ProtocolDevice):
     def from_url(cls, url: str, **_context) -> "SerialDevice":
         return cls(url)
 
-    def _write(self, message: p.Message) -> None:
+    def _write(self, message: p.Message, node: int) -> None:
         self.port.write(p.frame(message))
 
     def _read(self) -> list:
         data = self.port.read(self.port.in_waiting or 1)
-        return self.deframer.feed(data) if data else []
+        items = self.deframer.feed(data) if data else []
+        for item in items:
+            if isinstance(item, p.Message):
+                item.node = self.nodes[0]
+        return items
 
     def budget(self, modes: int) -> float:
         return link_budget(self.baud, modes)
