@@ -4,7 +4,8 @@ Each :meth:`HILBoard.read` plays one control period at the DAC rate: the feed-fo
 plus each mode's feedback phasors, moved in a straight line from the last ones to the new ones
 over the period and modulated on the mode's carrier; the plant (the truth) answers; the sensors
 (with white noise) are combined per mode and demodulated by the lock-in; the envelopes at the end
-of the period go up. :meth:`HILBoard.write` queues phasors for the next period, ``latency``
+of the period go up. :meth:`HILBoard.write` takes per-mode commands, dispatches them to the
+channels with the schedule's weights and queues the phasors for the next period, ``latency``
 periods later if the board is slow. Scenarios act on the truth while the shot runs: a drift of
 the resonances (``drift(t)``, relative, per mode) and lost measurements from ``fail_after``.
 The board's own watchdog ramps its outputs to zero when no command came for ``watchdog`` periods

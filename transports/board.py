@@ -275,7 +275,7 @@ class ProtocolPhasorBoard:
 
     def read(self):
         """The envelopes of the period: the sum of every sensing board's (the lock-in is linear)."""
-        total = None
+        total, period = None, self.period
         for node in self.device.sensing():
             while True:
                 answer = self.device.receive((p.Envelopes,), node=node)
