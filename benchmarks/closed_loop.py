@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, save_figure, write_json  # noqa: E402
+from common import save_figure, write_json, write_markdown  # noqa: E402
 from modalctl.executor import LocalExecutor  # noqa: E402
 from modalctl.hil.sweep import Case, run_case  # noqa: E402
 from thesis_table import experiments  # noqa: E402
@@ -72,7 +72,6 @@ def main() -> None:
     md += ["", f"Median tau over {len(rows)} experiments: open {med['open']:.3f}, closed {med['closed']:.3f}, "
            f"tracked {med['tracked']:.3f}; tau >= 0.95 in {hits['open']}, {hits['closed']} and {hits['tracked']} "
            f"of them. {3 * len(rows)} cases (tracked = two shots) in {wall:.0f} s on the local process pool.", ""]
-    (RESULTS / "closed_loop.md").write_text("\n".join(md))
     fig, ax = plt.subplots(figsize=(13, 4.8))
     x = np.arange(len(rows))
     for j, m in enumerate(METHODS):
@@ -84,8 +83,7 @@ def main() -> None:
     ax.set(ylabel="tau on the truth", ylim=(0, 1.1), title=f"thesis experiments, truth: {data['truth']}")
     ax.legend(ncol=4, fontsize=8, loc="lower left")
     save_figure(fig, "closed_loop")
-    print("\n".join(md))
-    print(f"wrote {path}")
+    write_markdown("closed_loop", md, path)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from __future__ import annotations
 import itertools
 import time
 
-from common import RESULTS, write_json
+from common import RESULTS, write_json, write_markdown
 from modalctl.executor import LocalExecutor
 from modalctl.hil.sweep import METHODS, Case, run_case
 from modalctl.report import plot_sweep_maps, sweep_table
@@ -39,9 +39,7 @@ def main() -> None:
           "Finger at the focus point: the largest added damping of a kept mode, relative to its own, is "
           + ", ".join(f"{f:g} N s/m: x{1 + a:.1f}" for f, a in sorted(added.items())) + ".", "",
           table, f"{len(rows)} cases in {wall:.0f} s on the local process pool.", ""]
-    (RESULTS / "closed_maps.md").write_text("\n".join(md))
-    print("\n".join(md))
-    print(f"wrote {path}")
+    write_markdown("closed_maps", md, path)
 
 
 if __name__ == "__main__":

@@ -41,6 +41,17 @@ def write_json(name: str, data: dict) -> Path:
     return path
 
 
+def write_markdown(name: str, lines: list[str], json_path: Path | None = None) -> Path:
+    """Write ``results/<name>.md`` from ``lines``, print it, and say where the results are."""
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"{name}.md"
+    text = "\n".join(lines)
+    path.write_text(text)
+    print(text)
+    print(f"wrote {json_path or path}")
+    return path
+
+
 def save_figure(fig, name: str, dpi: int = 120) -> Path:
     """Lay out, write ``results/<name>.png`` and close the figure."""
     import matplotlib.pyplot as plt

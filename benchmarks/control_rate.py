@@ -18,7 +18,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, save_figure, target, write_json  # noqa: E402
+from common import save_figure, target, write_json, write_markdown  # noqa: E402
 from modalctl.decompose import decompose  # noqa: E402
 from modalctl.hil.closed import run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
@@ -88,9 +88,7 @@ def main() -> None:
            f"{s['real_time_factor']:.2f} |" for s in summary]
     md += ["", "The wall time includes the emulated board (plant at 500 kHz, lock-in, modulation), one Python "
            "pass per period.", ""]
-    (RESULTS / "control_rate.md").write_text("\n".join(md))
-    print("\n".join(md))
-    print(f"wrote {path}")
+    write_markdown("control_rate", md, path)
 
 
 if __name__ == "__main__":

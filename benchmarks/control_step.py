@@ -21,7 +21,7 @@ from pathlib import Path
 import control
 import numpy as np
 
-from common import RESULTS, write_json
+from common import write_json, write_markdown
 from modalctl.control import PIControl, design_loops
 from modalctl.dispatch import dispatch
 from modalctl.lockin import lockin_bandwidths
@@ -138,9 +138,7 @@ def main() -> None:
           "The runtime does watchdog, divergence check, errors, PI loops with anti-windup, voltage and slew",
           f"limits and dispatch; the peer only the PI loops and the dispatch. Ratio peer/ours "
           f"{data['ratio_peer_over_ours']:.2f}; target 50 us: {'met' if data['target_met'] else 'NOT met'}.", ""]
-    (RESULTS / "control_step.md").write_text("\n".join(md))
-    print("\n".join(md))
-    print(f"wrote {path}")
+    write_markdown("control_step", md, path)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from common import RESULTS, write_json
+from common import write_json, write_markdown
 from modalctl.cli import main as modalctl
 from modalctl.hil.can_board import CanBoardEmulator
 from modalctl.hil.scenario import Perturbation
@@ -91,9 +91,7 @@ def main() -> None:
            "The loop's noise is the same draw on every path; the vibrometer's scan over CAN comes in blocks of 800 "
            "instants, so its noise is drawn in another order, which moves tau by up to about 0.01 at 40 dB (without "
            "noise the CAN and sim:// shots agree to 1e-8 at 2 and 2.5 kHz).", ""]
-    (RESULTS / "link_rates.md").write_text("\n".join(md))
-    print("\n".join(md))
-    print(f"wrote {path}")
+    write_markdown("link_rates", md, path)
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from common import RESULTS, median_seconds, write_json
+from common import median_seconds, write_json, write_markdown
 from modalctl import protocol as p
 
 K, A = 21, 8
@@ -116,9 +116,7 @@ def main() -> None:
     md += ["", "A 20 kHz loop has 50 us per period for everything; with the emulated board on the same machine the "
            "exchange alone takes longer, so closed loops over serial or CAN run at the rate the link and the board "
            "sustain (the link budgets; 2 kHz in tests/test_serial.py and tests/test_can.py).", ""]
-    (RESULTS / "protocol_speed.md").write_text("\n".join(md))
-    print("\n".join(md))
-    print(f"wrote {path}")
+    write_markdown("protocol_speed", md, path)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import RESULTS, save_figure, write_json  # noqa: E402
+from common import save_figure, write_json, write_markdown  # noqa: E402
 from modalctl.control import loop_poles  # noqa: E402
 from modalctl.executor import LocalExecutor  # noqa: E402
 from modalctl.hil.closed import step_runtime  # noqa: E402
@@ -91,9 +91,7 @@ def main() -> None:
           "designed for one period of latency at 20 kHz.",
           f"Predicted (closed-loop poles of the design model) and observed (HIL, 40 ms after a step) agree on "
           f"{agree} of {len(observed)} points. Picture: `stability.png`.", ""]
-    (RESULTS / "stability.md").write_text("\n".join(md))
-    print("\n".join(md))
-    print(f"wrote {path}")
+    write_markdown("stability", md, path)
 
 
 if __name__ == "__main__":
