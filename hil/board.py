@@ -122,6 +122,16 @@ class HILBoard:
         self.pending = self.schedule.weights * np.asarray(commands, complex)[None, :]
         self.idle = 0
 
+    def run_loops(self, loops):
+        """Start the shot and close its loops on the board itself (:class:`modalctl.onboard.BoardLoop`),
+        every period; returns the loops' :class:`~modalctl.onboard.BoardLog`."""
+        s = self.schedule
+        if s is None:
+            raise RuntimeError("board: run_loops before configure")
+        references = loops.references(s.carriers, s.bandwidths, self.sample_rate, s.decimation, s.periods)
+        self.start()
+        return loops.run(self, references, s.control_rate)
+
     def ramp_down(self, seconds: float) -> None:
         if self.ramp is None:
             self.ramp = (self.sample, max(1, int(round(seconds * self.sample_rate))))

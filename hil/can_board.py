@@ -136,6 +136,7 @@ class CanBoardEmulator(BoardEmulator):
                                       carriers=message.carriers, bandwidths=message.bandwidths, weights=weights,
                                       sensors=sensing, samples=message.samples, level=message.level)
             self.feedforward, self.board, self.capture = np.zeros((a, message.samples)), None, None
+            self.loops = None
             self._configs = {}
 
     def _on_upload(self, message: p.Upload) -> None:
@@ -176,7 +177,16 @@ class CanBoardEmulator(BoardEmulator):
         self._node = self.sensing
         self._answer_period()
 
+    def _on_program(self, message: p.Program) -> None:
+        if len(self.layout) > 1:
+            self._refuse("unsupported", "loops on the boards need one board with every channel and sensor")
+            return
+        super()._on_program(message)
+
     def _on_capture(self, message: p.Capture) -> None:
+        if message.what == 2:  # the loops' record: rows are the log's
+            super()._on_capture(message)
+            return
         channels, sensors = self.layout[self._node]
         mine = channels if message.what == 0 else sensors
         rows = mine if message.rows.size == 0 else mine[message.rows.astype(int)]

@@ -4,8 +4,9 @@
 configuration and upload of a shot; in phasor mode the shot period by period on an
 :class:`~modalctl.hil.board.HILBoard` (each period's commands play the next period, which answers its
 :class:`~modalctl.protocol.Envelopes`); open-loop shots (no modes) whole, on the simulator's own
-board; ramp-down, stop, heartbeats, the shot's record (voltages, sensors) and a bench vibrometer's
-scans. Subclasses carry the messages: :class:`~modalctl.hil.serial_board.SerialBoardEmulator` on a
+board; loops loaded for one shot (Program: :mod:`modalctl.onboard`) that the board closes itself;
+ramp-down, stop, heartbeats, the shot's record (voltages, sensors, the loops' log) and a bench
+vibrometer's scans. Subclasses carry the messages: :class:`~modalctl.hil.serial_board.SerialBoardEmulator` on a
 pty, :class:`~modalctl.hil.can_board.CanBoardEmulator` on a CAN FD bus. ``faults`` (on the frames a
 board sends): ``corrupt``, ``drop``, ``truncate`` every n-th frame; ``silent_after`` n periods.
 """
@@ -16,6 +17,7 @@ import numpy as np
 
 from modalctl import protocol as p
 from modalctl.model import ModalModel
+from modalctl.onboard import from_program
 from modalctl.schedule import Schedule
 
 from .board import HILBoard
@@ -54,6 +56,8 @@ class BoardEmulator:
         self.capture = None
         self.config: p.Configure | None = None
         self.feedforward: np.ndarray | None = None
+        self.loops = None  # loops loaded for the next shot (Program)
+        self.loop_log = None  # what they did in the last one
         self.sent = 0
         self.errors: list[str] = []
 
@@ -114,6 +118,23 @@ class BoardEmulator:
                                    f"and {k} carriers")
             return
         self.config, self.feedforward, self.board = message, np.zeros((a, message.samples)), None
+        self.loops = None
+        self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+
+    def _on_program(self, message: p.Program) -> None:
+        c = self.config
+        if c is None or c.modes == 0:
+            self._refuse("state", "program before a configuration with modes")
+            return
+        try:
+            loops = from_program(message)
+        except ValueError as exc:
+            self._refuse("config", f"program: {exc}")
+            return
+        if loops.modes != c.modes:
+            self._refuse("config", f"program for {loops.modes} modes, the shot has {c.modes}")
+            return
+        self.loops = loops
         self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
 
     def _on_upload(self, message: p.Upload) -> None:
@@ -133,6 +154,7 @@ class BoardEmulator:
         if c is None:
             self._refuse("state", "start before configure")
             return
+        self.loop_log = None
         if c.modes == 0:  # an open-loop shot: the whole waveform, then the record
             self.board = None
             self.sim.configure(float(c.sample_rate))
@@ -154,6 +176,10 @@ class BoardEmulator:
                               voltage_limit=self.perturbation.voltage_limit, latency=self.latency,
                               scan_noise=noise, seed=self.perturbation.seed + 1)
         self.board.configure(schedule)
+        if self.loops is not None:  # the board closes the loops itself, the whole shot, then reports
+            self.loop_log, self.loops = self.board.run_loops(self.loops), None
+            self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+            return
         self.board.start()
         self._answer_period()
 
@@ -196,7 +222,12 @@ class BoardEmulator:
             self._refuse("state", "no shot to scan")
 
     def _on_capture(self, message: p.Capture) -> None:
-        if self.capture is not None:
+        if message.what == 2:
+            if self.loop_log is None:
+                self._refuse("state", "no loops ran on the board")
+                return
+            record = self.loop_log.rows()
+        elif self.capture is not None:
             record = self.capture.voltages if message.what == 0 else self.capture.sensors
         elif self.board is not None:
             self.board.play_out()

@@ -95,8 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=1e6, help="DAC rate (1MHz)")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
     loop = p.add_argument_group("closed loop")
-    loop.add_argument("--loop", choices=("open", "closed"), default="open",
-                      help="open: feed-forward only (the thesis); closed: per-mode feedback on top")
+    loop.add_argument("--loop", choices=("open", "closed", "board"), default="open",
+                      help="open: feed-forward only (the thesis); closed: per-mode feedback on top, one "
+                           "exchange with the board per period; board: the same PI loops loaded into the board, "
+                           "which closes them itself (no link budget)")
     loop.add_argument("--control-rate", type=_quantity("Hz", "control-rate"), default=20e3,
                       help="loop rate, a divisor of the sample rate (20kHz)")
     loop.add_argument("--slew-limit", type=_quantity("V/s", "slew-limit"), help="largest output slope, e.g. 2e6V/s")
@@ -266,10 +268,11 @@ def _run(args) -> int:
                   sample_rate=args.sample_rate, progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake,
                   after=args.after)
     try:
-        if args.loop == "closed":
+        if args.loop in ("closed", "board"):
             shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
                                    slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
-                                   log=out / "log", controller=args.controller, watchdog=args.watchdog, **common)
+                                   log=out / "log", controller=args.controller, watchdog=args.watchdog,
+                                   on_board=args.loop == "board", **common)
         else:
             shot = run_open_loop(model, shape, device, args.focus_time, **common)
         return _report(args, model, shape, device, shot, perturbation, out)
@@ -301,7 +304,7 @@ def _report(args, model, shape, device, shot, perturbation, out) -> int:
 
         metrics["pictures"] = write_run_report(shot, out, focus_velocity, args.sample_rate,
                                                float(model.grid.points[centre, 0]))
-        if args.loop == "closed":
+        if args.loop in ("closed", "board"):
             from .report import plot_loop
 
             metrics["pictures"]["loop"] = str(plot_loop(out / "log", out / "loop.png"))
@@ -324,9 +327,10 @@ def _report(args, model, shape, device, shot, perturbation, out) -> int:
     print(f"plan {m['plan_seconds']:.2f} s, device {m['sim_seconds']:.2f} s")
     if "loop" in m:
         lp = m["loop"]
+        where = "on the board" if lp.get("on_board") else f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update"
         print(f"closed loop at {lp['control_rate_hz'] / 1e3:g} kHz: {lp['state']}"
               + (f" ({lp['fault']})" if lp["fault"] else "") + f", {lp['periods']} periods, "
-              f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update, crossovers "
+              f"{where}, crossovers "
               f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
     for w in m["decoupling_warnings"]:
         print("warning: " + w)

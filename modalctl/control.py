@@ -202,6 +202,13 @@ class PIControl:
         self.period = 1 / control_rate
         self.integral = np.zeros(self.kp.size, complex)  # ki times the integrated error
 
+    @classmethod
+    def from_gains(cls, kp, ki, control_rate: float) -> "PIControl":
+        """PI loops with given gains (k,) (a board's, loaded with its shot)."""
+        unknown = np.full(np.size(kp), np.nan)  # the margins are the designer's, not the board's
+        design = LoopDesign(np.asarray(kp, float), np.asarray(ki, float), unknown, unknown, unknown)
+        return cls(design, control_rate)
+
     def reset(self) -> None:
         self.integral = np.zeros(self.kp.size, complex)
 

@@ -23,7 +23,7 @@ from .schedule import HOLD, Schedule, envelope_noise, schedule
 from .supervisor import Limits, Supervisor
 from .track import feedthrough, sensor_weights
 
-__all__ = ["LoopParts", "loop_parts", "closed_shot", "LOCKIN_FRACTION", "LOCKIN_IMAGE"]
+__all__ = ["LoopParts", "loop_parts", "loop_log", "closed_shot", "LOCKIN_FRACTION", "LOCKIN_IMAGE"]
 
 # The reference goes through the same lock-in as the measurement, so the neighbours' leakage is
 # predicted, not an error: the filter only keeps the loops apart and can be wider than a
@@ -90,6 +90,14 @@ def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, 
                      noise)
 
 
+def loop_log(plan, s: Schedule, path, **meta) -> Recorder:
+    """The recorder of a shot's periods at ``path`` (``.json`` + ``.bin``), ``meta`` added to its header."""
+    k, a = s.carriers.size, plan.weights.shape[0]
+    return Recorder(path, log_fields(k, a), meta={
+        "control_rate_hz": s.control_rate, "sample_rate_hz": plan.sample_rate, "carriers_hz": s.carriers.tolist(),
+        "modes": [str(plan.model.labels[m]) for m in plan.modes], **meta})
+
+
 def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limit: float | None = None,
                 slew_limit: float | None = None, latency: int = 0, gain_scale: float = 1.0, tracker=None,
                 log=None, progress: bool = False, watchdog: int = 1) -> RunResult:
@@ -120,11 +128,8 @@ def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limi
     supervisor = Supervisor(Limits(voltage_limit or np.inf, slew_limit, watchdog), s.carriers, s.control_rate,
                             s.feedforward_peak, s.feedforward_slope,
                             np.abs(s.reference).max(axis=1) + 5 * parts.noise, plan.weights, lead=1 + latency)
-    k, a = s.carriers.size, plan.weights.shape[0]
-    recorder = None if log is None else Recorder(log, log_fields(k, a), meta={
-        "control_rate_hz": s.control_rate, "sample_rate_hz": plan.sample_rate, "carriers_hz": s.carriers.tolist(),
-        "modes": [str(plan.model.labels[m]) for m in plan.modes], "closed": closed,
-        "voltage_limit_v": voltage_limit, "slew_limit_v_per_s": slew_limit})
+    recorder = None if log is None else loop_log(plan, s, log, closed=closed, voltage_limit_v=voltage_limit,
+                                                 slew_limit_v_per_s=slew_limit)
     authority = parts.authority if closed else np.zeros_like(parts.authority)
     runtime = Runtime(board, s, controller, supervisor, parts.leak, authority, recorder,
                       tracker=tracker, held=hold_gain(s.carriers, plan.sample_rate, HOLD))

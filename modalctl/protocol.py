@@ -22,7 +22,7 @@ import numpy as np
 from cobs import cobs
 
 __all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", "Upload", "Start", "Commands",
-           "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Field", "Error", "Ack", "encode", "decode",
+           "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Program", "Field", "Error", "Ack", "encode", "decode",
            "frame", "Deframer", "MAX_FRAME", "CAN_DATA", "SYNC_ID", "to_board", "to_host", "segments", "Reassembler"]
 
 VERSION = 1
@@ -157,7 +157,8 @@ class Scan(Message):
 @dataclass
 class Capture(Message):
     """Host -> board: the last shot's record, ``what`` = 0 the applied voltages (V), 1 the sensors
-    (m/s), one row per channel or sensor (``rows``: which ones, all when empty), samples
+    (m/s), one row per channel or sensor, 2 the board's loops (6k rows, one column per period:
+    :meth:`modalctl.onboard.BoardLog.rows`); ``rows``: which ones, all when empty; samples
     ``offset`` to ``offset + count``; answered by :class:`Field` blocks."""
 
     TYPE = 0x0A
@@ -165,6 +166,25 @@ class Capture(Message):
     rows: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     offset: int = 0  # first sample
     count: int = 0  # samples (0: to the end)
+
+
+@dataclass
+class Program(Message):
+    """Host -> board: loops the board closes itself in the configured shot (k modes; see
+    :class:`modalctl.onboard.BoardLoop`): each mode's planned trajectory, the reading matrix
+    (k x k, row-major), PI gains, authority and leak. The next Start runs the whole shot."""
+
+    TYPE = 0x0B
+    focus_time: float = 0.0
+    damping: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    targets: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    kappa: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    brake: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    reading: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    kp: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    ki: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    limit: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    leak: np.ndarray = field(default_factory=lambda: np.zeros(0, np.complex64))
 
 
 @dataclass
@@ -199,7 +219,7 @@ class Error(Message):
 
 
 _TYPES = {cls.TYPE: cls for cls in (Hello, Info, Configure, Upload, Start, Commands, Envelopes, Heartbeat,
-                                    RampDown, Stop, Scan, Capture, Field, Ack, Error)}
+                                    RampDown, Stop, Scan, Capture, Program, Field, Ack, Error)}
 _LAYOUT = {
     Info: ("u8", "u8", "f32", "f32", "u8", "u32", "f32", "str"),
     Configure: ("f32", "f32", "u8", "f32[]", "f32[]", "f32[]", "f32[]", "u32", "f32"),
@@ -210,6 +230,7 @@ _LAYOUT = {
     RampDown: ("f32",),
     Scan: ("f64[]", "f32[]"),
     Capture: ("u8", "f32[]", "u32", "u32"),
+    Program: ("f32",) + ("f32[]",) * 8 + ("c64[]",),
     Field: ("u32", "u32", "u32", "f32[]"),
     Ack: ("u8", "u16"),
     Error: ("u16", "str"),

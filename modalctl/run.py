@@ -137,7 +137,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
                     tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
                     slew_limit: float | None = None, sample_rate: float = 1e6, control_rate: float = 20e3,
                     authority: float = 0.5, latency: int = 0, drift=None, log=None, progress: bool = False,
-                    controller: str = "pi", watchdog: int = 1, **plan_options) -> Shot:
+                    controller: str = "pi", watchdog: int = 1, on_board: bool = False, **plan_options) -> Shot:
     """Plan the shape's focus and play it on ``device`` with per-mode feedback (its phasor mode).
 
     Parameters are those of :func:`run_open_loop`, and
@@ -157,6 +157,10 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         Controller plugin (``pi``, ``lqg``...).
     watchdog : int
         Periods without a measurement before the shot is stopped.
+    on_board : bool
+        Load the loops into the board (:mod:`modalctl.onboard`: parametric references, PI) and let
+        it close them itself: no exchange per period, so no link budget; the board's rails are the
+        only voltage limit.
     """
     from .loop import closed_shot, loop_parts
 
@@ -167,8 +171,11 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
     start = _time.perf_counter()
     parts = loop_parts(the_plan, control_rate, board.noise, authority, latency, controller)
-    result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, log=log,
-                         progress=progress, watchdog=watchdog)
+    if on_board:
+        result = _loops_on_board(the_plan, board, parts, device, log)
+    else:
+        result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, log=log,
+                             progress=progress, watchdog=watchdog)
     board.play_out()
     times = np.union1d(the_plan.check_times(), [focus_time])
     try:
@@ -182,7 +189,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     seconds = _time.perf_counter() - start
     shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, seconds)
     shot.metrics["loop"] = {
-        "controller": controller, "state": result.state.name.lower(), "fault": result.reason,
+        "controller": controller, "on_board": on_board, "state": result.state.name.lower(), "fault": result.reason,
         "periods": result.periods, "loop_seconds": result.loop_seconds,
         "control_rate_hz": control_rate, "limited_periods": result.limited,
         "step_seconds_median": float(np.median(result.step_seconds)) if result.step_seconds.size else None,
@@ -190,6 +197,29 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         "gain_margin_db": parts.design.gain_margin_db.tolist(),
         "real_time_factor": seconds / the_plan.duration}
     return shot
+
+
+def _loops_on_board(the_plan, board, parts, device, log):
+    """Load the shot's loops into the board, let it run them, and keep its log (as the runtime's);
+    returns a :class:`~modalctl.runtime.RunResult`."""
+    from .loop import loop_log
+    from .onboard import board_loop
+    from .runtime import RunResult, State
+
+    if not hasattr(board, "run_loops"):
+        raise DeviceError(f"{device.url}: this board cannot run loops itself")
+    s = parts.schedule
+    board.configure(s)
+    start = _time.perf_counter()
+    record = board.run_loops(board_loop(the_plan, parts))
+    seconds = _time.perf_counter() - start
+    if log is not None:
+        with loop_log(the_plan, s, log, closed=True, on_board=True) as recorder:
+            for n in range(record.command.shape[1]):
+                recorder.write(period=n, state=int(State.ACTIVE), reference=record.reference[:, n],
+                               measured=record.measured[:, n], command=record.command[:, n], fraction=1.0,
+                               phasor_sum=np.abs(s.weights) @ np.abs(record.command[:, n]), compute=0.0)
+    return RunResult(State.INACTIVE, None, record.command.shape[1], np.zeros(0), 0, seconds)
 
 
 def _shot(dec, the_plan, shape, capture, times, field, margin, device, sim_seconds) -> Shot:

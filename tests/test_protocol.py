@@ -21,9 +21,19 @@ EXAMPLES = [
     p.Envelopes(seq=7, period=124, envelopes=np.array([1e-4 + 1e-5j, 2e-5])),
     p.Heartbeat(seq=8, state=2), p.RampDown(seq=9, seconds=5e-5), p.Stop(seq=10),
     p.Scan(seq=11, times=np.array([0.025, 0.0250021]), points=np.array([0.0, 5.0])),
-    p.Field(seq=12, first=0, rows=2, offset=8000, values=np.array([1.0, 2.0])), p.Capture(seq=15, what=1, rows=np.array([0.0, 3.0]), offset=8000, count=8000),
+    p.Field(seq=12, first=0, rows=2, offset=8000, values=np.array([1.0, 2.0])),
+    p.Capture(seq=15, what=1, rows=np.array([0.0, 3.0]), offset=8000, count=8000),
     p.Ack(seq=13, of=0x02, ack_seq=3), p.Error(seq=14, code=3, text="watchdog: no command for 3 periods"),
+    p.Program(seq=16, focus_time=0.025, damping=np.array([0.004, 0.003]), targets=np.array([1e-3, -2e-4]),
+              kappa=np.array([1.0, 2.5]), brake=np.array([1.0, 4.0]), reading=np.array([1.0, 0.1, -0.2, 1.0]),
+              kp=np.array([30.0, 80.0]), ki=np.array([2e4, 9e4]), limit=np.array([0.5, 0.2]),
+              leak=np.array([1e-3 + 2e-3j, -4e-4j])),
 ]
+
+
+def test_every_message_type_has_an_example():
+    """A new message type must be added above, so that every test below covers it."""
+    assert {type(m) for m in EXAMPLES} == set(p._TYPES.values())
 
 
 def _same(a, b):

@@ -4,7 +4,8 @@
 identification, open-loop shots (upload, trigger, the synchronized record), field scans from a
 bench vibrometer, and hands out a :class:`ProtocolPhasorBoard` for closed-loop shots (per-mode
 commands down, per-mode envelopes up, one exchange per control period; a period whose envelopes do
-not arrive within the timeout reads as None, so the runtime's watchdog decides). Idempotent
+not arrive within the timeout reads as None, so the runtime's watchdog decides; or the loops loaded
+into the board, which closes them itself and sends back their log). Idempotent
 requests are sent again when their answer is lost; corrupted frames are counted and skipped; a
 board error ends the shot with :class:`~modalctl.device.DeviceError`. A transport subclasses it
 with ``_write`` (send one message), ``_read`` (what arrived: messages and protocol errors),
@@ -204,17 +205,18 @@ class ProtocolDevice:
         """The last shot's record: ``"voltages"`` (channels, n) V or ``"sensors"`` (sensors, n) m/s,
         each board's rows in node order."""
         kind, step = (0, 0) if what == "voltages" else (1, 1)
-        parts = []
-        for node in self.nodes:
-            rows = np.arange(self.layout[node][step].size)
-            if rows.size == 0:
-                continue
-            blocks = [self._rows(lambda subset, o=o: p.Capture(what=kind, rows=subset, offset=o,
-                                                                 count=min(self.capture_samples, self.samples - o)),
-                                 rows, min(self.capture_samples, self.samples - o), node)
-                      for o in range(0, self.samples, self.capture_samples)]
-            parts.append(np.hstack(blocks) if blocks else np.zeros((rows.size, 0)))
+        parts = [self._record(kind, self.layout[node][step].size, self.samples, node)
+                 for node in self.nodes if self.layout[node][step].size]
         return np.vstack(parts) if parts else np.zeros((0, self.samples))
+
+    def _record(self, kind: int, rows: int, columns: int, node: int) -> np.ndarray:
+        """Rows (rows, columns) of record ``kind`` (Capture's ``what``) from ``node``, in requests of
+        ``capture_samples`` columns."""
+        step = self.capture_samples
+        blocks = [self._rows(lambda subset, o=o: p.Capture(what=kind, rows=subset, offset=o,
+                                                             count=min(step, columns - o)),
+                             np.arange(rows), min(step, columns - o), node) for o in range(0, columns, step)]
+        return np.hstack(blocks) if blocks else np.zeros((rows, 0))
 
     def _rows(self, request, rows: np.ndarray, columns: int, node: int | None = None, attempts: int = 5) -> np.ndarray:
         """Assemble (len(rows), columns) from the Field blocks answering ``request(subset of rows)``;
@@ -253,13 +255,10 @@ class ProtocolPhasorBoard:
         snr = device._snr
         self.noise = 0.0 if snr is None else self.level / 10 ** (snr / 20)  # what the controller should expect
         self.period = 0
+        self.periods = 0  # of the configured shot
 
     def configure(self, schedule: Schedule) -> None:
         d, s = self.device, schedule
-        budget = d.budget(s.carriers.size)
-        if s.control_rate > budget:
-            raise DeviceError(f"{d.url}: {s.control_rate:g} Hz control with {s.carriers.size} modes needs more than "
-                              f"the link sustains ({budget:.0f} periods/s: {d.link_description()})")
         for node in d.nodes:  # each board: its channels' rows of the dispatch, its sensors' columns
             channels, sensors = d.layout[node]
             d.request(p.Configure(sample_rate=d.sample_rate, control_rate=s.control_rate, modes=s.carriers.size,
@@ -267,8 +266,16 @@ class ProtocolPhasorBoard:
                                   sensors=s.sensors[:, sensors], samples=s.feedforward.shape[1], level=self.level),
                       (p.Ack,), node)
         d._send_waveforms(s.feedforward)
+        self.periods, self.modes, self.control_rate = s.periods, s.carriers.size, s.control_rate
 
     def start(self) -> None:
+        """Start the shot exchanging with the host every period, if the link carries that rate."""
+        d = self.device
+        budget = d.budget(self.modes)
+        if self.control_rate > budget:
+            raise DeviceError(f"{d.url}: {self.control_rate:g} Hz control with {self.modes} modes needs more than "
+                              f"the link sustains ({budget:.0f} periods/s: {d.link_description()}); "
+                              "lower the rate or run the loops on the board (--loop board)")
         self.period = 0
         for node in self.device.nodes:
             self.device.send(p.Start(), node)
@@ -287,6 +294,20 @@ class ProtocolPhasorBoard:
             period = answer.period
         self.period = period + 1
         return total
+
+    def run_loops(self, loops):
+        """Load the shot's loops into the board (Program), start it, wait for the whole shot and
+        bring back the loops' log (:class:`modalctl.onboard.BoardLog`)."""
+        from modalctl.onboard import BoardLog, to_program
+
+        d = self.device
+        if len(d.nodes) > 1:
+            raise DeviceError(f"{d.url}: loops on the board need one board with every channel and sensor")
+        d.request(to_program(loops), (p.Ack,))
+        d.send(p.Start())
+        if d.receive((p.Ack,), timeout=max(d.timeout, 60.0)) is None:
+            raise DeviceError(f"{d.url}: the board did not finish the shot")
+        return BoardLog.from_rows(d._record(2, 6 * loops.modes, self.periods, d.nodes[0]))
 
     def write(self, commands: np.ndarray) -> None:
         """The same modal commands to every board, then SYNC: all apply them at once."""

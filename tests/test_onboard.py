@@ -1,0 +1,123 @@
+"""Loops loaded into the board (``--loop board``): parametric references, PI on the board, no link budget."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from modalctl import protocol as p
+from modalctl.cli import main
+from modalctl.decompose import decompose
+from modalctl.hil.can_board import CanBoardEmulator
+from modalctl.hil.scenario import Perturbation
+from modalctl.hil.serial_board import SerialBoardEmulator
+from modalctl.loop import loop_parts
+from modalctl.onboard import board_loop, from_program, to_program
+from modalctl.planner import plan
+from modalctl.plugin import get_shape
+from modalctl.recorder import read_log
+from modalctl.scenes import load_scene
+from modalctl.shape import parse_params
+
+RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
+       "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--quiet", "--no-plots",
+       "--json", "--drift", "1%", "--damping-error", "20%", "--snr", "40"]
+PERTURBATION = Perturbation(drift=0.01, damping_error=0.2, snr_db=40.0)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_scene("thesis-al-cc", 211)
+
+
+@pytest.fixture(scope="module")
+def shot(model):
+    """The headline plan and its loops at 20 kHz."""
+    sinc = get_shape("sinc")
+    field = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        the_plan = plan(decompose(model, field, 9), 0.025, sample_rate=500e3)
+    return the_plan, loop_parts(the_plan, 20e3, 1e-4)
+
+
+def _metrics(path):
+    return json.loads((path / "metrics.json").read_text())
+
+
+def test_parametric_references_follow_the_whole_model_within_the_unplanned_modes_share(shot):
+    """The board's references, from the plan's parameters alone, against the host's (the whole
+    model through the same lock-in): close on the low modes, never more than the modes the plan
+    left out can add."""
+    the_plan, parts = shot
+    s = parts.schedule
+    loops = board_loop(the_plan, parts)
+    ours = loops.references(s.carriers, s.bandwidths, the_plan.sample_rate, s.decimation, s.periods)
+    error = np.abs(ours - s.reference).max(axis=1) / np.abs(s.reference).max(axis=1)
+    assert np.all(error[:3] < 0.01)
+    assert np.all(error < 0.2)
+    # without the reading matrix's cross terms (each mode alone) the error is larger: they matter
+    alone = board_loop(the_plan, parts)
+    alone.reading = np.diag(np.diag(alone.reading))
+    worse = np.abs(alone.references(s.carriers, s.bandwidths, the_plan.sample_rate, s.decimation, s.periods)
+                   - s.reference).max(axis=1) / np.abs(s.reference).max(axis=1)
+    assert worse.max() > error.max() + 0.01
+
+
+def test_program_messages_round_trip_and_bad_ones_are_refused(shot):
+    the_plan, parts = shot
+    loops = board_loop(the_plan, parts)
+    back = from_program(p.decode(p.encode(to_program(loops))))
+    assert np.allclose(back.targets, loops.targets, rtol=1e-6) and np.allclose(back.reading, loops.reading, rtol=1e-6)
+    assert np.allclose(back.leak, loops.leak, rtol=1e-6, atol=1e-12) and back.focus_time == pytest.approx(0.025)
+    message = to_program(loops)
+    message.kp = message.kp[:-1]
+    with pytest.raises(ValueError, match="arrays of sizes"):
+        from_program(message)
+
+
+def test_loops_on_the_board_measure_what_the_host_loops_measure(tmp_path, capsys):
+    """sim://: the same PI loops at 20 kHz, once exchanging every period with the host, once loaded
+    into the board with parametric references; both far above open loop."""
+    assert main([*RUN, "--loop", "closed", "--control-rate", "20kHz", "--out", str(tmp_path / "host")]) == 0
+    assert main([*RUN, "--loop", "board", "--control-rate", "20kHz", "--out", str(tmp_path / "board")]) == 0
+    assert main([*RUN, "--loop", "open", "--out", str(tmp_path / "open")]) == 0
+    host, board, open_ = (_metrics(tmp_path / n) for n in ("host", "board", "open"))
+    assert board["loop"]["on_board"] and board["loop"]["periods"] == host["loop"]["periods"]
+    assert abs(board["tau"] - host["tau"]) < 0.01
+    assert board["tau"] > open_["tau"] + 0.1
+    log, header = read_log(tmp_path / "board" / "log")
+    assert header["meta"]["on_board"] and len(header["meta"]["modes"]) == len(board["modes_used"])
+    assert log["command"].shape == (host["loop"]["periods"], len(board["modes_used"]))
+    assert np.any(log["command"] != 0)
+
+
+@pytest.mark.parametrize("link", ["serial", "can"])
+def test_loops_on_a_board_over_the_wire_run_above_the_link_budget(model, tmp_path, capsys, link):
+    """20 kHz is ten times what the link carries period by period; loaded into the board, the
+    loops run there and the wire only carries the set-up and the log: the metrics are sim://'s."""
+    run = [*RUN, "--loop", "board", "--control-rate", "20kHz"]
+    assert main([*run, "--out", str(tmp_path / "sim")]) == 0
+    emulator = (SerialBoardEmulator(model, PERTURBATION) if link == "serial"
+                else CanBoardEmulator(model, PERTURBATION, channel=f"onboard-{tmp_path.name}"))
+    with emulator as board:
+        url = f"serial://{board.path}" if link == "serial" else board.url
+        assert main([*run, "--transport", url, "--out", str(tmp_path / link)]) == 0
+        # the same rate exchanging every period is refused: the link cannot carry it
+        assert main([*RUN, "--loop", "closed", "--control-rate", "20kHz", "--transport", url,
+                     "--out", str(tmp_path / "refused")]) == 3
+    sim, wire = _metrics(tmp_path / "sim"), _metrics(tmp_path / link)
+    assert abs(wire["tau"] - sim["tau"]) < 2e-3  # float32 parameters on the wire; CAN's scan noise differs
+    (sim_log, _), (wire_log, _) = read_log(tmp_path / "sim" / "log"), read_log(tmp_path / link / "log")
+    assert np.allclose(wire_log["command"], sim_log["command"], rtol=1e-3, atol=1e-3 * np.abs(sim_log["command"]).max())
+
+
+def test_two_boards_refuse_loops_on_the_board(model, tmp_path, capsys):
+    a = model.actuator_gains.shape[1]
+    nodes = {1: (range(a // 2), range(model.sensor_gains.shape[1])), 2: (range(a // 2, a), [])}
+    with CanBoardEmulator(model, PERTURBATION, channel=f"two-{tmp_path.name}", nodes=nodes) as board:
+        code = main([*RUN, "--loop", "board", "--control-rate", "2kHz", "--transport", board.url,
+                     "--out", str(tmp_path / "two")])
+    assert code == 3
+    assert "one board with every channel" in capsys.readouterr().err
