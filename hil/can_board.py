@@ -6,9 +6,17 @@ actuators (``nodes = {node: (channels, sensors)}``; the sensors on one node). Me
 CAN FD frames (:func:`modalctl.protocol.segments`); what the boards answer is
 :class:`~modalctl.hil.emulator.BoardEmulator`'s. In phasor mode each board keeps the last commands
 it received and all apply them on SYNC (0x080): the structure plays the next period under every
-board's outputs and the sensing board answers its envelopes. Faults as the base class's (``drop``
-loses every n-th frame sent: CAN's CRC turns a corrupted frame into a lost one), plus ``bus_off``
-after n periods: the boards leave the bus.
+board's outputs and the sensing board answers its envelopes.
+
+Each board follows CANopen's NMT state machine: it boots (a boot-up heartbeat), waits
+pre-operational (identification, configuration, uploads, captures and scans allowed), plays shots
+only once the host has sent NMT start (operational), ramps its outputs to zero when sent back to
+pre-operational or stopped (stopped: it ignores everything but NMT), and starts over on NMT reset.
+It sends its state as a heartbeat on 0x700 + n every ``heartbeat`` seconds and at once when the
+state changes. Faults as the base class's (``drop`` loses every n-th frame sent: CAN's CRC turns a
+corrupted frame into a lost one; a ``silent_after`` board sends no heartbeat either), plus
+``bus_off`` after n periods (the boards leave the bus) and ``reset_after`` n periods (the sensing
+board resets, as after a brown-out: boot-up, pre-operational, the shot lost).
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ from .emulator import ERRORS, BoardEmulator
 from .scenario import Perturbation
 
 __all__ = ["CanBoardEmulator"]
+BOOT_UP, STOPPED, OPERATIONAL, PRE_OPERATIONAL = 0x00, 0x04, 0x05, 0x7F  # CANopen's NMT states
 
 
 class CanBoardEmulator(BoardEmulator):
@@ -43,7 +52,7 @@ class CanBoardEmulator(BoardEmulator):
 
     def __init__(self, model: ModalModel, perturbation: Perturbation = Perturbation(), latency: int = 0,
                  faults: dict | None = None, channel: str = "bench0", nodes: dict | None = None,
-                 interface: str = "virtual"):
+                 interface: str = "virtual", heartbeat: float = 0.1):
         import can
 
         super().__init__(model, perturbation, latency, faults)
@@ -63,6 +72,9 @@ class CanBoardEmulator(BoardEmulator):
         self._can = can
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="CAN boards", daemon=True)
+        self.heartbeat = float(heartbeat)
+        self._beating = threading.Thread(target=self._beat, name="CAN heartbeats", daemon=True)
+        self.states = {node: BOOT_UP for node in self.layout}  # NMT state of each board
         self._node = self.sensing  # who answers the message being handled
         self._configs: dict = {}
         self._started: set = set()
@@ -70,6 +82,9 @@ class CanBoardEmulator(BoardEmulator):
 
     def __enter__(self):
         self._thread.start()
+        for node in self.layout:
+            self._enter(node, PRE_OPERATIONAL)  # boot-up heartbeat, then pre-operational
+        self._beating.start()
         return self
 
     def __exit__(self, *exc):
@@ -78,6 +93,7 @@ class CanBoardEmulator(BoardEmulator):
     def close(self) -> None:
         self._stop.set()
         self._thread.join(timeout=2)
+        self._beating.join(timeout=2)
         self.bus.shutdown()
 
     # -- the wire ------------------------------------------------------------------------------
@@ -88,23 +104,66 @@ class CanBoardEmulator(BoardEmulator):
                 self.bus.send(self._can.Message(arbitration_id=p.to_host(self._node), data=data, is_fd=True,
                                                 bitrate_switch=True, is_extended_id=False))
 
+    def _gone(self) -> bool:
+        """Whether the boards have left the bus (bus-off) or stopped answering."""
+        period = getattr(self.board, "period", None)  # None before the shot has started
+        return period is not None and any(self.faults.get(f) is not None and period >= self.faults[f]
+                                          for f in ("bus_off", "silent_after"))
+
     def _serve(self) -> None:
         reassemblers = {p.to_board(n): (n, p.Reassembler()) for n in self.layout}
         while not self._stop.is_set():
             frame = self.bus.recv(timeout=0.05)
             if frame is None:
                 continue
-            off = self.faults.get("bus_off")
-            if off is not None and self.board is not None and self.board.period >= off:
-                continue  # the boards have left the bus
-            if frame.arbitration_id == p.SYNC_ID:
-                self._sync()
+            if self._gone():
+                continue  # the boards have left the bus, or hang
+            if frame.arbitration_id == p.NMT_ID and len(frame.data) >= 2:
+                self._nmt(frame.data[0], frame.data[1])
+            elif frame.arbitration_id == p.SYNC_ID:
+                if self.states[self.sensing] == OPERATIONAL:
+                    self._sync()
             elif frame.arbitration_id in reassemblers:
                 node, reassembler = reassemblers[frame.arbitration_id]
+                if self.states[node] == STOPPED:
+                    continue  # a stopped node hears only NMT
                 item = reassembler.feed(bytes(frame.data))
                 if item is not None:
                     self._node = node
-                    self._receive(item)
+                    if isinstance(item, (p.Start, p.Commands)) and self.states[node] != OPERATIONAL:
+                        self._refuse("state", f"node {node} is {p.NMT_STATES[self.states[node]]}: "
+                                              "send NMT start before a shot")
+                    else:
+                        self._receive(item)
+
+    # -- CANopen: NMT and heartbeat ------------------------------------------------------------
+    def _beat(self) -> None:
+        while not self._stop.wait(self.heartbeat):
+            if not self._gone():
+                for node, state in list(self.states.items()):
+                    self._heartbeat(node, state)
+
+    def _heartbeat(self, node: int, state: int) -> None:
+        self.bus.send(self._can.Message(arbitration_id=p.heartbeat_id(node), data=bytes([state]),
+                                        is_extended_id=False))
+
+    def _enter(self, node: int, state: int) -> None:
+        """Move ``node`` to an NMT state and say so at once; leaving operational ramps the shot down,
+        a reset (boot-up) loses it."""
+        if state == BOOT_UP:
+            self._heartbeat(node, BOOT_UP)
+            self.board, self.config, self.loops = None, None, None
+            state = PRE_OPERATIONAL
+        elif self.states[node] == OPERATIONAL and state != OPERATIONAL and self.board is not None:
+            self.board.ramp_down(1 / self.board.schedule.control_rate)
+        self.states[node] = state
+        self._heartbeat(node, state)
+
+    def _nmt(self, command: int, target: int) -> None:
+        states = {0x01: OPERATIONAL, 0x02: STOPPED, 0x80: PRE_OPERATIONAL, 0x81: BOOT_UP, 0x82: BOOT_UP}
+        if command in states:
+            for node in self.layout if target == 0 else [target] if target in self.layout else []:
+                self._enter(node, states[command])
 
     # -- each board its share ------------------------------------------------------------------
     def _on_hello(self, message: p.Hello) -> None:
@@ -175,6 +234,11 @@ class CanBoardEmulator(BoardEmulator):
         self.board.pending = self.board.schedule.weights * rows
         self.board.idle = 0
         self._node = self.sensing
+        reset = self.faults.get("reset_after")
+        if reset is not None and self.board.period >= reset:
+            self.faults.pop("reset_after")
+            self._enter(self.sensing, BOOT_UP)  # a brown-out: the shot is lost
+            return
         self._answer_period()
 
     def _on_program(self, message: p.Program) -> None:

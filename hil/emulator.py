@@ -8,7 +8,9 @@ board; loops loaded for one shot (Program: :mod:`modalctl.onboard`) that the boa
 ramp-down, stop, heartbeats, the shot's record (voltages, sensors, the loops' log) and a bench
 vibrometer's scans. Subclasses carry the messages: :class:`~modalctl.hil.serial_board.SerialBoardEmulator` on a
 pty, :class:`~modalctl.hil.can_board.CanBoardEmulator` on a CAN FD bus. ``faults`` (on the frames a
-board sends): ``corrupt``, ``drop``, ``truncate`` every n-th frame; ``silent_after`` n periods.
+board sends): ``corrupt``, ``drop``, ``truncate`` every n-th frame; ``silent_after`` n periods;
+``full_queue`` at period n (the board's receive queue overflows: the next ``QUEUE_LOST`` messages
+are lost and the board reports an overrun, a warning, and goes on).
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from .device import SimDevice
 from .scenario import Perturbation, perturb
 
 __all__ = ["BoardEmulator", "ERRORS"]
-ERRORS = {"protocol": 1, "unsupported": 2, "state": 3, "config": 4, "internal": 9}
+ERRORS = p.ERRORS
 
 
 class BoardEmulator:
@@ -78,8 +80,25 @@ class BoardEmulator:
             data = data[:len(data) // 2] + end
         return data
 
+    QUEUE_LOST = 2  # messages a full receive queue loses
+
+    def _overrun(self) -> bool:
+        """Whether the next message is lost to a full receive queue (the ``full_queue`` fault)."""
+        at = self.faults.get("full_queue")
+        if at is None or getattr(self.board, "period", -1) < at:
+            return False
+        self._lost = getattr(self, "_lost", 0) + 1
+        if self._lost == 1:
+            self._send(p.Error(code=ERRORS["overrun"], text=f"receive queue full at period {self.board.period}: "
+                                                            f"{self.QUEUE_LOST} messages lost"))
+        if self._lost >= self.QUEUE_LOST:
+            self.faults.pop("full_queue")
+        return True
+
     def _receive(self, item) -> None:
         """Act on one decoded item; never raises (a failure is reported to the host)."""
+        if self._overrun():
+            return
         try:
             self._handle(item)
         except Exception as exc:  # report, never die: the host decides what to do

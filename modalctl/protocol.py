@@ -23,7 +23,9 @@ from cobs import cobs
 
 __all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", "Upload", "Start", "Commands",
            "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Program", "Field", "Error", "Ack", "encode", "decode",
-           "frame", "Deframer", "MAX_FRAME", "CAN_DATA", "SYNC_ID", "to_board", "to_host", "segments", "Reassembler"]
+           "frame", "Deframer", "MAX_FRAME", "CAN_DATA", "SYNC_ID", "to_board", "to_host", "segments", "Reassembler",
+           "NMT_ID", "NMT_COMMANDS", "NMT_STATES", "heartbeat_id", "nmt",
+           "ERRORS", "WARNINGS"]
 
 VERSION = 1
 MAX_FRAME = 1 << 16  # bytes of one encoded message, at most
@@ -209,6 +211,11 @@ class Ack(Message):
     ack_seq: int = 0
 
 
+#: Error codes (docs/protocol.md); ``overrun`` is a warning: the board lost messages but goes on.
+ERRORS = {"protocol": 1, "unsupported": 2, "state": 3, "config": 4, "overrun": 5, "internal": 9}
+WARNINGS = {ERRORS["overrun"]}
+
+
 @dataclass
 class Error(Message):
     """Board -> host: a request failed or the board stopped; ``code`` (see docs/protocol.md) and text."""
@@ -360,10 +367,27 @@ class Deframer:
 # the segment's index (0-126) with the top bit set on the last one; the first segment's data starts
 # with the message's length (u16), so padding to a CAN FD length is harmless. CAN's own CRC guards
 # each frame. Identifiers follow CANopen's layout: host -> board node n on 0x200 + n, board n ->
-# host on 0x180 + n, SYNC (every board applies its last commands at once) on 0x080.
+# host on 0x180 + n, SYNC (every board applies its last commands at once) on 0x080, NMT commands
+# (CiA 301: command specifier, node or 0 for all) on 0x000, each board's heartbeat (its NMT state,
+# one byte) on 0x700 + n.
 
 CAN_DATA = 64
 SYNC_ID = 0x080
+NMT_ID = 0x000
+NMT_COMMANDS = {"start": 0x01, "stop": 0x02, "pre-operational": 0x80, "reset": 0x81, "reset communication": 0x82}
+NMT_STATES = {0x00: "boot-up", 0x04: "stopped", 0x05: "operational", 0x7F: "pre-operational"}
+
+
+def heartbeat_id(node: int) -> int:
+    """CAN identifier of board ``node``'s heartbeat (CANopen's 0x700 + n)."""
+    return 0x700 + node
+
+
+def nmt(command: str, node: int = 0) -> bytes:
+    """The two data bytes of an NMT command (``NMT_COMMANDS``) to ``node`` (0: every board)."""
+    if command not in NMT_COMMANDS:
+        raise ValueError(f"NMT command {command!r}; known: {', '.join(NMT_COMMANDS)}")
+    return bytes([NMT_COMMANDS[command], node])
 _FIRST = struct.Struct("<BH")
 
 

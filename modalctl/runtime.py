@@ -206,15 +206,15 @@ class Runtime:
 
     def run(self, progress: bool = False) -> RunResult:
         """Configure if needed, activate, update until the schedule ends or a fault, deactivate."""
-        if self.state == State.UNCONFIGURED:
-            self.configure()
-        self.activate()
-        start = time.perf_counter()
         periods = range(self.schedule.periods)
         if progress:
             from tqdm import tqdm
             periods = tqdm(periods, desc="closed loop", unit="period", leave=False)
         try:
+            if self.state == State.UNCONFIGURED:
+                self.configure()
+            self.activate()
+            start = time.perf_counter()
             for _ in periods:
                 if self.update() != State.ACTIVE:
                     break

@@ -1,6 +1,7 @@
 """``can://`` against the board emulator on python-can's virtual CAN FD bus: shots, SYNC, faults."""
 
 import json
+import time
 
 import pytest
 
@@ -85,3 +86,74 @@ def test_two_boards_on_one_bus_share_the_shot(model, tmp_path, capsys, loop):
     assert can["device_info"]["boards"] == 2
     assert abs(can["tau"] - sim["tau"]) < 2e-3
     assert abs(can["peak_voltage"] - sim["peak_voltage"]) < 1e-4 * sim["peak_voltage"]
+
+
+def test_boards_follow_canopen_nmt_and_beat(model):
+    """A board boots pre-operational, plays no shot before NMT start, says its state in its
+    heartbeat (0x700 + n) at once and periodically, and a stopped board hears nothing but NMT."""
+    import can
+
+    from modalctl import protocol as p
+
+    with CanBoardEmulator(model, PERTURBATION, channel="nmt", heartbeat=0.05):
+        bus = can.Bus(interface="virtual", channel="nmt", fd=True)
+        reassembler = p.Reassembler()
+
+        def frames(seconds):
+            end = time.perf_counter() + seconds
+            while (frame := bus.recv(timeout=max(0.0, end - time.perf_counter()))) is not None:
+                yield frame
+
+        def nmt_then_beats(command, node):
+            list(frames(0.0))  # what was said before
+            bus.send(can.Message(arbitration_id=p.NMT_ID, data=p.nmt(command, node), is_extended_id=False))
+            return [f.data[0] for f in frames(0.1) if f.arbitration_id == p.heartbeat_id(1)]
+
+        def ask(message):
+            list(frames(0.0))
+            for data in p.segments(message):
+                bus.send(can.Message(arbitration_id=p.to_board(1), data=data, is_fd=True, is_extended_id=False))
+            for frame in frames(0.5):
+                if frame.arbitration_id == p.to_host(1) and (item := reassembler.feed(bytes(frame.data))):
+                    return item
+            return None
+
+        try:
+            beats = [f.data[0] for f in frames(0.3) if f.arbitration_id == p.heartbeat_id(1)]
+            assert set(beats) == {0x7F} and len(beats) >= 4  # pre-operational, every 50 ms
+            refused = ask(p.Start())
+            assert isinstance(refused, p.Error) and "NMT start" in refused.text
+            assert isinstance(ask(p.Hello()), p.Info)  # identification is allowed pre-operational
+            assert nmt_then_beats("start", 1)[0] == 0x05  # operational, said at once
+            assert nmt_then_beats("stop", 0)[0] == 0x04  # 0: every board
+            assert ask(p.Hello()) is None  # stopped: deaf to everything but NMT
+            assert nmt_then_beats("reset", 1)[:2] == [0x00, 0x7F]  # boot-up, then pre-operational
+            assert isinstance(ask(p.Hello()), p.Info)
+        finally:
+            bus.shutdown()
+
+
+@pytest.mark.parametrize("fault, says", [({"reset_after": 15}, "heartbeat says pre-operational"),
+                                         ({"silent_after": 15}, "no heartbeat")])
+def test_the_heartbeat_consumer_ends_the_shot_of_a_board_that_resets_or_dies(model, tmp_path, capsys, fault, says):
+    """A board that resets mid-shot, or stops answering altogether: the host's heartbeat consumer
+    ends the shot with the reason (the watchdog would wait out its periods first), the outputs
+    are commanded to zero and the periods up to it are on disk."""
+    with CanBoardEmulator(model, PERTURBATION, faults=fault, channel=f"hb-{len(says)}") as board:
+        code = main([*RUN, *CLOSED, "--watchdog", "100000", "--transport", board.url + "&timeout=0.05&heartbeat=0.3",
+                     "--out", str(tmp_path)])
+    assert code == 3
+    assert says in capsys.readouterr().err
+    records, _ = read_log(tmp_path / "log")
+    assert records["state"][-1] == 3 and records.size >= 15
+
+
+def test_a_full_receive_queue_on_the_bus_is_reported_and_ridden_out(model, tmp_path, capsys):
+    """The board loses two periods' Commands to a full receive queue: on SYNC it applies the last
+    commands it has (a hold, as the host's watchdog would), reports the overrun, and the shot goes on."""
+    with CanBoardEmulator(model, PERTURBATION, faults={"full_queue": 20}, channel="overrun") as board:
+        code = main([*RUN, *CLOSED, *TRUTH, "--transport", board.url, "--out", str(tmp_path)])
+    assert code == 0
+    metrics = _metrics(tmp_path)
+    assert "receive queue full at period 20" in metrics["device_info"]["board_warnings"][0]
+    assert metrics["tau"] > 0.85

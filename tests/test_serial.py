@@ -94,3 +94,22 @@ def test_bad_serial_urls_say_what_is_wrong():
 def test_modalctl_emulate_serves_a_pty_and_says_where(capsys):
     assert main(["emulate", "--drift", "1%", "--for", "0.2s"]) == 0
     assert "serial:///dev/pts/" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("watchdog, code", [(3, 0), (1, 3)])
+def test_a_full_receive_queue_is_reported_and_ridden_out_or_stopped(model, tmp_path, capsys, watchdog, code):
+    """At period 20 the board's receive queue overflows and loses two messages (two periods'
+    commands): it reports the overrun and goes on. A watchdog of three periods rides it
+    out (the warning kept in the metrics); a watchdog of one stops the shot with the reason, the
+    outputs ramped to zero and every period up to it on disk."""
+    with SerialBoardEmulator(model, PERTURBATION, faults={"full_queue": 20}) as board:
+        result = main([*RUN, "--watchdog", str(watchdog), "--transport", f"serial://{board.path}?timeout=0.1",
+                       "--out", str(tmp_path)])
+    assert result == code
+    records, _ = read_log(tmp_path / "log")
+    if code == 0:
+        assert "receive queue full at period 20" in _metrics(tmp_path)["device_info"]["board_warnings"][0]
+        assert np.any(np.all(records["measured"] == 0, axis=1) & (records["period"] > 20))
+    else:
+        assert "watchdog" in capsys.readouterr().err
+        assert records["state"][-1] == 3 and 20 <= records.size <= 25

@@ -44,6 +44,7 @@ class ProtocolDevice:
         self.nodes = list(nodes)  # boards reached through this device, in channel order
         self.layout: dict = {}  # node -> (its channels, its sensors) as global index arrays
         self.seq, self.corrupted = 0, 0
+        self.warnings: list[str] = []  # what boards reported without stopping (overruns)
         self._queue: list = []
         self.scans = self.samples = 0
         self.info: dict = {}
@@ -60,6 +61,13 @@ class ProtocolDevice:
 
     def sync(self) -> None:
         """Make the boards apply their last commands at once (a single line needs nothing)."""
+
+    def _operational(self, on: bool) -> None:
+        """Enter (before a shot's Start) or leave (after the shot, or to stop it) the boards' state in
+        which they play shots; nothing on a link without such states."""
+
+    def _check(self) -> None:
+        """Raise DeviceError if the link knows a board is gone (e.g. its heartbeat stopped)."""
 
     def budget(self, modes: int) -> float:
         """Control periods per second the link sustains with ``modes`` modes."""
@@ -87,6 +95,7 @@ class ProtocolDevice:
                 return found
             if time.perf_counter() > deadline:
                 return None
+            self._check()
             items = self._read()
             if items:
                 self._queue += items
@@ -95,11 +104,14 @@ class ProtocolDevice:
 
     def _take(self, kinds: tuple, node: int | None = None):
         """The first queued message of one of ``kinds`` (the others stay queued, in order); protocol
-        errors are counted and dropped; a board's Error raises."""
+        errors are counted and dropped; a board's warning is kept, its Error raises."""
         keep = []
         for i, item in enumerate(self._queue):
             if isinstance(item, p.ProtocolError):
                 self.corrupted += 1
+            elif isinstance(item, p.Error) and item.code in p.WARNINGS:  # the board lost messages, goes on
+                self.warnings.append(item.text)
+                self.info["board_warnings"] = self.warnings
             elif isinstance(item, p.Error):
                 self._queue = keep + self._queue[i + 1:]
                 raise DeviceError(f"{self.url}: board error {item.code}: {item.text}")
@@ -184,11 +196,13 @@ class ProtocolDevice:
 
     def trigger(self, progress: bool = False) -> Capture:
         """Play the uploaded shot and bring back its record (the thesis's synchronized capture)."""
+        self._operational(True)
         for node in self.nodes:
             self.send(p.Start(), node)
         for node in self.nodes:
             if self.receive((p.Ack,), timeout=max(self.timeout, 60.0), node=node) is None:
                 raise DeviceError(f"{self.url}: board {node} did not finish the shot")
+        self._operational(False)
         times = np.arange(self.samples) / self.sample_rate
         return Capture(times, self.capture("sensors"), self.capture("voltages"))
 
@@ -277,6 +291,7 @@ class ProtocolPhasorBoard:
                               f"the link sustains ({budget:.0f} periods/s: {d.link_description()}); "
                               "lower the rate or run the loops on the board (--loop board)")
         self.period = 0
+        d._operational(True)
         for node in self.device.nodes:
             self.device.send(p.Start(), node)
 
@@ -304,9 +319,11 @@ class ProtocolPhasorBoard:
         if len(d.nodes) > 1:
             raise DeviceError(f"{d.url}: loops on the board need one board with every channel and sensor")
         d.request(to_program(loops), (p.Ack,))
+        d._operational(True)
         d.send(p.Start())
         if d.receive((p.Ack,), timeout=max(d.timeout, 60.0)) is None:
             raise DeviceError(f"{d.url}: the board did not finish the shot")
+        d._operational(False)
         return BoardLog.from_rows(d._record(2, 6 * loops.modes, self.periods, d.nodes[0]))
 
     def write(self, commands: np.ndarray) -> None:
@@ -318,6 +335,7 @@ class ProtocolPhasorBoard:
     def ramp_down(self, seconds: float) -> None:
         for node in self.device.nodes:
             self.device.send(p.RampDown(seconds=seconds), node)
+        self.device._operational(False)
 
     def play_out(self) -> None:
         """The board plays the rest of the shot when it is scanned or captured."""
