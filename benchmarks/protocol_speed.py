@@ -28,7 +28,10 @@ def messages() -> dict:
     return {"Commands": p.Commands(period=7, commands=c), "Envelopes": p.Envelopes(period=7, envelopes=c),
             "Upload (4000 samples)": p.Upload(channel=1, offset=0, samples=rng.standard_normal(4000)),
             "Heartbeat": p.Heartbeat(state=2),
-            "Field (8000 values)": p.Field(first=0, rows=4, offset=0, values=rng.standard_normal(8000))}
+            "Field (8000 values)": p.Field(first=0, rows=4, offset=0, values=rng.standard_normal(8000)),
+            "Program (21 modes)": p.Program(focus_time=0.025, **{f: rng.standard_normal(K * K if f == "reading" else K)
+                                                               for f in ("damping", "targets", "kappa", "brake",
+                                                                         "reading", "kp", "ki", "limit")}, leak=c)}
 
 
 def payload(message) -> np.ndarray:
@@ -51,6 +54,7 @@ def _trips(device, board_period, n: int, k: int) -> dict:
     device.request(p.Configure(sample_rate=500e3, control_rate=20e3, modes=k, carriers=np.linspace(400, 40e3, k),
                                bandwidths=np.full(k, 300.0), weights=np.ones((A, k)) * 1e-3, sensors=np.ones((k, 4)),
                                samples=periods * d, level=1e-3), (p.Ack,))
+    device._operational(True)  # CAN: NMT start, and wait for the operational heartbeat
     device.send(p.Start())
     device.receive((p.Envelopes,))
     times = []
@@ -115,7 +119,8 @@ def main() -> None:
     md += [f"- {name}: {1e6 * s:.0f} us" for name, s in trips.items()]
     md += ["", "A 20 kHz loop has 50 us per period for everything; with the emulated board on the same machine the "
            "exchange alone takes longer, so closed loops over serial or CAN run at the rate the link and the board "
-           "sustain (the link budgets; 2 kHz in tests/test_serial.py and tests/test_can.py).", ""]
+           "sustain (the link budgets; 2 kHz in tests/test_serial.py and tests/test_can.py), or loaded into the "
+           "board (`--loop board`, one Program message) at the board's own rate: 20 kHz in link_rates.md.", ""]
     write_markdown("protocol_speed", md, path)
 
 
