@@ -71,6 +71,8 @@ def test_bad_can_urls_say_what_is_wrong():
         open_device("can://virtual/x?node=300")
     with pytest.raises(DeviceError, match="unknown option"):
         open_device("can://virtual/x?speed=1")
+    with pytest.raises(DeviceError, match="cannot open the socketcan bus 'nosuchcan9'"):
+        open_device("can://socketcan/nosuchcan9")  # a real interface, absent here: said, not a traceback
 
 
 @pytest.mark.parametrize("loop", [["--loop", "open"], CLOSED], ids=["open", "closed"])
