@@ -26,9 +26,39 @@ from modalctl.propagate import hold_coefficients, phasors_of, poles
 __all__ = ["Recursions", "BlockPlant", "BlockLockIn", "clip_rails"]
 
 
+class _Kernels:
+    """The products that advance a block of ``b`` samples (see :class:`Recursions`)."""
+
+    def __init__(self, e: np.ndarray, g0: np.ndarray, g1: np.ndarray, b: int):
+        i, j = np.arange(b)[:, None], np.arange(b + 1)[None, :]  # state i of a block, input j of its window
+
+        def power(lag):
+            return np.where(lag >= 0, e[:, None, None] ** np.maximum(lag, 0), 0)
+
+        window = g0[:, None, None] * power(i - j) + g1[:, None, None] * np.where(j >= 1, power(i + 1 - j), 0)
+        self.window = np.ascontiguousarray(window.transpose(0, 2, 1))  # (k, b + 1, b), for complex inputs
+        self.carry = e[:, None, None] ** np.arange(1, b + 1)  # e^(i + 1), (k, 1, b)
+        # For real inputs, one real product: inputs (the window's samples, then the real and imaginary
+        # parts of the state before the block), outputs each state's real and imaginary parts
+        # interleaved, so that the result is read as complex without a copy.
+        carry = self.carry[:, 0, :]
+        full = np.concatenate([window, carry[:, :, None], 1j * carry[:, :, None]], axis=2)  # (k, b, b + 3)
+        self.real = np.ascontiguousarray(
+            np.stack([full.real, full.imag], axis=2).reshape(full.shape[0], 2 * b, b + 3).transpose(0, 2, 1))
+        self.ends = np.ascontiguousarray(np.stack([window[:, -1].real, window[:, -1].imag], axis=2))  # (k, b + 1, 2)
+
+
 class Recursions:
     """Exact first-order complex recursions ``z' = p z + f`` under a sampled, held input, one per
-    row, advanced a chunk at a time by products with precomputed powers (``SUB`` samples each).
+    row, advanced a chunk at a time by products with precomputed powers.
+
+    A chunk of up to ``SINGLE`` samples (a control period, usually) is one block: one batched
+    product of its samples (with the one before it, for the hold) and its starting state gives
+    every state, ``M[i, j] = g0 e^(i - j) + g1 e^(i + 1 - j)`` and ``e^(i + 1)``. A longer chunk is
+    cut into blocks of ``SUB`` samples: one product gives every block's states from rest, the states
+    carried from block to block are themselves a recursion, in ``e^SUB``, solved by one more product
+    (``U[b, c] = e^(SUB (b - c))``), and each block adds ``e^(i + 1)`` times the state before it. A
+    few array operations per chunk, whatever its length (up to ``BLOCKS`` blocks per product).
 
     Parameters
     ----------
@@ -39,36 +69,76 @@ class Recursions:
     hold : {"zoh", "foh"}
     """
 
-    SUB = 16  # samples per product: the cost grows with its square, the Python overhead with their number
+    SUB = 16  # samples per block: the product's cost per sample grows with it
+    BLOCKS = 32  # blocks per product: the carry's matrix grows with its square
+    SINGLE = 64  # chunks up to this long are one block
 
     def __init__(self, poles: np.ndarray, sample_rate: float, hold: str):
         self.e, self.g0, self.g1 = hold_coefficients(poles, 1 / sample_rate, hold)
-        powers = self.e[:, None] ** np.arange(self.SUB + 1)  # (k, b + 1)
-        lag = np.arange(self.SUB)[:, None] - np.arange(self.SUB)[None, :]
-        self.toeplitz = np.where(lag >= 0, powers[:, np.maximum(lag, 0)], 0)  # (k, b, b)
-        self.carry = powers[:, 1:]  # e^(i + 1), (k, b)
+        self._kernels: dict[int, _Kernels] = {}
+        big = self.e[:, None] ** (self.SUB * np.arange(self.BLOCKS + 1))  # e^(SUB m), (k, BLOCKS + 1)
+        lag = np.arange(self.BLOCKS)[:, None] - np.arange(self.BLOCKS)[None, :]
+        self.between = np.where(lag >= 0, big[:, np.maximum(lag, 0)], 0)  # U, (k, BLOCKS, BLOCKS)
+        self.from_start = big[:, 1:]  # e^(SUB (b + 1)), (k, BLOCKS)
         self.reset()
 
     def reset(self) -> None:
         self.z = np.zeros(self.e.size, complex)
         self.last = None  # the input before the first sample: the system starts at rest
 
+    def kernels(self, b: int) -> _Kernels:
+        if b not in self._kernels:
+            self._kernels[b] = _Kernels(self.e, self.g0, self.g1, b)
+        return self._kernels[b]
+
     def run(self, force: np.ndarray) -> np.ndarray:
         """States (k, n) at the samples of the next chunk of inputs ``force`` (k, n)."""
-        n = force.shape[1]
-        previous = np.concatenate([(force[:, :1] if self.last is None else self.last[:, None]), force[:, :-1]], axis=1)
-        drive = self.g0[:, None] * previous + self.g1[:, None] * force
-        if self.last is None and n:
-            drive[:, 0] = 0  # the state at the first sample is zero, as in Plant
-        z = np.empty(drive.shape, complex)
-        state, b = self.z, self.SUB
-        for i in range(0, n, b):
-            m = min(b, n - i)
-            z[:, i:i + m] = self.carry[:, :m] * state[:, None] + \
-                np.matmul(self.toeplitz[:, :m, :m], drive[:, i:i + m, None])[:, :, 0]
-            state = z[:, i + m - 1]
-        if n:
-            self.z, self.last = state, force[:, -1]
+        k, n = force.shape
+        if not n:
+            return np.zeros((k, 0), complex)
+        if self.last is None:  # at rest at the first sample: z[0] = e z + (g0 + g1) f[0] = 0
+            self.last, self.z = force[:, 0], -(self.g0 + self.g1) * force[:, 0] / self.e
+        if n <= self.SINGLE:
+            return self._chunk(force, n)
+        z = np.empty((k, n), complex)
+        step = self.SUB * self.BLOCKS
+        for i in range(0, n, step):
+            z[:, i:i + step] = self._chunk(force[:, i:i + step], self.SUB)
+        return z
+
+    def _chunk(self, force: np.ndarray, b: int) -> np.ndarray:
+        """States over at most ``b * BLOCKS`` samples of ``force`` in blocks of ``b``, from ``self.z``
+        and ``self.last``."""
+        k, n = force.shape
+        kernels = self.kernels(b)
+        nb = -(-n // b)
+        real = not np.iscomplexobj(force)
+        windows = np.zeros((k, nb, b + 3 if real else b + 1), force.dtype)  # each block's samples after the
+        flat = np.zeros((k, nb * b), force.dtype)                         # one before it (then its state)
+        flat[:, :n] = force
+        windows[:, :, 1:b + 1] = flat.reshape(k, nb, b)
+        windows[:, 0, 0] = self.last
+        windows[:, 1:, 0] = windows[:, :-1, b]
+        if nb == 1:
+            before = self.z[:, None]
+        else:
+            if real:
+                ends = np.matmul(windows[:, :, :b + 1], kernels.ends)  # each block's last state from rest
+                ends = ends[:, :, 0] + 1j * ends[:, :, 1]
+            else:
+                local = np.matmul(windows, kernels.window)  # each block's states from rest, (k, nb, b)
+                ends = local[:, :, -1]
+            after = np.matmul(self.between[:, :nb, :nb], ends[:, :, None])[:, :, 0] \
+                + self.from_start[:, :nb] * self.z[:, None]  # the state after each block, (k, nb)
+            before = np.concatenate([self.z[:, None], after[:, :-1]], axis=1)
+        if real:
+            windows[:, :, b + 1], windows[:, :, b + 2] = before.real, before.imag
+            z = np.matmul(windows, kernels.real).view(complex)
+        else:
+            local = local if nb > 1 else np.matmul(windows, kernels.window)
+            z = local + kernels.carry * before[:, :, None]
+        z = z.reshape(k, nb * b)[:, :n]
+        self.z, self.last = z[:, -1], force[:, -1]
         return z
 
 
@@ -181,6 +251,9 @@ class BlockLockIn:
         self.read_state = np.einsum("ka,kab->kb", c, powers[samples - 1])
         read_inputs = np.einsum("ka,kaj->kj", c, self.inputs[:, :, 1:])  # C A^(d-2-j) B for j < d-1
         self.read_inputs = np.concatenate([read_inputs, d[:, None]], axis=1)  # (k, d)
+        # one product a period: the next state and the output together, rows (o states, 1 output)
+        self._from_state = np.concatenate([self.advance, self.read_state[:, None, :]], axis=1).astype(complex)
+        self._from_inputs = np.concatenate([self.inputs, self.read_inputs[:, None, :]], axis=1).astype(complex)
         self.samples = int(samples)
         self.state = np.zeros((a.shape[0], order), complex)
 
@@ -190,6 +263,7 @@ class BlockLockIn:
 
     def filter(self, mixed: np.ndarray) -> np.ndarray:
         """The low-pass of already mixed signals (k, d): the output at the last sample, complex (k,)."""
-        out = np.einsum("kb,kb->k", self.read_state, self.state) + np.einsum("kj,kj->k", self.read_inputs, mixed)
-        self.state = np.einsum("kab,kb->ka", self.advance, self.state) + np.einsum("kaj,kj->ka", self.inputs, mixed)
-        return out
+        both = (np.matmul(self._from_state, self.state[:, :, None])
+                + np.matmul(self._from_inputs, mixed[:, :, None]))[:, :, 0]  # (k, o + 1)
+        self.state = both[:, :-1]
+        return both[:, -1]

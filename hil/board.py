@@ -156,7 +156,7 @@ class HILBoard:
             shift = self.drift(start / self.sample_rate, self.plant.model.n_modes)
             if np.any(self.plant.model.frequencies != self._base * (1 + shift)):
                 self.plant.retune(self._base * (1 + shift))
-        carrier = np.exp(1j * self.osc.advance(n))  # (k, n)
+        carrier = self.osc.phasors(n)  # (k, n)
         ramp = np.arange(1, n + 1) / n  # each phasor moves in a straight line to its new value
         volts = s.feedforward[:, start:start + n] + (self.current @ carrier).real \
             + ((target - self.current) @ (carrier * ramp)).real

@@ -40,3 +40,26 @@ def test_block_lockin_is_the_lockin_at_each_period_end():
     ours = np.column_stack([block.process(signals[:, i * D:(i + 1) * D], phases[:, i * D:(i + 1) * D])
                             for i in range(30)])
     assert np.max(np.abs(ours - reference)) < 1e-9 * np.max(np.abs(reference))
+
+
+def test_block_plant_is_the_plant_for_chunks_of_any_length():
+    """One block for a short chunk, blocks of SUB with the carried state for a long one, a partial
+    last block, several products for a very long one: all the plant's samples, to round-off."""
+    model = load_scene("thesis-al-cc", 105)
+    rng = np.random.default_rng(2)
+    lengths = [1, 7, 64, 65, 250, 513, 3000, 16]
+    u = rng.standard_normal((model.actuator_gains.shape[1], sum(lengths)))
+    plant, block = Plant(model, FS, hold="zoh"), BlockPlant(model, FS, hold="zoh")
+    edges = np.cumsum([0, *lengths])
+    p = np.hstack([plant.step(u[:, a:b]) for a, b in zip(edges[:-1], edges[1:])])
+    b = np.hstack([block.step(u[:, a:b]) for a, b in zip(edges[:-1], edges[1:])])
+    assert np.max(np.abs(b - p)) < 1e-9 * np.max(np.abs(p))
+
+
+def test_oscillator_phasors_are_the_exponentials_of_their_phases():
+    f = np.array([963.0, 2253.0, 8166.0])
+    one, two = Oscillators(f, FS), Oscillators(f, FS)
+    for n in (25, 25, 7, 25):
+        assert np.max(np.abs(one.phasors(n) - np.exp(1j * two.advance(n)))) < 1e-12
+    one.retune(f * 1.01), two.retune(f * 1.01)
+    assert np.max(np.abs(one.phasors(25) - np.exp(1j * two.advance(25)))) < 1e-12
