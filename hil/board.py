@@ -122,15 +122,15 @@ class HILBoard:
         self.pending = self.schedule.weights * np.asarray(commands, complex)[None, :]
         self.idle = 0
 
-    def run_loops(self, loops):
+    def run_loops(self, loops, each_period=None):
         """Start the shot and close its loops on the board itself (:class:`modalctl.onboard.BoardLoop`),
-        every period; returns the loops' :class:`~modalctl.onboard.BoardLog`."""
+        every period (``each_period(n)`` after each); returns the loops' :class:`~modalctl.onboard.BoardLog`."""
         s = self.schedule
         if s is None:
             raise RuntimeError("board: run_loops before configure")
         references = loops.references(s.carriers, s.bandwidths, self.sample_rate, s.decimation, s.periods)
         self.start()
-        return loops.run(self, references, s.control_rate)
+        return loops.run(self, references, s.control_rate, each_period)
 
     def ramp_down(self, seconds: float) -> None:
         if self.ramp is None:

@@ -15,6 +15,8 @@ are lost and the board reports an overrun, a warning, and goes on).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from modalctl import protocol as p
@@ -110,8 +112,7 @@ class BoardEmulator:
         if isinstance(item, p.ProtocolError):
             self._send(p.Error(code=ERRORS["protocol"], text=str(item)))
             return
-        silent = self.faults.get("silent_after")
-        if silent is not None and self.board is not None and self.board.period >= silent:
+        if self._silent():
             return  # a board that stopped answering
         handler = getattr(self, "_on_" + type(item).__name__.lower(), None)
         if handler is None:
@@ -196,11 +197,27 @@ class BoardEmulator:
                               scan_noise=noise, seed=self.perturbation.seed + 1)
         self.board.configure(schedule)
         if self.loops is not None:  # the board closes the loops itself, the whole shot, then reports
-            self.loop_log, self.loops = self.board.run_loops(self.loops), None
-            self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+            loops, self.loops, self._beat_at = self.loops, None, time.perf_counter()
+            self.loop_log = self.board.run_loops(loops, self._alive)
+            if not self._silent():
+                self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
             return
         self.board.start()
         self._answer_period()
+
+    BEAT = 0.05  # s between heartbeats while the board runs a shot by itself
+
+    def _silent(self) -> bool:
+        """Whether the board has stopped answering (the ``silent_after`` fault)."""
+        silent = self.faults.get("silent_after")
+        return silent is not None and self.board is not None and self.board.period >= silent
+
+    def _alive(self, period: int) -> None:
+        """During a shot the board runs by itself: a Heartbeat every ``BEAT`` seconds, so the host
+        knows it is at work (and notices when it stops)."""
+        if time.perf_counter() - self._beat_at >= self.BEAT and not self._silent():
+            self._beat_at = time.perf_counter()
+            self._send(p.Heartbeat(state=2))
 
     def _answer_period(self) -> None:
         board = self.board

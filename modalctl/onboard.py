@@ -101,9 +101,10 @@ class BoardLoop:
         phases = Oscillators(carriers, sample_rate).advance(t.size)
         return LockIn(bandwidths, sample_rate, decimation, closing=True).process(self.reading @ velocity, phases)
 
-    def run(self, board, references: np.ndarray, control_rate: float) -> BoardLog:
+    def run(self, board, references: np.ndarray, control_rate: float, each_period=None) -> BoardLog:
         """Close the loops on ``board`` (``read()`` plays a period and returns its envelopes or None,
-        ``write(commands)`` sets the next period's) for every period of ``references``."""
+        ``write(commands)`` sets the next period's) for every period of ``references``;
+        ``each_period(n)`` is called after each (a board's heartbeat to its host)."""
         pi = PIControl.from_gains(self.kp, self.ki, control_rate)
         scale = np.abs(references) / np.maximum(np.abs(references).max(axis=1, keepdims=True), 1e-300)
         limits = np.ascontiguousarray((self.limit[:, None] * scale).T)
@@ -116,6 +117,8 @@ class BoardLoop:
                 command = pi.update(references[:, n] - measured + self.leak * command, limits[n])
             log.command[:, n] = command
             board.write(command)
+            if each_period is not None:
+                each_period(n)
         return log
 
 

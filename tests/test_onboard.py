@@ -121,3 +121,19 @@ def test_two_boards_refuse_loops_on_the_board(model, tmp_path, capsys):
                      "--out", str(tmp_path / "two")])
     assert code == 3
     assert "one board with every channel" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("link", ["serial", "can"])
+def test_a_board_that_dies_during_its_own_shot_is_noticed_at_once(model, tmp_path, capsys, link):
+    """The board beats while it runs the shot by itself; when it falls silent (period 100 of 580)
+    the host stops waiting after its timeout, not after the whole shot's worth, and says why."""
+    fault = {"silent_after": 100}
+    emulator = (SerialBoardEmulator(model, PERTURBATION, faults=fault) if link == "serial"
+                else CanBoardEmulator(model, PERTURBATION, faults=fault, channel=f"dies-{tmp_path.name}"))
+    with emulator as board:
+        url = f"serial://{board.path}?timeout=0.3" if link == "serial" else board.url + "&timeout=0.3"
+        code = main([*RUN, "--loop", "board", "--control-rate", "20kHz", "--transport", url,
+                     "--out", str(tmp_path / link)])
+    assert code == 3
+    err = capsys.readouterr().err
+    assert "stopped answering during its shot" in err or "no heartbeat" in err

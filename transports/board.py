@@ -321,8 +321,14 @@ class ProtocolPhasorBoard:
         d.request(to_program(loops), (p.Ack,))
         d._operational(True)
         d.send(p.Start())
-        if d.receive((p.Ack,), timeout=max(d.timeout, 60.0)) is None:
-            raise DeviceError(f"{d.url}: the board did not finish the shot")
+        while True:  # the board beats while it runs the shot; it is done when it acknowledges
+            answer = d.receive((p.Ack, p.Heartbeat))
+            if answer is None:
+                self.ramp_down(1 / self.control_rate)  # outputs to zero, should it hear
+                raise DeviceError(f"{d.url}: the board stopped answering during its shot (no heartbeat "
+                                  f"for {d.timeout:g} s)")
+            if isinstance(answer, p.Ack):
+                break
         d._operational(False)
         return BoardLog.from_rows(d._record(2, 6 * loops.modes, self.periods, d.nodes[0]))
 
