@@ -159,3 +159,16 @@ def test_a_full_receive_queue_on_the_bus_is_reported_and_ridden_out(model, tmp_p
     metrics = _metrics(tmp_path)
     assert "receive queue full at period 20" in metrics["device_info"]["board_warnings"][0]
     assert metrics["tau"] > 0.85
+
+
+def test_a_board_without_heartbeat_is_driven_with_heartbeat_zero(model, tmp_path, capsys):
+    """heartbeat=0: the host sends NMT but waits for no heartbeat (a board that produces none);
+    with the default it says which board stayed silent and what to set."""
+    with CanBoardEmulator(model, PERTURBATION, channel="noheart", heartbeat=3600) as board:
+        board.states = {n: 0x7F for n in board.states}
+        board._heartbeat = lambda node, state: None  # a board that never beats
+        assert main([*RUN, "--loop", "open", "--transport", board.url + "&heartbeat=0",
+                     "--out", str(tmp_path / "ok")]) == 0
+        assert main([*RUN, "--loop", "open", "--transport", board.url + "&heartbeat=0.2",
+                     "--out", str(tmp_path / "refused")]) == 3
+    assert "add heartbeat=0 to the URL" in capsys.readouterr().err

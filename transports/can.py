@@ -162,7 +162,8 @@ class CanDevice(ProtocolDevice):
             if time.perf_counter() > deadline:
                 heard = {n: p.NMT_STATES.get(self.states[n][0], "?") if n in self.states else "no heartbeat"
                          for n in late}
-                raise DeviceError(f"{self.url}: board(s) did not become operational after NMT start: {heard}")
+                raise DeviceError(f"{self.url}: board(s) did not become operational after NMT start: {heard} "
+                                  "(for boards that send no heartbeat, add heartbeat=0 to the URL)")
             time.sleep(1e-4)
         self._watching = True
 
