@@ -105,10 +105,9 @@ class CanBoardEmulator(BoardEmulator):
                                                 bitrate_switch=True, is_extended_id=False))
 
     def _gone(self) -> bool:
-        """Whether the boards have left the bus (bus-off) or stopped answering."""
-        period = getattr(self.board, "period", None)  # None before the shot has started
-        return period is not None and any(self.faults.get(f) is not None and period >= self.faults[f]
-                                          for f in ("bus_off", "silent_after"))
+        """Whether the boards have stopped answering or left the bus (bus-off)."""
+        off = self.faults.get("bus_off")
+        return self._silent() or (off is not None and getattr(self.board, "period", -1) >= off)
 
     def _serve(self) -> None:
         reassemblers = {p.to_board(n): (n, p.Reassembler()) for n in self.layout}

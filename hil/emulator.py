@@ -62,6 +62,8 @@ class BoardEmulator:
         self.feedforward: np.ndarray | None = None
         self.loops = None  # loops loaded for the next shot (Program)
         self.loop_log = None  # what they did in the last one
+        self._lost = 0  # messages lost to a full receive queue
+        self._beat_at = 0.0  # when the last heartbeat of a board-run shot went out
         self.sent = 0
         self.errors: list[str] = []
 
@@ -89,7 +91,7 @@ class BoardEmulator:
         at = self.faults.get("full_queue")
         if at is None or getattr(self.board, "period", -1) < at:
             return False
-        self._lost = getattr(self, "_lost", 0) + 1
+        self._lost += 1
         if self._lost == 1:
             self._send(p.Error(code=ERRORS["overrun"], text=f"receive queue full at period {self.board.period}: "
                                                             f"{self.QUEUE_LOST} messages lost"))
@@ -210,7 +212,7 @@ class BoardEmulator:
     def _silent(self) -> bool:
         """Whether the board has stopped answering (the ``silent_after`` fault)."""
         silent = self.faults.get("silent_after")
-        return silent is not None and self.board is not None and self.board.period >= silent
+        return silent is not None and getattr(self.board, "period", -1) >= silent  # no period before Start
 
     def _alive(self, period: int) -> None:
         """During a shot the board runs by itself: a Heartbeat every ``BEAT`` seconds, so the host

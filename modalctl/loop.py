@@ -84,7 +84,8 @@ def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, 
     level = np.abs(plan_schedule.reference).max(axis=1)
     loops = get_controller(controller).create(LoopPlant(model.frequencies[modes], model.damping[modes], bands,
                                                         control_rate, 1 + latency, noise, level, drift))
-    trust = np.clip((np.abs(plan_schedule.reference) - 3 * noise[:, None]) / (7 * noise[:, None] + 1e-300), 0, 1)
+    excess, spread = np.abs(plan_schedule.reference) - 3 * noise[:, None], 7 * noise[:, None]
+    trust = np.clip(np.divide(excess, spread, out=(excess > 0).astype(float), where=spread > 0), 0, 1)  # no noise: 1
     limit = authority * np.abs(plan_schedule.drive) * trust
     return LoopParts(plan_schedule, loops, loops.design, limit, feedthrough(model, modes, sensors, plan.weights),
                      noise)
