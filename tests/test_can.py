@@ -97,7 +97,7 @@ def test_boards_follow_canopen_nmt_and_beat(model):
 
     from modalctl import protocol as p
 
-    with CanBoardEmulator(model, PERTURBATION, channel="nmt", heartbeat=0.05):
+    with CanBoardEmulator(model, PERTURBATION, channel="nmt", heartbeat=0.2):
         bus = can.Bus(interface="virtual", channel="nmt", fd=True)
         reassembler = p.Reassembler()
 
@@ -109,7 +109,7 @@ def test_boards_follow_canopen_nmt_and_beat(model):
         def nmt_then_beats(command, node):
             list(frames(0.0))  # what was said before
             bus.send(can.Message(arbitration_id=p.NMT_ID, data=p.nmt(command, node), is_extended_id=False))
-            return [f.data[0] for f in frames(0.1) if f.arbitration_id == p.heartbeat_id(1)]
+            return [f.data[0] for f in frames(0.05) if f.arbitration_id == p.heartbeat_id(1)]  # < the period
 
         def ask(message):
             list(frames(0.0))
@@ -121,15 +121,20 @@ def test_boards_follow_canopen_nmt_and_beat(model):
             return None
 
         try:
-            beats = [f.data[0] for f in frames(0.3) if f.arbitration_id == p.heartbeat_id(1)]
-            assert set(beats) == {0x7F} and len(beats) >= 4  # pre-operational, every 50 ms
+            beats = [f.data[0] for f in frames(0.7) if f.arbitration_id == p.heartbeat_id(1)]
+            assert set(beats) == {0x7F} and len(beats) >= 3  # pre-operational, every 200 ms
             refused = ask(p.Start())
             assert isinstance(refused, p.Error) and "NMT start" in refused.text
             assert isinstance(ask(p.Hello()), p.Info)  # identification is allowed pre-operational
-            assert nmt_then_beats("start", 1)[0] == 0x05  # operational, said at once
-            assert nmt_then_beats("stop", 0)[0] == 0x04  # 0: every board
+            # (a periodic beat of the old state may cross the command: look at what follows the change)
+            beats = nmt_then_beats("start", 1)
+            assert beats[-1] == 0x05 and set(beats) <= {0x7F, 0x05}  # operational
+            beats = nmt_then_beats("stop", 0)  # 0: every board
+            assert beats[-1] == 0x04 and set(beats) <= {0x05, 0x04}
             assert ask(p.Hello()) is None  # stopped: deaf to everything but NMT
-            assert nmt_then_beats("reset", 1)[:2] == [0x00, 0x7F]  # boot-up, then pre-operational
+            beats = nmt_then_beats("reset", 1)
+            after = beats[beats.index(0x00) + 1:]  # boot-up, then pre-operational
+            assert after and set(after) == {0x7F}
             assert isinstance(ask(p.Hello()), p.Info)
         finally:
             bus.shutdown()
