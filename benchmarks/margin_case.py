@@ -20,9 +20,35 @@ from common import RESULTS, median_seconds, target, write_json
 from modalctl.decompose import decompose
 from modalctl.device import open_device
 from modalctl.planner import PlanError, plan
+from modalctl.propagate import Plant
 from modalctl.report import plot_spacetime
 from modalctl.run import run_open_loop
 from modalctl.scenes import load_scene, thesis_tables
+
+
+def steady_floor(model, shape, modes: int, focus_time: float, window: float = 100e-6):
+    """Largest off-target ratio within ``window`` (s) of T_F if every kept mode's envelope were
+    constant: ``sum_k c_k cos(w_k (t - T_F)) phi_k``, no transient at all. Returns (ratio, t - T_F)."""
+    dec = decompose(model, shape, modes)
+    k = dec.modes_used
+    tau = np.arange(-window, window, 1e-6)
+    field = model.shapes[k].T @ (dec.coefficients[k][:, None] * np.cos(model.omega[k][:, None] * tau))
+    peak = np.max(np.abs(field[:, np.argmin(np.abs(tau))]))
+    off = np.abs(field[~shape.target_mask]).max(axis=0) / peak
+    return float(off.max()), float(tau[np.argmax(off)])
+
+
+def strongest_unplanned(the_plan, count: int = 2, window: float = 0.3e-3):
+    """The modes the plan left out that put the most velocity off target within ``window`` (s) of
+    T_F, on the exact plant of the whole model: [(label, Hz, largest share of the focus peak)]."""
+    model = the_plan.model
+    velocity = Plant(model, the_plan.sample_rate).simulate(the_plan.voltages())
+    near = np.abs(the_plan.times - the_plan.focus_time) < window
+    left = np.setdiff1d(np.arange(model.n_modes), the_plan.modes)
+    reach = np.abs(model.shapes[left][:, ~the_plan.target_mask]).max(axis=1)
+    share = np.abs(velocity[left][:, near]).max(axis=1) * reach / the_plan.focus_peak
+    top = np.argsort(share)[::-1][:count]
+    return [(int(model.labels[left[i]]), float(model.frequencies[left[i]]), float(share[i])) for i in top]
 
 
 def main() -> None:
@@ -49,11 +75,16 @@ def main() -> None:
                      "whole_model_ratio": info["whole_model_margin_ratio"], "measured_ratio": m["margin_ratio"],
                      "peak_voltage": m["peak_voltage"], "tau": m["tau"], "plan_seconds": m["plan_seconds"],
                      "solver_seconds": m.get("optimizer", {}).get("seconds"), "kappa": m["kappa"], "brake": m["brake"]})
+        if name == "optimized":
+            culprits = strongest_unplanned(shot.plan)
         slug = name.split(",")[0].replace(" ", "_").replace("=", "").replace("__", "_")
         plot_spacetime(shot, RESULTS / f"margin_{slug}.png")
+    floor, at = steady_floor(model, shape, case["modes_used"], tf)
     dec16 = decompose(model, target(model, "sinc", width="10mm", center="24mm"), 16)
     plan16 = median_seconds(lambda: plan(dec16, tf), 5)
-    data = {"case": "al_sinc18_p4_margin", "margin": margin, "rows": rows, "plan_seconds_16_modes_median": plan16}
+    data = {"case": "al_sinc18_p4_margin", "margin": margin, "rows": rows, "plan_seconds_16_modes_median": plan16,
+            "steady_envelope_floor": {"ratio": floor, "t_minus_tf_s": at},
+            "strongest_unplanned_modes": [{"mode": int(m), "hz": f, "off_target_share": v} for m, f, v in culprits]}
     write_json("margin_case", data)
     lines = ["# Transient margin: the thesis's case al_sinc18_p4_margin", "",
              "Command: `python benchmarks/margin_case.py`. HIL with a perfect model (all 21 modes), 1 MS/s.",
@@ -68,7 +99,16 @@ def main() -> None:
         solver = f"{r['solver_seconds']:.2f}" if r["solver_seconds"] is not None else "-"
         lines.append(f"| {r['plan']} | {r['planned_ratio']:.3f} | {r['whole_model_ratio']:.3f} | "
                      f"{r['measured_ratio']:.3f} | {r['peak_voltage']:.1f} | {r['tau']:.3f} | {solver} |")
-    lines += ["", f"Plan time, 16 modes (10 mm sinc, no margin): median {plan16 * 1e3:.0f} ms.", ""]
+    lines += ["", f"Plan time, 16 modes (10 mm sinc, no margin): median {plan16 * 1e3:.0f} ms.", "",
+              f"Why the whole structure does not reach {margin:g}: with the kept modes' envelopes held constant "
+              f"(no transient at all) the field {at * 1e6:.0f} us after T_F already has an off-target peak of "
+              f"{floor:.3f} of the focus peak: the targets' own evolution as the modes dephase. Any envelope "
+              "that changes slowly over tens of microseconds keeps it; the optimizer brings the planned field to "
+              f"{margin:g} only with the fast turn of its envelopes at T_F, and that fast turn also drives the "
+              "modes the plan left out, which is what the whole-model and measured ratios show: within 0.3 ms of "
+              "T_F the optimized plan puts off-target velocities of "
+              + ", ".join(f"{share:.2f} of the focus peak in mode {label} ({f / 1e3:.1f} kHz)"
+                          for label, f, share in culprits) + ".", ""]
     for r in rows:
         if "kappa" in r:
             lines.append(f"- {r['plan']}: kappa {np.round(r['kappa'], 2).tolist()}, brake {np.round(r['brake'], 2).tolist()}")
