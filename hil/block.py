@@ -246,14 +246,13 @@ class BlockLockIn:
             powers.append(a @ powers[-1])
         powers = np.array(powers)  # (d + 1, k, o, o)
         # x_d = A^d x_0 + sum_j A^(d-1-j) B m_j ;  y_(d-1) = C A^(d-1) x_0 + sum_(j<d-1) C A^(d-2-j) B m_j + D m_(d-1)
-        self.advance = powers[samples]
-        self.inputs = np.einsum("jkab,kb->kaj", powers[samples - 1::-1], b)  # (k, o, d)
-        self.read_state = np.einsum("ka,kab->kb", c, powers[samples - 1])
-        read_inputs = np.einsum("ka,kaj->kj", c, self.inputs[:, :, 1:])  # C A^(d-2-j) B for j < d-1
-        self.read_inputs = np.concatenate([read_inputs, d[:, None]], axis=1)  # (k, d)
+        inputs = np.einsum("jkab,kb->kaj", powers[samples - 1::-1], b)  # (k, o, d)
+        read_state = np.einsum("ka,kab->kb", c, powers[samples - 1])
+        read_inputs = np.concatenate([np.einsum("ka,kaj->kj", c, inputs[:, :, 1:]),  # C A^(d-2-j) B, j < d-1
+                                      d[:, None]], axis=1)  # (k, d)
         # one product a period: the next state and the output together, rows (o states, 1 output)
-        self._from_state = np.concatenate([self.advance, self.read_state[:, None, :]], axis=1).astype(complex)
-        self._from_inputs = np.concatenate([self.inputs, self.read_inputs[:, None, :]], axis=1).astype(complex)
+        self._from_state = np.concatenate([powers[samples], read_state[:, None, :]], axis=1).astype(complex)
+        self._from_inputs = np.concatenate([inputs, read_inputs[:, None, :]], axis=1).astype(complex)
         self.samples = int(samples)
         self.state = np.zeros((a.shape[0], order), complex)
 

@@ -33,9 +33,14 @@ class Oscillators:
         self.phase = np.zeros(self.frequencies.size)
         self._tables: dict = {}  # n -> exp(j steps arange(n)), (k, n)
 
+    @property
+    def steps(self) -> np.ndarray:
+        """Phase advance per sample (rad), shape (k,)."""
+        return 2 * np.pi * self.frequencies / self.sample_rate
+
     def advance(self, n: int) -> np.ndarray:
         """Phases (rad) of the next ``n`` samples, shape (k, n); the oscillators move on."""
-        steps = 2 * np.pi * self.frequencies / self.sample_rate
+        steps = self.steps
         phases = self.phase[:, None] + steps[:, None] * np.arange(n)
         self.phase = np.mod(self.phase + steps * n, 2 * np.pi)
         return phases
@@ -45,10 +50,9 @@ class Oscillators:
         as ``exp(1j * advance(n))`` to round-off, a product with a table instead of k n exponentials."""
         table = self._tables.get(n)
         if table is None:
-            steps = 2 * np.pi * self.frequencies / self.sample_rate
-            table = self._tables[n] = np.exp(1j * steps[:, None] * np.arange(n))
+            table = self._tables[n] = np.exp(1j * self.steps[:, None] * np.arange(n))
         start = np.exp(1j * self.phase)
-        self.phase = np.mod(self.phase + 2 * np.pi * self.frequencies / self.sample_rate * n, 2 * np.pi)
+        self.phase = np.mod(self.phase + self.steps * n, 2 * np.pi)
         return start[:, None] * table
 
     def retune(self, frequencies) -> None:
