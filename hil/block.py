@@ -18,8 +18,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.signal import butter, tf2ss
+from scipy.signal import tf2ss
 
+from modalctl.lockin import lowpass
 from modalctl.model import ModalModel
 from modalctl.propagate import hold_coefficients, phasors_of, poles
 
@@ -236,11 +237,12 @@ class BlockLockIn:
     """
 
     def __init__(self, bandwidths, sample_rate: float, samples: int, order: int = 4):
-        mats = [_cascade(butter(order, b, fs=sample_rate, output="sos")) for b in np.atleast_1d(bandwidths)]
+        mats = [_cascade(lowpass(order, b, sample_rate)) for b in np.atleast_1d(bandwidths)]
         a = np.array([m[0] for m in mats])  # (k, o, o)
         b = np.array([m[1][:, 0] for m in mats])  # (k, o)
         c = np.array([m[2][0] for m in mats])  # (k, o)
         d = np.array([m[3][0, 0] for m in mats])  # (k,)
+        self.a, self.b, self.c, self.d = a, b, c, d  # per sample, per mode (the period map reads them)
         powers = [np.broadcast_to(np.eye(order), a.shape)]
         for _ in range(samples):
             powers.append(a @ powers[-1])
@@ -254,7 +256,11 @@ class BlockLockIn:
         self._from_state = np.concatenate([powers[samples], read_state[:, None, :]], axis=1).astype(complex)
         self._from_inputs = np.concatenate([inputs, read_inputs[:, None, :]], axis=1).astype(complex)
         self.samples = int(samples)
-        self.state = np.zeros((a.shape[0], order), complex)
+        self.reset()
+
+    def reset(self) -> None:
+        """Filters at rest."""
+        self.state = np.zeros((self.a.shape[0], self.a.shape[1]), complex)
 
     def process(self, signals: np.ndarray, phases: np.ndarray) -> np.ndarray:
         """Envelope (k,) complex at the last of ``samples`` samples of ``signals`` (k, d) mixed with ``phases``."""

@@ -10,6 +10,12 @@ periods later if the board is slow. Scenarios act on the truth while the shot ru
 the resonances (``drift(t)``, relative, per mode) and lost measurements from ``fail_after``.
 The board's own watchdog ramps its outputs to zero when no command came for ``watchdog`` periods
 (the host died); :meth:`ramp_down` does the same on request.
+
+When the board is linear (a modal truth without drift, rails or amplifier bandwidth), a period is
+one product (:class:`~modalctl.hil.lifted.PeriodMap`): the feed-forward's and the noise's share
+of the readings is computed for the whole shot at :meth:`start`, and the records (``velocity``,
+``applied``, ``sensed``) are played back at the DAC rate from the commands when they are read.
+A period read during a ramp to zero is played sample by sample (the periods so far replayed).
 """
 
 from __future__ import annotations
@@ -24,12 +30,18 @@ from modalctl.propagate import Plant
 from modalctl.schedule import HOLD, Schedule
 
 from .block import BlockLockIn, BlockPlant
+from .lifted import PeriodMap, open_envelopes
 
 __all__ = ["HILBoard"]
 
 
 class HILBoard:
     """The emulated board and structure.
+
+    The period map serves periods of up to ``LIFTED_SAMPLES`` DAC samples: its build runs one
+    period sample by sample on every basis vector, so it grows with the period, while a long
+    period's Python pass by samples is small beside its samples (2 kHz at 500 kHz: 250 samples
+    a period, the loop faster than real time by samples already).
 
     Parameters
     ----------
@@ -54,11 +66,17 @@ class HILBoard:
     scan_noise : float
         Standard deviation of the vibrometer's noise in :meth:`scan` (m/s).
     seed : int
+    lifted : bool
+        Play a linear board a period per product (the same readings and records to round-off);
+        False plays every period sample by sample.
     """
+
+    LIFTED_SAMPLES = 64
 
     def __init__(self, truth, sample_rate: float, noise: float = 0.0, voltage_limit: float | None = None,
                  latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3,
-                 amplifier_bandwidth: float | None = None, scan_noise: float = 0.0, seed: int = 0):
+                 amplifier_bandwidth: float | None = None, scan_noise: float = 0.0, seed: int = 0,
+                 lifted: bool = True):
         self.truth, self.voltage_limit, self.amplifier_bandwidth = truth, voltage_limit, amplifier_bandwidth
         self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=voltage_limit,
                            amplifier_bandwidth=amplifier_bandwidth) if isinstance(truth, ModalModel) else truth
@@ -68,6 +86,9 @@ class HILBoard:
         self.rng = np.random.default_rng(seed)
         self.schedule: Schedule | None = None
         self._base = self.plant.model.frequencies.copy()
+        self.linear = lifted and isinstance(truth, ModalModel) and amplifier_bandwidth is None \
+            and voltage_limit is None and drift is None
+        self._map: PeriodMap | None = None
 
     # -- set-up ------------------------------------------------------------------------------
     def configure(self, schedule: Schedule) -> None:
@@ -77,6 +98,11 @@ class HILBoard:
         self.schedule = schedule
         if isinstance(self.truth, ModalModel) and self.amplifier_bandwidth is None:  # one product per period
             self.plant = BlockPlant(self.truth, self.sample_rate, HOLD, self.voltage_limit)
+        self.lockin = BlockLockIn(schedule.bandwidths, self.sample_rate, schedule.decimation)
+        self._map = None
+        if self.linear and schedule.decimation <= self.LIFTED_SAMPLES:
+            self._map = PeriodMap(self.plant, self.lockin, schedule.carriers, schedule.sensors,
+                                  schedule.feedforward.shape[0], schedule.decimation, self.sample_rate)
 
     def start(self) -> None:
         s = self.schedule
@@ -84,7 +110,7 @@ class HILBoard:
             raise RuntimeError("board: start before configure")
         self.plant.reset()
         self.osc = Oscillators(s.carriers, self.sample_rate)
-        self.lockin = BlockLockIn(s.bandwidths, self.sample_rate, s.decimation)
+        self.lockin.reset()
         a, k = s.feedforward.shape[0], s.carriers.size
         self.current = np.zeros((a, k), complex)
         self.queue = deque([np.zeros((a, k), complex)] * self.latency)
@@ -94,9 +120,48 @@ class HILBoard:
         self.idle = 0  # periods since the last command
         self.ramp: tuple[int, int] | None = None  # (first sample, samples) of a ramp to zero
         total = s.feedforward.shape[1]
-        self.velocity = np.zeros((self.plant.model.n_modes, total))
-        self.applied = np.zeros((a, total))
-        self.sensed = np.zeros((self.plant.model.sensor_gains.shape[1], total))
+        self._velocity = np.zeros((self.plant.model.n_modes, total))
+        self._applied = np.zeros((a, total))
+        sensors = self.plant.model.sensor_gains.shape[1]
+        self._sensed = np.zeros((sensors, total))
+        self._noise = self._draw_noise(sensors, total, s.decimation) if self.noise else None
+        self._lifted = self._map is not None
+        self._played: list[np.ndarray] = []  # each period's phasors, while lifted
+        self._stale = False  # records behind the periods played lifted
+        if self._lifted:
+            self._state = self._map.zero()
+            periods = total // s.decimation
+            opened = open_envelopes(Plant(self.truth, self.sample_rate, hold=HOLD), s.feedforward, self._noise,
+                                    s.sensors, s.carriers, s.bandwidths, self.sample_rate, s.decimation, periods)
+            turns = np.exp(1j * np.mod(self._map.steps * s.decimation * np.arange(periods)[:, None], 2 * np.pi))
+            self._open, self._turn = np.ascontiguousarray(opened.T), turns  # one row per period
+
+    def _draw_noise(self, sensors: int, total: int, d: int) -> np.ndarray:
+        """The sensors' noise (s, total) for the whole shot, drawn in the order the periods play
+        (a period's (s, d) block after another's), whichever way they are played."""
+        full = total // d
+        blocks = self.rng.standard_normal((full, sensors, d)).transpose(1, 0, 2).reshape(sensors, full * d)
+        rest = self.rng.standard_normal((sensors, total - full * d))
+        return self.noise * np.concatenate([blocks, rest], axis=1)
+
+    # -- the records, played back at the DAC rate when the periods were played lifted ---------
+    @property
+    def velocity(self) -> np.ndarray:
+        """Modal velocities of the truth (K, total), every DAC sample played so far (m/s)."""
+        self._play_back()
+        return self._velocity
+
+    @property
+    def applied(self) -> np.ndarray:
+        """Voltages the amplifiers applied (a, total) (V)."""
+        self._play_back()
+        return self._applied
+
+    @property
+    def sensed(self) -> np.ndarray:
+        """What the sensors measured (s, total), noise included (m/s)."""
+        self._play_back()
+        return self._sensed
 
     # -- the loop ----------------------------------------------------------------------------
     def read(self) -> np.ndarray | None:
@@ -108,10 +173,12 @@ class HILBoard:
         self.idle += 1
         if self.idle > self.watchdog and self.ramp is None:
             self.ramp_down(1 / s.control_rate)
+        if self._lifted and self.ramp is not None:  # a period ramping to zero is not linear
+            self._to_samples()
         target = self.queue.popleft() if self.latency else self.pending
         if self.latency:
             self.queue.append(self.pending)
-        envelopes = self._play(d, target)
+        envelopes = self._play_lifted(target) if self._lifted else self._play(d, target)
         self.period += 1
         if self.fail_after is not None and self.period > self.fail_after:
             return None
@@ -139,6 +206,9 @@ class HILBoard:
     def play_out(self) -> None:
         """Play the rest of the shot (the structure rings down; outputs as they are)."""
         s = self.schedule
+        if self._lifted:  # the phasors stay as they are: the play-back covers it
+            self.sample, self._stale = s.feedforward.shape[1], True
+            return
         while self.sample < s.feedforward.shape[1]:
             self._play(min(s.decimation, s.feedforward.shape[1] - self.sample), self.current, measure=False)
 
@@ -164,13 +234,69 @@ class HILBoard:
             first, length = self.ramp
             volts = volts * np.clip(1 - (start + np.arange(1, n + 1) - first) / length, 0, 1)
         velocity = self.plant.step(volts)
-        self.velocity[:, start:start + n] = velocity
+        self._velocity[:, start:start + n] = velocity
         limit = self.plant.voltage_limit
-        self.applied[:, start:start + n] = volts if limit is None else np.clip(volts, -limit, limit)
+        self._applied[:, start:start + n] = volts if limit is None else np.clip(volts, -limit, limit)
         self.current = target
         self.sample += n
         measured = self.plant.sensors(velocity)
-        if self.noise:
-            measured = measured + self.noise * self.rng.standard_normal(measured.shape)
-        self.sensed[:, start:start + n] = measured
+        if self._noise is not None:
+            measured = measured + self._noise[:, start:start + n]
+        self._sensed[:, start:start + n] = measured
         return self.lockin.filter(2 * (s.sensors @ measured) * carrier.conj()) if measure else None
+
+    def _play_lifted(self, target: np.ndarray) -> np.ndarray:
+        """One period by the period map; the envelopes at its end (k,)."""
+        n = self.sample // self.schedule.decimation
+        turn = self._turn[n]
+        if n == 0 and np.any(target):
+            self._state = self._map.at_rest(target)
+        self._state, turned = self._map.step(self._state, self.current, target, turn)
+        self._played.append(target)
+        self.current = target
+        self.sample += self.schedule.decimation
+        self._stale = True
+        return self._open[n] + turn.conj() * turned
+
+    def _play_back(self) -> None:
+        """Fill the records up to the current sample from the phasors played lifted: the voltages
+        at the DAC rate (feed-forward plus the ramps between each period's phasors on the
+        carriers), the truth's answer (:class:`modalctl.propagate.Plant`), the sensors and noise."""
+        if not self._stale:
+            return
+        s, end = self.schedule, self.sample
+        d, periods = s.decimation, len(self._played)
+        carrier = np.exp(1j * np.mod(self._map.steps[:, None] * np.arange(end), 2 * np.pi))  # (k, end)
+        volts = np.array(s.feedforward[:, :end])
+        if periods:
+            this = np.array(self._played)  # (P, a, k)
+            last = np.concatenate([np.zeros_like(this[:1]), this[:-1]])
+            local = carrier[:, :periods * d].reshape(-1, periods, d).transpose(1, 0, 2)  # (P, k, d)
+            ramp = np.arange(1, d + 1) / d
+            played = (last @ local) * (1 - ramp) + (this @ local) * ramp  # (P, a, d)
+            volts[:, :periods * d] += played.real.transpose(1, 0, 2).reshape(-1, periods * d)
+        volts[:, periods * d:] += (self.current @ carrier[:, periods * d:]).real  # after the loop: held
+        if self.ramp is not None:  # a ramp to zero after the last period read
+            first, length = self.ramp
+            volts *= np.clip(1 - (np.arange(1, end + 1) - first) / length, 0, 1)
+        plant = Plant(self.truth, self.sample_rate, hold=HOLD)
+        velocity = plant.simulate(volts)
+        self._applied[:, :end], self._velocity[:, :end] = volts, velocity
+        self._sensed[:, :end] = plant.sensors(velocity) + (0 if self._noise is None else self._noise[:, :end])
+        self._stale = False
+
+    def _to_samples(self) -> None:
+        """Leave the period map: replay the periods played so far sample by sample (the plant's,
+        the oscillators' and the lock-in's states as if they had always been)."""
+        played, current, end = self._played, self.current, self.sample
+        s = self.schedule
+        self._lifted, self._stale = False, False
+        self.plant.reset()
+        self.osc = Oscillators(s.carriers, self.sample_rate)
+        self.lockin.reset()
+        self.current, self.sample = np.zeros_like(current), 0
+        for target in played:
+            self._play(s.decimation, target)
+        while self.sample < end:  # the shot was played out
+            self._play(min(s.decimation, end - self.sample), self.current, measure=False)
+        self._played = []

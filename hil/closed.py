@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +29,8 @@ __all__ = ["ClosedShot", "run_focus", "step_runtime"]
 class ClosedShot:
     """What one shot measured: tau and margin ratio of the truth's field, peak voltage (V),
     clipped samples, the loops' design, the truth's field at the focus (n,), how the runtime
-    ended, the board (its ``velocity`` and ``applied`` records) and the loop's wall time (s)."""
+    ended, the board (its ``velocity`` and ``applied`` records) and the shot's wall time (s):
+    the board's set-up, the loop, and the records of every DAC sample (the loops' design excluded)."""
 
     tau: float
     margin_ratio: float
@@ -38,6 +40,7 @@ class ClosedShot:
     focus_field: np.ndarray
     result: RunResult
     board: HILBoard
+    shot_seconds: float = float("nan")
 
     @property
     def real_time_factor(self) -> float:
@@ -45,12 +48,17 @@ class ClosedShot:
         faster than real time."""
         return self.result.loop_seconds / (self.result.periods / self.board.schedule.control_rate)
 
+    @property
+    def shot_real_time_factor(self) -> float:
+        """The shot's wall time over the shot's duration (every DAC sample of it)."""
+        return self.shot_seconds / (self.board.schedule.feedforward.shape[1] / self.board.sample_rate)
+
 
 def run_focus(truth, plan, target, closed: bool = True, control_rate: float = 20e3,
               snr_db: float | None = 40.0, voltage_limit: float | None = None, slew_limit: float | None = None,
               amplifier_clips: bool = True, authority: float = 0.5, latency: int = 0, drift=None,
               fail_after: int | None = None, gain_scale: float = 1.0, tracker=None, log=None,
-              controller: str = "pi", seed: int = 0) -> ClosedShot:
+              controller: str = "pi", seed: int = 0, lifted: bool = True) -> ClosedShot:
     """Play ``plan`` (planned on the controller's model, sampled at the plant rate) on ``truth``.
 
     Parameters
@@ -77,15 +85,23 @@ def run_focus(truth, plan, target, closed: bool = True, control_rate: float = 20
         Record every period to ``log.json`` / ``log.bin``.
     controller : str
         Controller plugin.
+    lifted : bool
+        Let the board play its periods by its period map where it is linear (the same shot to
+        round-off, faster; see :mod:`modalctl.hil.lifted`).
     """
     fs = plan.sample_rate
     sigma = 0.0 if snr_db is None else plan.focus_peak / 10 ** (snr_db / 20)
     parts = loop_parts(plan, control_rate, sigma, authority, latency, controller)
     board = HILBoard(truth, fs, noise=sigma, voltage_limit=voltage_limit if amplifier_clips else None,
-                     latency=latency, drift=drift, fail_after=fail_after, seed=seed)
+                     latency=latency, drift=drift, fail_after=fail_after, seed=seed, lifted=lifted)
+    start = time.perf_counter()
     result = closed_shot(plan, board, parts, closed, voltage_limit, slew_limit, latency, gain_scale, tracker, log)
     board.play_out()
-    return _measure(board, plan, target, parts.design, result)
+    board.velocity  # the records, played back
+    seconds = time.perf_counter() - start
+    shot = _measure(board, plan, target, parts.design, result)
+    shot.shot_seconds = seconds
+    return shot
 
 
 def _measure(board: HILBoard, plan, target, design, result: RunResult) -> ClosedShot:

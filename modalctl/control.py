@@ -200,6 +200,7 @@ class PIControl:
         self.design = design
         self.kp, self.ki = np.array(design.kp, float), np.array(design.ki, float)
         self.period = 1 / control_rate
+        self._ki_period = self.ki * self.period
         self.integral = np.zeros(self.kp.size, complex)  # ki times the integrated error
 
     @classmethod
@@ -214,27 +215,22 @@ class PIControl:
 
     def scale(self, factor: float) -> None:
         """Multiply both gains (a stability test)."""
-        self.kp, self.ki = self.kp * factor, self.ki * factor
+        self.kp, self.ki, self._ki_period = self.kp * factor, self.ki * factor, self._ki_period * factor
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         """Feedback command envelopes (k,) complex from the envelope errors (k,), reference minus
         measured, each at most ``limit`` (k,) in magnitude; a loop whose limit is zero rests."""
-        trial = self.integral + (self.ki * self.period) * error
-        command = self.kp * error + trial
-        size = np.abs(command)
-        over = size > limit
-        if not np.count_nonzero(over):  # the usual case: seven array operations
+        proportional = self.kp * error
+        trial = self.integral + self._ki_period * error
+        command = proportional + trial
+        if (np.abs(command) <= limit).all():  # the usual case: six array operations
             self.integral = trial
             return command
+        over = np.abs(command) > limit
         held = over & (np.real(np.conj(command) * error) > 0)  # anti-windup: hold while pushing further
-        trial[held] = self.integral[held]
-        trial[limit <= 0] = 0  # a loop with no authority rests
-        self.integral = trial
-        command = self.kp * error + trial
-        size = np.abs(command)
-        over = size > limit
-        command[over] *= limit[over] / size[over]
-        return command
+        self.integral = trial = np.where(held, self.integral, trial) * (limit > 0)  # no authority: rest
+        command = proportional + trial
+        return command * np.minimum(1.0, limit / np.maximum(np.abs(command), 1e-300))  # each within its limit
 
 
 def pi_controller(plant: LoopPlant, phase_margin: float = 50.0, gain_margin: float = 6.0) -> PIControl:

@@ -10,10 +10,28 @@ scaled so that ``A cos(phase + p)`` demodulates to ``A exp(j p)``.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.signal import butter, sosfilt
 
-__all__ = ["Oscillators", "LockIn", "lockin_bandwidths", "hold_gain"]
+__all__ = ["Oscillators", "LockIn", "lockin_bandwidths", "hold_gain", "lowpass"]
+
+
+@lru_cache(maxsize=256)
+def _lowpass(order: int, bandwidth: float, sample_rate: float) -> np.ndarray:
+    sections = butter(order, bandwidth, fs=sample_rate, output="sos")
+    sections.flags.writeable = False
+    return sections
+
+
+def lowpass(order: int, bandwidth: float, sample_rate: float) -> np.ndarray:
+    """The lock-in's Butterworth low-pass as second-order sections, shape (order / 2, 6).
+
+    Designed once per (order, corner in Hz, rate in Hz) and kept (read-only): every shot of a
+    sweep, the board and the host design the same filters, and scipy's design costs milliseconds.
+    """
+    return _lowpass(int(order), float(bandwidth), float(sample_rate))
 
 
 class Oscillators:
@@ -105,7 +123,7 @@ class LockIn:
 
     def __init__(self, bandwidths, sample_rate: float, decimation: int, order: int = 4, closing: bool = False):
         self.decimation = int(decimation)
-        self.sos = [butter(order, bw, fs=sample_rate, output="sos") for bw in np.atleast_1d(bandwidths)]
+        self.sos = [lowpass(order, bw, sample_rate) for bw in np.atleast_1d(bandwidths)]
         self.state = [np.zeros((s.shape[0], 2), complex) for s in self.sos]
         self._offset = 1 if closing else 0  # input samples since the last output sample
 

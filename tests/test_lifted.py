@@ -1,0 +1,91 @@
+"""The board's period map against the sample-by-sample board it stands for."""
+
+import numpy as np
+import pytest
+
+from modalctl.hil.board import HILBoard
+from modalctl.hil.closed import run_focus
+from modalctl.hil.scenario import Perturbation, perturb
+from modalctl.loop import loop_parts
+
+FS = 500e3
+
+
+def _boards(model, plan, latency=0, noise=0.0, **kw):
+    parts = loop_parts(plan, 10e3, max(noise, 1e-9), 0.5, latency, "pi")
+    boards = [HILBoard(model, FS, noise=noise, latency=latency, seed=3, lifted=lifted, **kw) for lifted in (True, False)]
+    for board in boards:
+        board.configure(parts.schedule)
+        board.start()
+    return boards, parts.schedule
+
+
+def _close(a, b, tol=1e-9):
+    return np.max(np.abs(a - b)) <= tol * np.max(np.abs(b))
+
+
+@pytest.mark.parametrize("latency", [0, 1])
+def test_period_map_reads_what_the_samples_read(sinc18, latency):
+    """Random commands, per mode and per channel (a CAN board's rows), a noisy truth that is not the
+    model: the readings at every period and the records at every sample agree to round-off."""
+    model, _, plan = sinc18
+    truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
+    noise = plan.focus_peak / 100
+    (fast, slow), s = _boards(truth, plan, latency, noise)
+    assert fast._lifted and not slow._lifted
+    rng = np.random.default_rng(4)
+    k, a = s.carriers.size, s.weights.shape[0]
+    scale = 1e-3 * np.abs(s.reference).max()
+    for n in range(120):
+        readings = [board.read() for board in (fast, slow)]
+        assert _close(*readings), n
+        if n % 3 == 2:  # rows of phasors, one per channel, as a CAN emulator sets them
+            rows = scale * (rng.standard_normal((a, k)) + 1j * rng.standard_normal((a, k)))
+            for board in (fast, slow):
+                board.pending, board.idle = rows, 0
+        else:
+            command = scale * (rng.standard_normal(k) + 1j * rng.standard_normal(k))
+            for board in (fast, slow):
+                board.write(command)
+    assert fast._lifted  # every period by the map
+    for board in (fast, slow):
+        board.play_out()
+    for record in ("velocity", "applied", "sensed"):
+        assert _close(getattr(fast, record), getattr(slow, record)), record
+
+
+def test_a_ramp_mid_shot_goes_back_to_samples(sinc18):
+    """The host stops writing: the board's watchdog ramps down; the periods before are replayed by
+    samples and the shot goes on by samples, exactly as the board that always played by samples."""
+    model, _, plan = sinc18
+    (fast, slow), s = _boards(model, plan)
+    command = 1e-3 * np.abs(s.reference).max() * np.ones(s.carriers.size)
+    for n in range(60):
+        readings = [board.read() for board in (fast, slow)]
+        assert _close(*readings), n
+        if n < 40:
+            for board in (fast, slow):
+                board.write(command * (1 + 0.01 * n))
+    assert not fast._lifted and fast.ramp is not None
+    for board in (fast, slow):
+        board.play_out()
+    assert np.all(fast.applied[:, fast.ramp[0] + fast.ramp[1]:] == 0)
+    for record in ("velocity", "applied", "sensed"):
+        assert _close(getattr(fast, record), getattr(slow, record)), record
+
+
+def test_a_focus_shot_measures_the_same_either_way(sinc18):
+    model, shape, plan = sinc18
+    truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
+    shots = [run_focus(truth, plan, shape, control_rate=10e3, seed=2, lifted=lifted) for lifted in (True, False)]
+    assert shots[0].board._map is not None and shots[1].board._map is None
+    assert abs(shots[0].tau - shots[1].tau) < 1e-9
+    assert abs(shots[0].margin_ratio - shots[1].margin_ratio) < 1e-9
+    assert shots[0].tau > 0.9  # the loops did their work
+
+
+@pytest.mark.parametrize("kw", [{"voltage_limit": 50.0}, {"drift": lambda t, k: np.full(k, 0.01 * t / 0.03)}])
+def test_no_period_map_where_the_board_is_not_linear(sinc18, kw):
+    model, _, plan = sinc18
+    (board, _), _ = _boards(model, plan, **kw)
+    assert board._map is None and not board._lifted
