@@ -147,7 +147,8 @@ class HILBoard:
     # -- the records, played back at the DAC rate when the periods were played lifted ---------
     @property
     def velocity(self) -> np.ndarray:
-        """Modal velocities of the truth (K, total), every DAC sample played so far (m/s)."""
+        """Modal velocities of the truth (K, total), every DAC sample played so far (m/s sqrt(kg),
+        as :meth:`modalctl.propagate.Plant.step`)."""
         self._play_back()
         return self._velocity
 
