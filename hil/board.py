@@ -267,7 +267,7 @@ class HILBoard:
             return
         s, end = self.schedule, self.sample
         d, periods = s.decimation, len(self._played)
-        carrier = np.exp(1j * np.mod(self._map.steps[:, None] * np.arange(end), 2 * np.pi))  # (k, end)
+        carrier = Oscillators(s.carriers, self.sample_rate).phasors(end)  # (k, end), as the board's own
         volts = np.array(s.feedforward[:, :end])
         if periods:
             this = np.array(self._played)  # (P, a, k)

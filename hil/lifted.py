@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from modalctl.lockin import LockIn
+from modalctl.lockin import LockIn, Oscillators
 
 __all__ = ["PeriodMap", "open_envelopes"]
 
@@ -57,7 +57,7 @@ class PeriodMap:
         self.gains = plant.model.actuator_gains  # (K, a)
         self.k, self.o, self.a, self.K = lockin.a.shape[0], lockin.a.shape[1], int(channels), self.e.size
         self.states = 3 * self.K + 2 * self.k * self.o
-        self.steps = 2 * np.pi * np.asarray(carriers, float) / sample_rate  # rad per sample
+        self.steps = Oscillators(carriers, sample_rate).steps  # rad per sample
         self.samples = int(samples)
         self.matrix = self._build(plant.residues, np.asarray(sensors) @ plant.model.sensor_gains.T, lockin)
         # the product's input: the state, then both phasor sets as complex views (real and
@@ -136,5 +136,5 @@ def open_envelopes(truth_plant, feedforward: np.ndarray, noise, sensors: np.ndar
     measured = truth_plant.sensors(truth_plant.simulate(feedforward[:, :end]))
     if noise is not None:
         measured = measured + noise[:, :end]
-    phases = 2 * np.pi * np.asarray(carriers, float)[:, None] / sample_rate * np.arange(end)
+    phases = Oscillators(carriers, sample_rate).advance(end)
     return LockIn(bandwidths, sample_rate, samples, closing=True).process(sensors @ measured, phases)
