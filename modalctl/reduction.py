@@ -125,4 +125,5 @@ def smallest_set(fields, shapes, mass, *, tau_min: float | None = None, nrmse_ma
     best = fit(fields, shapes, mass, ranking)
     raise ReductionError(
         f"no mode set meets the target (tau >= {tau_min}, nrmse <= {nrmse_max}): all {shapes.shape[0]} modes "
-        f"reach worst tau {best.tau.min():.4f} and worst nrmse {best.nrmse.max():.4f}")
+        f"reach worst tau {best.tau.min():.4f} and worst nrmse {best.nrmse.max():.4f}: the shape is finer than "
+        f"the model's modes can draw; widen it, lower the target, or choose the modes yourself")

@@ -37,6 +37,12 @@ def _distance(grid: Grid, center, metric: str) -> np.ndarray:
         center = (center[0], 0.0)
     if len(center) != grid.dim:
         raise ParamError(f"center: {len(center)} coordinates given for a {grid.dim}-D grid")
+    low, high = grid.points.min(axis=0), grid.points.max(axis=0)
+    outside = [i for i, c in enumerate(center) if not low[i] <= c <= high[i]]
+    if outside:
+        span = ", ".join(f"{1e3 * lo:g} to {1e3 * hi:g} mm" for lo, hi in zip(low, high))
+        raise ParamError(f"center: {', '.join(f'{1e3 * c:g} mm' for c in center)} lies off the structure "
+                         f"(its grid spans {span})")
     delta = np.abs(grid.points - np.asarray(center))
     return delta.max(axis=1) if metric == "chebyshev" else np.sqrt((delta**2).sum(axis=1))
 

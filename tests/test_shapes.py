@@ -99,6 +99,10 @@ def test_shapes_on_a_plate():
     assert r.max() <= 0.0075 + 1e-9
     with pytest.raises(ParamError, match="center"):
         make("sinc", grid=grid, width="15mm", center="1mm,2mm,3mm")
+    # a focus off the plate (y beyond 35 mm) is refused, not planned on the pulse's far tail
+    with pytest.raises(ParamError, match="off the structure.*-35 to 35 mm"):
+        make("sinc", grid=grid, width="15mm", center="0mm,80mm")
+    make("sinc", grid=grid, width="15mm", center="50mm,35mm")  # a corner is on the plate
 
 
 def test_parameter_errors_list_what_is_accepted():
