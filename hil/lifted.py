@@ -14,11 +14,11 @@ with ``x`` the truth's complex mode states, the force at the period's last sampl
 it) and the lock-in filters' states; ``u`` and ``b`` the per-channel phasors of the last period
 and of this one, turned by ``rho_n``; ``y`` the lock-in outputs at the period's end, which turned
 back by ``rho_n`` and added to the open-loop share are the board's readings. ``M`` is built once
-per shot by running one period sample by sample on a basis of states and inputs (the plainest
-statement of the board's equations: the hold's recursion of :mod:`modalctl.propagate`, the
-straight-line phasor ramp, the sensors' combinations and the lock-in's Butterworth at the sample
-rate), so the readings agree with the board's sample-by-sample path to round-off (tested).
-A period then costs one product instead of a dozen array operations on every sample.
+per shot from the board's equations over one period's samples (the hold's recursion of
+:mod:`modalctl.propagate`, the straight-line phasor ramp, the sensors' combinations and the
+lock-in's Butterworth at the sample rate), so the readings agree with the board's
+sample-by-sample path to round-off (tested). A period then costs one product instead of a dozen
+array operations on every sample.
 """
 
 from __future__ import annotations
@@ -38,7 +38,8 @@ class PeriodMap:
     plant : BlockPlant
         The truth (its recursions' ``e, g0, g1``, residues, actuator and sensor gains).
     lockin : BlockLockIn
-        The board's lock-in (its per-sample state space ``a, b, c, d``).
+        The board's lock-in (its per-sample state space ``a, b, c, d`` and their powers over a
+        period), built for ``samples`` samples a period.
     carriers : ndarray, shape (k,)
         Hz.
     sensors : ndarray, shape (k, s)
@@ -52,6 +53,8 @@ class PeriodMap:
     """
 
     def __init__(self, plant, lockin, carriers, sensors, channels: int, samples: int, sample_rate: float):
+        if lockin.samples != samples:
+            raise ValueError(f"period map: a lock-in built for {lockin.samples} samples a period, not {samples}")
         rec = plant.modes
         self.e, self.g0, self.g1 = rec.e, rec.g0, rec.g1
         self.gains = plant.model.actuator_gains  # (K, a)
@@ -92,30 +95,64 @@ class PeriodMap:
         return out[:n], out[n:].view(complex)
 
     def _build(self, residues, reading, lockin) -> np.ndarray:
-        """Run one period sample by sample on every basis vector of (state, last, this)."""
+        """One period's response to every basis vector of (state, last, this), from the board's
+        equations over the period's samples: the hold's recursion of each mode, the straight-line
+        phasor ramp on the carriers, the sensors' combinations, the lock-in's Butterworth.
+
+        The modes are independent and a phasor on channel a reaches mode m as ``G[m, a]`` times
+        a force that depends on (this or last, carrier, real or imaginary part) only, so each mode
+        is run once per such force pattern (``4 k`` of them) rather than once per basis vector;
+        the lock-in is linear and time-invariant per sample, so its state at the period's end
+        is a sum over the samples with the powers of its matrix."""
         K, k, o, a, d = self.K, self.k, self.o, self.a, self.samples
-        n, ak = self.states, self.a * self.k
-        basis = np.eye(n + 4 * ak)
-        z = basis[:K] + 1j * basis[K:2 * K]
-        force = basis[2 * K:3 * K]
-        q = (basis[3 * K:3 * K + k * o] + 1j * basis[3 * K + k * o:n]).reshape(k, o, -1)
-        last = (basis[n:n + 2 * ak:2] + 1j * basis[n + 1:n + 2 * ak:2]).reshape(a, k, -1)  # interleaved
-        this = (basis[n + 2 * ak::2] + 1j * basis[n + 2 * ak + 1::2]).reshape(a, k, -1)
-        e, g0, g1, r = self.e[:, None], self.g0[:, None], self.g1[:, None], residues[:, None]
+        n, ak = self.states, a * k
+        e, g0, g1, r = self.e, self.g0, self.g1, residues
+        carrier = np.exp(1j * np.outer(np.arange(d), self.steps))  # (d, k), the carriers at each sample
+        ramp = (np.arange(d) + 1)[:, None] / d  # each phasor moves in a straight line from the last to this one
+        # the force patterns (d, 2 (last, this), k, 2 (real, imaginary part of the phasor))
+        unit = np.stack([carrier.real, -carrier.imag], axis=-1)  # Re(c), Re(j c)
+        force = np.stack([(1 - ramp)[:, :, None] * unit, ramp[:, :, None] * unit], axis=1).reshape(d, 4 * k)
+        mode = np.zeros((d, K, 4 * k), complex)  # each mode's state after each sample, per unit force pattern
+        z = np.zeros((K, 4 * k), complex)
         for i in range(d):
-            carrier = np.exp(1j * self.steps * i)  # (k,)
-            ramp = (i + 1) / d  # each phasor moves in a straight line from the last to this one
-            volts = (carrier[None, None, :] @ (last * (1 - ramp) + this * ramp))[:, 0, :].real  # (a, columns)
-            new = self.gains @ volts
-            z = e * z + g0 * force + g1 * new
-            force = new
-            mixed = 2 * (reading @ (2 * (r * z).real)) * carrier.conj()[:, None]  # (k, columns)
-            if i == d - 1:
-                y = (lockin.c[:, None, :] @ q)[:, 0] + lockin.d[:, None] * mixed
-            q = lockin.a @ q + lockin.b[:, :, None] * mixed[:, None, :]
-        q = q * np.exp(1j * self.steps * d)[:, None, None]  # into the next period's frame
-        q = q.reshape(k * o, -1)
-        return np.vstack([z.real, z.imag, force, q.real, q.imag, np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
+            z = mode[i] = e[:, None] * z + g0[:, None] * (force[i - 1] if i else 0.0) + g1[:, None] * force[i]
+        # columns of the input phasors: (which, channel, carrier, part) -> n + which 2ak + 2 (channel k + carrier) + part
+        which, channel, car, part = np.meshgrid(np.arange(2), np.arange(a), np.arange(k), np.arange(2), indexing="ij")
+        columns = (n + which * 2 * ak + 2 * (channel * k + car) + part).transpose(1, 0, 2, 3).reshape(a, 4 * k)
+        width = n + 4 * ak
+        mixed = np.zeros((d, k, width), complex)  # what each basis vector puts into each lock-in at each sample
+        turn = 2 * carrier.conj()[:, :, None]
+        after = e[None, :] ** (np.arange(d) + 1)[:, None]  # (d, K): a mode's own state after each sample
+        mixed[:, :, :K] = turn * (reading[None] * (2 * (r * after).real)[:, None, :])
+        mixed[:, :, K:2 * K] = turn * (reading[None] * (-2 * (r * after).imag)[:, None, :])
+        mixed[:, :, 2 * K:3 * K] = turn * (reading[None] * (2 * (r * g0 * after / e).real)[:, None, :])
+        seen = np.tensordot(reading[:, :, None] * self.gains[None], 2 * (r[:, None] * mode).real, axes=([1], [1]))
+        mixed[:, :, columns] = turn[:, :, :, None] * seen.transpose(2, 0, 1, 3)  # (k, a, d, 4k) -> (d, k, a, 4k)
+        # the lock-in: q_(i+1) = A q_i + b mixed_i from the basis's own lock-in state
+        powers = lockin.powers  # (d + 1, k, o, o): A^0 ... A^d
+        kick = lockin.inputs.transpose(0, 2, 1)  # A^(d-1-i) b, (k, d, o)
+        by_state = np.zeros((k, o, k * o), complex)  # A^d and A^(d-1) on the lock-in's own state
+        before = np.zeros((k, o, k * o), complex)
+        for j in range(k):
+            by_state[j, :, j * o:(j + 1) * o] = powers[d][j]
+            before[j, :, j * o:(j + 1) * o] = powers[d - 1][j]
+        q = np.matmul(kick.transpose(0, 2, 1), mixed.transpose(1, 0, 2))  # (k, o, width)
+        q[:, :, 3 * K:3 * K + k * o] += by_state
+        q[:, :, 3 * K + k * o:n] += 1j * by_state
+        q_before = np.matmul(kick[:, 1:].transpose(0, 2, 1), mixed[:-1].transpose(1, 0, 2))
+        q_before[:, :, 3 * K:3 * K + k * o] += before
+        q_before[:, :, 3 * K + k * o:n] += 1j * before
+        y = np.einsum("ko,koc->kc", lockin.c, q_before) + lockin.d[:, None] * mixed[-1]
+        q = (q * np.exp(1j * self.steps * d)[:, None, None]).reshape(k * o, width)  # into the next period's frame
+        z_end = np.zeros((K, width), complex)
+        z_end[:, :K] = np.diag(after[-1])
+        z_end[:, K:2 * K] = np.diag(1j * after[-1])
+        z_end[:, 2 * K:3 * K] = np.diag(g0 * after[-2] if d > 1 else g0)
+        z_end[:, columns] = self.gains[:, :, None] * mode[-1][:, None, :]
+        force_end = np.zeros((K, width))
+        force_end[:, columns] = self.gains[:, :, None] * force[-1][None, None, :]
+        return np.vstack([z_end.real, z_end.imag, force_end, q.real, q.imag,
+                          np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
 
 
 def open_envelopes(truth_plant, feedforward: np.ndarray, noise, sensors: np.ndarray, carriers, bandwidths,
@@ -136,5 +173,5 @@ def open_envelopes(truth_plant, feedforward: np.ndarray, noise, sensors: np.ndar
     measured = truth_plant.sensors(truth_plant.simulate(feedforward[:, :end]))
     if noise is not None:
         measured = measured + noise[:, :end]
-    phases = Oscillators(carriers, sample_rate).advance(end)
-    return LockIn(bandwidths, sample_rate, samples, closing=True).process(sensors @ measured, phases)
+    phasors = Oscillators(carriers, sample_rate).phasors(end)
+    return LockIn(bandwidths, sample_rate, samples, closing=True).demodulate(sensors @ measured, phasors)

@@ -98,10 +98,10 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     drive = plan.modal(t + 0.5 / fs)[1]  # (k, N) modal forces, held as the DAC holds them
     volts = plan.weights @ drive
     carriers = plan.model.frequencies[plan.modes]
-    phases = Oscillators(carriers, fs).advance(t.size)
+    phasors = Oscillators(carriers, fs).phasors(t.size)
     expected = Plant(plan.model, fs, hold=HOLD)
     velocity = expected.step(volts)
-    lockin = lambda signals: LockIn(bandwidths, fs, decimation, closing=True).process(signals, phases)  # noqa: E731
+    lockin = lambda signals: LockIn(bandwidths, fs, decimation, closing=True).demodulate(signals, phasors)  # noqa: E731
     reference = lockin(sensors @ expected.sensors(velocity))
     planned = lockin(drive)
     own = lockin(velocity[plan.modes])
