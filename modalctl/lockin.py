@@ -48,15 +48,14 @@ class Oscillators:
     BLOCK = 256  # samples per table in :meth:`phasors`
 
     def __init__(self, frequencies, sample_rate: float):
-        self.frequencies = np.array(frequencies, float)
         self.sample_rate = float(sample_rate)
-        self.phase = np.zeros(self.frequencies.size)
-        self._tables: dict = {}  # n -> exp(j steps arange(n)), (k, n)
+        self.phase = np.zeros(np.size(frequencies))
+        self.retune(frequencies)
 
     @property
     def steps(self) -> np.ndarray:
         """Phase advance per sample (rad), shape (k,)."""
-        return 2 * np.pi * self.frequencies / self.sample_rate
+        return self._steps
 
     def advance(self, n: int) -> np.ndarray:
         """Phases (rad) of the next ``n`` samples, shape (k, n); the oscillators move on."""
@@ -74,15 +73,19 @@ class Oscillators:
         table = self._tables.get(block)
         if table is None:
             table = self._tables[block] = np.exp(1j * self.steps[:, None] * np.arange(block))
-        count = -(-n // block) if n else 0
-        starts = np.exp(1j * (self.phase[:, None] + self.steps[:, None] * (block * np.arange(count))))
+        if n <= block:  # one block (a control period's samples): the short way, called every period
+            start = np.exp(1j * self.phase)
+            self.phase = np.mod(self.phase + self.steps * n, 2 * np.pi)
+            return start[:, None] * table
+        starts = np.exp(1j * (self.phase[:, None] + self.steps[:, None] * (block * np.arange(-(-n // block)))))
         self.phase = np.mod(self.phase + self.steps * n, 2 * np.pi)
         return (starts[:, :, None] * table[:, None, :]).reshape(self.frequencies.size, -1)[:, :n]
 
     def retune(self, frequencies) -> None:
         """New frequencies (Hz) from the next sample on, without a phase jump."""
         self.frequencies = np.array(frequencies, float)
-        self._tables = {}
+        self._steps = 2 * np.pi * self.frequencies / self.sample_rate
+        self._tables: dict = {}  # n -> exp(j steps arange(n)), (k, n)
 
 
 def lockin_bandwidths(frequencies: np.ndarray, control_rate: float, fraction: float = 0.4,
