@@ -223,12 +223,19 @@ class PIControl:
         proportional = self.kp * error
         trial = self.integral + self._ki_period * error
         command = proportional + trial
-        if (np.abs(command) <= limit).all():  # the usual case: six array operations
+        if (np.abs(command) <= limit).all():  # the usual case: seven array operations
             self.integral = trial
             return command
+        active = limit > 0
+        if not active.all():  # a loop without authority rests: no command, its integral emptied
+            error, proportional, trial = error * active, proportional * active, trial * active
+            command = proportional + trial
+            if (np.abs(command) <= limit).all():
+                self.integral = trial
+                return command
         over = np.abs(command) > limit
         held = over & (np.real(np.conj(command) * error) > 0)  # anti-windup: hold while pushing further
-        self.integral = trial = np.where(held, self.integral, trial) * (limit > 0)  # no authority: rest
+        self.integral = trial = np.where(held, self.integral, trial)
         command = proportional + trial
         return command * np.minimum(1.0, limit / np.maximum(np.abs(command), 1e-300))  # each within its limit
 
