@@ -77,6 +77,8 @@ class HILBoard:
                  latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3,
                  amplifier_bandwidth: float | None = None, scan_noise: float = 0.0, seed: int = 0,
                  lifted: bool = True):
+        if latency < 0:
+            raise ValueError(f"board: latency must be zero or more periods, got {latency}")
         self.truth, self.voltage_limit, self.amplifier_bandwidth = truth, voltage_limit, amplifier_bandwidth
         self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=voltage_limit,
                            amplifier_bandwidth=amplifier_bandwidth) if isinstance(truth, ModalModel) else truth

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -39,6 +40,19 @@ def _quantity(unit: str, name: str):
         except UnitError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
     return parse
+
+
+def _within(parse, name: str, low: float, high: float = math.inf, low_open: bool = True):
+    """``parse`` (text -> number) that refuses values outside ``(low, high]`` (``[low, high]`` when
+    not ``low_open``), naming the option."""
+    def checked(text: str):
+        value = parse(text)
+        if not (low < value if low_open else low <= value) or not value <= high:
+            span = f"{'(' if low_open else '['}{low:g}, {high:g}{']' if math.isfinite(high) else ')'}"
+            raise argparse.ArgumentTypeError(f"{name} must lie in {span}, got {text!r}")
+        return value
+    checked.__name__ = name  # argparse's "invalid <name> value" for text it cannot read
+    return checked
 
 
 def _add_target(p) -> None:
@@ -85,9 +99,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="plan a focus, play it on a device (default sim://) and measure it")
     _add_target(p)
     p.add_argument("--focus-time", required=True, type=_quantity("s", "focus-time"), help="T_F, e.g. 25ms")
-    p.add_argument("--margin", type=_quantity("1", "margin"),
+    p.add_argument("--margin", type=_within(_quantity("1", "margin"), "margin", 0, 1),
                    help="transient margin to plan for, e.g. 0.5 or 50%% (runs the envelope optimizer)")
-    p.add_argument("--voltage-limit", type=_quantity("V", "voltage-limit"), help="largest drive voltage, e.g. 100V")
+    p.add_argument("--voltage-limit", type=_within(_quantity("V", "voltage-limit"), "voltage-limit", 0),
+                   help="largest drive voltage, e.g. 100V")
     p.add_argument("--kappa", type=float, default=1.0, help="envelope rate without --margin (default 1)")
     p.add_argument("--no-brake", action="store_true", help="optimizer: free decay after the focus only")
     p.add_argument("--after", type=_quantity("s", "after"), default=4e-3,
@@ -101,12 +116,14 @@ def build_parser() -> argparse.ArgumentParser:
                            "which closes them itself (no link budget)")
     loop.add_argument("--control-rate", type=_quantity("Hz", "control-rate"), default=20e3,
                       help="loop rate, a divisor of the sample rate (20kHz)")
-    loop.add_argument("--slew-limit", type=_quantity("V/s", "slew-limit"), help="largest output slope, e.g. 2e6V/s")
-    loop.add_argument("--authority", type=float, default=0.5,
+    loop.add_argument("--slew-limit", type=_within(_quantity("V/s", "slew-limit"), "slew-limit", 0),
+                      help="largest output slope, e.g. 2e6V/s")
+    loop.add_argument("--authority", type=_within(float, "authority", 0, low_open=False), default=0.5,
                       help="largest feedback per mode, as a fraction of its planned drive (0.5)")
-    loop.add_argument("--latency", type=int, default=0, help="extra periods the board takes to use a command (0)")
+    loop.add_argument("--latency", type=_within(int, "latency", 0, low_open=False), default=0,
+                      help="extra periods the board takes to use a command (0)")
     loop.add_argument("--controller", default="pi", help="per-mode controller plugin: pi (default) or lqg")
-    loop.add_argument("--watchdog", type=int, default=1,
+    loop.add_argument("--watchdog", type=_within(int, "watchdog", 1, low_open=False), default=1,
                       help="periods without a measurement before the supervisor stops the shot (1)")
     truth = p.add_argument_group("simulator truth (sim:// only)")
     truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
@@ -131,7 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
                    help="shape parameter with units (default width=18mm center=24mm)")
     p.add_argument("--focus-time", type=_quantity("s", "focus-time"), default=25e-3, help="T_F (25ms)")
-    p.add_argument("--margin", type=_quantity("1", "margin"), help="transient margin to plan for")
+    p.add_argument("--margin", type=_within(_quantity("1", "margin"), "margin", 0, 1),
+                   help="transient margin to plan for")
     p.add_argument("--vary", action="append", default=[], type=_parse_param, metavar="NAME=V1,V2,...",
                    help="a swept parameter and its values: " + ", ".join(SWEPT) + " (one or two)")
     p.add_argument("--methods", default="open,closed,tracked", help="open, closed, tracked (all three)")
@@ -155,7 +173,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0)
     p.add_argument("--snr", type=float, help="sensor noise, dB below the shot's peak")
     p.add_argument("--rails", type=_quantity("V", "rails"), help="amplifier rails")
-    p.add_argument("--latency", type=int, default=0, help="extra periods before a command is used")
+    p.add_argument("--latency", type=_within(int, "latency", 0, low_open=False), default=0,
+                   help="extra periods before a command is used")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--for", dest="seconds", type=_quantity("s", "for"), help="stop after this long (default: never)")
 
@@ -357,6 +376,10 @@ def _swept_values(name: str, text: str) -> tuple[str, list]:
                 values.append(int(item) if field in ("latency", "seed") else float(item))
             except ValueError:
                 raise ParamError(f"{name}: expected numbers separated by commas, got {item!r}") from None
+    if field in ("latency", "seed", "finger") and min(values) < 0:
+        raise ParamError(f"{name}: values must be zero or more, got {min(values):g}")
+    if field == "focus_time" and min(values) <= 0:
+        raise ParamError(f"{name}: values must be positive, got {min(values):g} s")
     return field, values
 
 

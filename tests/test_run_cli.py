@@ -86,6 +86,17 @@ def test_bad_units_exit_2(capsys, tmp_path):
     assert exit_.value.code == 2 and "focus-time" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("option, value, words", [
+    ("--margin", "-0.2", "margin must lie in (0, 1]"), ("--margin", "1.5", "margin must lie in (0, 1]"),
+    ("--latency", "-1", "latency must lie in [0, inf)"), ("--voltage-limit", "0V", "voltage-limit must lie in (0"),
+    ("--watchdog", "0", "watchdog must lie in [1"), ("--latency", "x", "invalid latency value")])
+def test_out_of_range_options_exit_2_before_any_work(capsys, tmp_path, option, value, words):
+    with pytest.raises(SystemExit) as exit_:
+        main([*RUN, "--focus-time", "25ms", "--loop", "closed", option, value, "--out", str(tmp_path / "r")])
+    assert exit_.value.code == 2 and words in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()  # nothing planned, nothing written
+
+
 def test_unknown_transport_exits_2(capsys, tmp_path):
     code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "nope://x", "--out", str(tmp_path))
     assert code == 2 and "no transport for 'nope://x'" in err

@@ -46,6 +46,8 @@ def test_sweep_maps_open_against_closed(capsys, tmp_path):
     (["--vary", "speed=1,2"], "cannot sweep 'speed'"),
     (["--vary", "drift=0,1%", "--methods", "magic"], "unknown method"),
     (["--vary", "latency=one"], "expected numbers"),
+    (["--vary", "latency=-1,0"], "latency: values must be zero or more, got -1"),
+    (["--vary", "focus-time=0ms,25ms"], "focus-time: values must be positive"),
 ])
 def test_sweep_refuses_bad_input(capsys, tmp_path, args, message):
     code = main(["sweep", *args, "--out", str(tmp_path), "--quiet"])
