@@ -186,14 +186,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--f-low", type=_quantity("Hz", "f-low"), default=100.0, help="sweep start (100Hz)")
     p.add_argument("--f-high", type=_quantity("Hz", "f-high"), default=100e3, help="sweep end (100kHz)")
-    p.add_argument("--resolution", type=_quantity("Hz", "resolution"), default=4.0,
+    p.add_argument("--resolution", type=_within(_quantity("Hz", "resolution"), "resolution", 0), default=4.0,
                    help="FRF resolution = 1 / T_sweep (4Hz)")
-    p.add_argument("--amplitude", type=_quantity("V", "amplitude"), default=15.0, help="sweep peak voltage (15V)")
-    p.add_argument("--step", type=_quantity("m", "step"), default=1e-3, help="spatial step of the scan (1mm)")
-    p.add_argument("--mass-per-length", type=_quantity("kg/m", "mass-per-length"),
+    p.add_argument("--amplitude", type=_within(_quantity("V", "amplitude"), "amplitude", 0), default=15.0,
+                   help="sweep peak voltage (15V)")
+    p.add_argument("--step", type=_within(_quantity("m", "step"), "step", 0), default=1e-3,
+                   help="spatial step of the scan (1mm)")
+    p.add_argument("--mass-per-length", type=_within(_quantity("kg/m", "mass-per-length"), "mass-per-length", 0),
                    help="of the beam (kg/m); default from the scene")
     p.add_argument("--method", default="sdof", help="identifier plugin: sdof (default) or peaks")
-    p.add_argument("--primary", type=int, default=0, help="actuator swept over the whole grid (0)")
+    p.add_argument("--primary", type=_within(int, "primary", 0, low_open=False), default=0,
+                   help="actuator swept over the whole grid (0)")
     p.add_argument("--averages", type=int, default=2, help="shots per point (2)")
     p.add_argument("--no-orthogonalize", action="store_true", help="skip Gram-Schmidt")
     p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
@@ -456,6 +459,9 @@ def _identify(args) -> int:
     scene = load_scene(args.scene) if args.scene else None
     if args.frf is None and args.transport.startswith("sim") and scene is None:
         raise ModelError("identify: the simulator needs --scene (the structure to simulate)")
+    if scene is not None and scene.grid.dim != 1:
+        raise ModelError(f"identify: {args.scene} is {scene.grid.dim}-D; the scan and the shapes' scaling here are "
+                         f"for beams (a 1-D grid of points and a mass per length)")
     meta = scene.meta if scene is not None else {}
     mass = args.mass_per_length
     if mass is None:

@@ -72,6 +72,8 @@ class Sweep:
             Smallest ``zeta * omega`` expected among modes above 90% of the band (1/s): the tail
             lasts ten of its time constants. Default: 5% of the sweep.
         """
+        if not resolution > 0:
+            raise ValueError(f"sweep: the resolution must be positive, got {resolution!r} Hz")
         duration = 1 / resolution
         tail = 0.05 * duration if slowest_decay is None else 10 / slowest_decay
         return cls(f_low, f_high, duration, sample_rate or 10 * f_high, amplitude, tail)

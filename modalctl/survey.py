@@ -106,6 +106,9 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
     """
     identifier = get_identifier(method)
     caps = device.configure(sweep.sample_rate)
+    if not 0 <= primary < caps.channels:
+        raise ValueError(f"identify: primary actuator {primary}: the device has {caps.channels} "
+                         f"(0..{caps.channels - 1})")
     device.activate()
     points = np.asarray(points, int)
     positions = caps.scan_points[points]

@@ -205,3 +205,19 @@ def test_identify_cli_on_the_hil_and_bad_input(tmp_path):
     assert main(["identify", "--out", str(out)]) == 2  # the simulator needs a scene
     assert main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--method", "nope",
                  "--out", str(out)]) == 2
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--scene", "plate-glass"], "plate-glass is 2-D"),
+    (["--scene", "thesis-al-cc", "--primary", "99"], "primary actuator 99: the device has 8 (0..7)"),
+    (["--scene", "thesis-al-cc", "--resolution", "0Hz"], "resolution must lie in (0, inf)"),
+    (["--scene", "thesis-al-cc", "--step=-1mm"], "step must lie in (0, inf)"),
+])
+def test_identify_refuses_what_it_cannot_do(capsys, tmp_path, args, words):
+    from modalctl.cli import main
+
+    try:
+        code = main(["identify", *args, "--f-high", "6kHz", "--out", str(tmp_path / "m.npz"), "--quiet", "--no-plots"])
+    except SystemExit as exit_:  # argparse's own refusals
+        code = exit_.code
+    assert code == 2 and words in capsys.readouterr().err and not (tmp_path / "m.npz").exists()
