@@ -55,6 +55,15 @@ def _within(parse, name: str, low: float, high: float = math.inf, low_open: bool
     return checked
 
 
+def _points(text: str):
+    """Grid points: ``211`` for a beam, ``101x71`` (or ``101,71``) for a plate."""
+    try:
+        parts = [int(v) for v in text.lower().replace("x", ",").split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"points: expected N (a beam) or NxM (a plate), got {text!r}") from None
+    return parts[0] if len(parts) == 1 else tuple(parts)
+
+
 def _add_target(p) -> None:
     """Arguments shared by decompose and run: where the model and the shape come from."""
     source = p.add_mutually_exclusive_group(required=True)
@@ -65,8 +74,9 @@ def _add_target(p) -> None:
                    help="shape parameter with units, e.g. width=18mm (repeatable)")
     p.add_argument("--modes", type=_modes, default="auto",
                    help="auto (smallest set meeting the target), all, or N (the N lowest modes)")
-    p.add_argument("--tau-target", type=float, help="auto: least tau for the kept modes (default 0.98)")
-    p.add_argument("--points", type=int, help="grid points of a beam scene (default: the scene's)")
+    p.add_argument("--tau-target", type=_within(float, "tau-target", 0, 1),
+                   help="auto: least tau for the kept modes (default 0.98)")
+    p.add_argument("--points", type=_points, help="grid points: N for a beam, NxM for a plate (default: the scene's)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -133,9 +143,11 @@ def build_parser() -> argparse.ArgumentParser:
     truth.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0,
                        help="relative damping error, e.g. 20%%")
     truth.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
-    truth.add_argument("--amplifier-bandwidth", type=_quantity("Hz", "amplifier-bandwidth"),
+    truth.add_argument("--amplifier-bandwidth",
+                       type=_within(_quantity("Hz", "amplifier-bandwidth"), "amplifier-bandwidth", 0),
                        help="first-order amplifier bandwidth, e.g. 100kHz")
-    truth.add_argument("--rails", type=_quantity("V", "rails"), help="amplifier voltage rails (clipping)")
+    truth.add_argument("--rails", type=_within(_quantity("V", "rails"), "rails", 0),
+                       help="amplifier voltage rails (clipping)")
     truth.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", required=True, help="directory for metrics.json, fields.npz and the pictures")
     p.add_argument("--no-plots", action="store_true")
@@ -143,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sweep", help="run a focus case over a grid of scenarios on the HIL and map where methods fail")
     p.add_argument("--scene", default="thesis-al-cc", help="scene (default thesis-al-cc)")
-    p.add_argument("--points", type=int, default=211, help="grid points of a beam scene (211)")
+    p.add_argument("--points", type=_points, default=211, help="grid points of a beam scene (211)")
     p.add_argument("--shape", default="sinc", help="shape generator (sinc)")
     p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
                    help="shape parameter with units (default width=18mm center=24mm)")
@@ -168,11 +180,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("emulate", help="serve the HIL board on a serial device path (a pty) until interrupted")
     p.add_argument("--scene", default="thesis-al-cc", help="the structure (thesis-al-cc)")
-    p.add_argument("--points", type=int, help="grid points of a beam scene (default: the scene's)")
+    p.add_argument("--points", type=_points, help="grid points: N for a beam, NxM for a plate (default: the scene's)")
     p.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
     p.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0)
     p.add_argument("--snr", type=float, help="sensor noise, dB below the shot's peak")
-    p.add_argument("--rails", type=_quantity("V", "rails"), help="amplifier rails")
+    p.add_argument("--rails", type=_within(_quantity("V", "rails"), "rails", 0), help="amplifier rails")
     p.add_argument("--latency", type=_within(int, "latency", 0, low_open=False), default=0,
                    help="extra periods before a command is used")
     p.add_argument("--seed", type=int, default=0)
@@ -283,6 +295,11 @@ def _run(args) -> int:
     perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
                                 args.rails, args.seed)
     truth = load_scene(args.truth) if args.truth else model
+    for what, axis in (("actuator", 1), ("sensor", 1)):
+        ours, theirs = (getattr(m, f"{what}_gains").shape[axis] for m in (model, truth))
+        if ours != theirs:
+            raise ModelError(f"--truth {args.truth} has {theirs} {what}s, the model {ours}: the truth must be the "
+                             f"same structure as the one planned on (its modes may differ)")
     device = open_device(args.transport, model=truth, perturbation=perturbation)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -520,7 +537,15 @@ def _jsonable(value):
     return str(value)
 
 
+def _say_warning(message, category, filename, lineno, file=None, line=None) -> str:
+    """Warnings on the command line as one plain line (not the source line that raised them)."""
+    return f"modalctl: warning: {message}\n"
+
+
 def main(argv=None) -> int:
+    import warnings
+
+    warnings.formatwarning = _say_warning
     args = build_parser().parse_args(argv)
     handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run,
                 "identify": _identify, "sweep": _sweep, "emulate": _emulate}

@@ -15,6 +15,7 @@ scene's ``meta`` (the thesis does not print it).
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import resources
@@ -22,7 +23,8 @@ from typing import Callable
 
 import numpy as np
 
-from .model import ModalModel
+from .modal import gram
+from .model import ModalModel, ModelError
 from .structures import Beam, BeamPatch, Plate, PlatePatch
 
 __all__ = ["Scene", "SCENES", "load_scene", "thesis_tables", "UnknownScene"]
@@ -131,9 +133,37 @@ SCENES = {s.name: s for s in [
 ]}
 
 
+#: Largest error of the modes' orthonormality a grid may leave (a coarser grid cannot draw them).
+ORTHONORMAL_TOLERANCE = 0.05
+
+
 def load_scene(name: str, n_points=None) -> ModalModel:
     """Build the scene ``name`` (see :data:`SCENES`); ``n_points`` overrides its grid size."""
     if name not in SCENES:
         raise UnknownScene(f"unknown scene {name!r}; available scenes: {', '.join(SCENES)}")
     scene = SCENES[name]
-    return scene.build(scene.default_points if n_points is None else n_points)
+    if n_points is None:
+        return scene.build(scene.default_points)
+    if np.ndim(scene.default_points) != np.ndim(n_points):
+        raise ModelError(f"{name}: its grid is given as {scene.default_points!r} points, got {n_points!r}")
+    model = scene.build(n_points)
+    drawn = resolved_modes(model)
+    if drawn == model.n_modes:
+        return model
+    if drawn == 0:
+        raise ModelError(f"{name} on {n_points!r} points: the grid is too coarse to draw even its first mode; use "
+                         f"more points (the default is {scene.default_points!r})")
+    warnings.warn(f"{name} on {n_points!r} points: the grid draws only the first {drawn} of its {model.n_modes} modes "
+                  f"(beyond, their inner products on it are off by more than {ORTHONORMAL_TOLERANCE:g}); the model "
+                  f"keeps those {drawn}. The default is {scene.default_points!r} points", UserWarning, stacklevel=2)
+    return model.select(np.arange(drawn))
+
+
+def resolved_modes(model: ModalModel, tolerance: float = None) -> int:
+    """How many of the model's first modes its grid can draw: the largest n for which the first n
+    are orthonormal on the grid within ``tolerance`` (default :data:`ORTHONORMAL_TOLERANCE`); a
+    grid too coarse for a mode aliases it onto the others."""
+    tolerance = ORTHONORMAL_TOLERANCE if tolerance is None else tolerance
+    error = np.abs(gram(model.shapes, model.grid.mass) - np.eye(model.n_modes))
+    first = np.array([error[:n, :n].max() for n in range(1, model.n_modes + 1)])  # grows with n
+    return int(np.count_nonzero(first <= tolerance))

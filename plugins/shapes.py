@@ -37,7 +37,7 @@ def _distance(grid: Grid, center, metric: str) -> np.ndarray:
         center = (center[0], 0.0)
     if len(center) != grid.dim:
         raise ParamError(f"center: {len(center)} coordinates given for a {grid.dim}-D grid")
-    low, high = grid.points.min(axis=0), grid.points.max(axis=0)
+    low, high = grid.bounds
     outside = [i for i, c in enumerate(center) if not low[i] <= c <= high[i]]
     if outside:
         span = ", ".join(f"{1e3 * lo:g} to {1e3 * hi:g} mm" for lo, hi in zip(low, high))

@@ -150,7 +150,9 @@ def test_focus_with_the_identified_model(survey):
     from modalctl.shape import parse_params
 
     truth, points, result = survey
-    same_grid = load_scene("thesis-al-cc", points.size)
+    with warnings.catch_warnings():  # the scan's 2.5 mm step draws only the first 18 of the scene's 21 modes
+        warnings.simplefilter("ignore")
+        same_grid = load_scene("thesis-al-cc", points.size)
     sinc = get_shape("sinc")
     taus = []
     for model in (result.model, same_grid):

@@ -97,6 +97,11 @@ def test_out_of_range_options_exit_2_before_any_work(capsys, tmp_path, option, v
     assert not (tmp_path / "r").exists()  # nothing planned, nothing written
 
 
+def test_a_truth_of_another_structure_is_refused(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--truth", "thesis-al-ff", "--out", str(tmp_path / "r"))
+    assert code == 2 and "--truth thesis-al-ff has 6 actuators, the model 8" in err
+
+
 def test_unknown_transport_exits_2(capsys, tmp_path):
     code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "nope://x", "--out", str(tmp_path))
     assert code == 2 and "no transport for 'nope://x'" in err

@@ -44,3 +44,17 @@ def test_free_free_scene_reports_rigid_body_content():
     shape = gen.generate(model.grid, **parse_params(gen, {"width": "30mm"}))
     metrics = decompose(model, shape, "all").metrics()
     assert metrics["rigid_body_energy"] > 0.1  # a one-signed pulse has a large mean: rigid-body translation
+
+
+def test_a_grid_too_coarse_for_the_modes_is_refused():
+    from modalctl.model import ModelError
+
+    assert load_scene("thesis-al-cc", 100).n_modes == 21  # ~10 points per half wave of mode 21: fine
+    with pytest.warns(UserWarning, match="draws only the first 18 of its 21 modes"):
+        coarse = load_scene("thesis-al-cc", 43)  # about two points per half wave of the last modes: they alias
+    assert coarse.n_modes == 18 and np.abs(gram(coarse.shapes, coarse.grid.mass) - np.eye(18)).max() <= 0.05
+    with pytest.raises(ModelError, match="too coarse to draw even its first mode"):
+        load_scene("thesis-al-cc", 3)
+    with pytest.raises(ModelError, match=r"given as \(101, 71\) points, got 50"):
+        load_scene("plate-glass", 50)
+    assert load_scene("plate-glass", (51, 36)).grid.n == 51 * 36
