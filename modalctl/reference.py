@@ -128,15 +128,16 @@ def modal_response(t, c, omega, zeta, kappa, brake, focus_time):
     -------
     velocity, drive : ndarray, shape (k, nt)
     """
-    t = np.asarray(t, float)[None, :]
+    t = np.asarray(t, float)
     col = [np.asarray(p, float).reshape(-1, 1) for p in (c, omega, zeta, kappa, brake)]
     c, omega, zeta, kappa, brake = col
     tau = t - focus_time
-    v_rise, _, f_rise = rise(np.minimum(tau, 0.0), c, omega, zeta, kappa, focus_time)
-    x0, a0 = focus_state(c, omega, zeta, kappa, focus_time)
-    v_decay, _, f_decay = decay(np.maximum(tau, 0.0), c, x0, a0, omega, zeta, brake, kappa * zeta * omega)
-    before = tau <= 0
-    started = t >= 0
-    velocity = np.where(before, v_rise, v_decay) * started
-    drive = np.where(before, f_rise, f_decay) * started
+    velocity, drive = np.zeros((c.shape[0], t.size)), np.zeros((c.shape[0], t.size))
+    rising, decaying = (tau <= 0) & (t >= 0), tau > 0  # each piece where it holds (zero before the shot)
+    if rising.any():
+        velocity[:, rising], _, drive[:, rising] = rise(tau[None, rising], c, omega, zeta, kappa, focus_time)
+    if decaying.any():
+        x0, a0 = focus_state(c, omega, zeta, kappa, focus_time)
+        velocity[:, decaying], _, drive[:, decaying] = decay(tau[None, decaying], c, x0, a0, omega, zeta, brake,
+                                                             kappa * zeta * omega)
     return velocity, drive
