@@ -11,11 +11,17 @@ integrator holds while the command is at its limit and the error pushes further)
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from dataclasses import dataclass
 
-import control
 import numpy as np
 from scipy.signal import butter
+
+if TYPE_CHECKING:
+    import control
+# python-control is imported inside the functions that design: importing it loads matplotlib's
+# pyplot (~0.8 s), which every command would pay for through the controller plugins otherwise
 
 __all__ = ["LoopDesign", "LoopPlant", "ControllerFactory", "design_loops", "loop_response", "lockin_filter",
            "settling_time", "loop_poles", "PIControl", "pi_controller"]
@@ -25,6 +31,7 @@ def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
     """The lock-in's low-pass as seen by the envelope: the analog Butterworth of corner
     ``bandwidth`` (Hz) (the digital filter runs far above its corner), as a cascade of unit-gain
     sections (one polynomial of degree ``order`` in rad/s would be ill-conditioned)."""
+    import control
     poles = butter(order, 2 * np.pi * bandwidth, analog=True, output="zpk")[1]
     sections = [control.ss(control.tf([abs(p) ** 2], [1, -2 * p.real, abs(p) ** 2])) for p in poles if p.imag > 0]
     sections += [control.ss(control.tf([-p.real], [1, -p.real])) for p in poles if p.imag == 0]
@@ -36,6 +43,7 @@ def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
 
 def _loop(row: tuple, sigma: float, bandwidth: float) -> control.StateSpace:
     """PI ``(kp, ki)``, the envelope ``0.5 / (s + sigma)`` and the lock-in's low-pass, in series."""
+    import control
     kp, ki = row
     pi = control.ss(control.tf([kp, ki], [1, 0]))
     return control.series(pi, control.ss(control.tf([0.5], [1, sigma])), lockin_filter(bandwidth))
@@ -132,6 +140,7 @@ def design_loops(frequencies, damping, bandwidths, control_rate: float, phase_ma
     ``gain_margin`` dB remain. python-control's ``stability_margins`` then checks the exact
     frequency response of the chosen loop (:func:`loop_response`) and gives the reported margins.
     """
+    import control
     omega = 2 * np.pi * np.geomspace(0.1, control_rate / 2, 4000)
     tau = latency / control_rate
     kp, ki, wc_hz, pm, gm = [], [], [], [], []
@@ -165,6 +174,7 @@ def settling_time(design: LoopDesign, index: int, sigma: float, bandwidth: float
     """Time (s) for loop ``index`` of ``design`` to settle within ``band`` of a step in its reference,
     from python-control's ``step_info`` on the closed loop (the delay as a fifth-order Pade
     approximant, accurate well past the crossover)."""
+    import control
     delay = control.ss(control.tf(*control.pade(latency / control_rate, 5)))
     loop = control.series(_loop((design.kp[index], design.ki[index]), sigma, bandwidth), delay)
     return float(control.step_info(control.feedback(loop, 1), SettlingTimeThreshold=band)["SettlingTime"])
@@ -178,6 +188,7 @@ def loop_poles(design: LoopDesign, index: int, sigma: float, bandwidth: float, c
     In the carrier's frame a detuned mode's envelope turns: on the real I/Q pair
     ``x' = [[-sigma, -detuning], [detuning, -sigma]] x + u / 2``; each channel has the lock-in's
     low-pass, the delay and the PI. The loop is stable when every pole has a negative real part."""
+    import control
     plant = control.ss([[-sigma, -detuning], [detuning, -sigma]], 0.5 * np.eye(2), np.eye(2), np.zeros((2, 2)))
     pi = control.ss(control.tf([design.kp[index], design.ki[index]], [1, 0]))
     delay = control.ss(control.tf(*control.pade(latency / control_rate, 5)))

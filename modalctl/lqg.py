@@ -19,7 +19,6 @@ command actually sent.
 
 from __future__ import annotations
 
-import control
 import numpy as np
 
 from .control import LoopDesign, LoopPlant, design_loops, lockin_filter
@@ -43,6 +42,7 @@ def _complex(r: np.ndarray) -> np.ndarray:
 
 def _envelope_model(f: float, zeta: float, band: float, period: float, detuning: float):
     """(A, B, C) complex of the state ``[d, ud, lock-in (4)]`` for one mode."""
+    import control
     p = -2 * np.pi * f * zeta + 1j * detuning
     a = np.exp(p * period)
     b = (a - 1) / (2 * p)
@@ -91,6 +91,7 @@ class LQGControl:
     """
 
     def __init__(self, plant: LoopPlant):
+        import control
         period = 1 / plant.control_rate
         k = plant.frequencies.size
         pi = design_loops(plant.frequencies, plant.damping, plant.bandwidths, plant.control_rate,
