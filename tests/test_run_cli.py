@@ -129,3 +129,16 @@ def test_sim_device_lifecycle_and_transport_registry():
     capture = device.trigger()
     assert capture.sensors.shape == (caps.sensors, 100) and np.all(capture.sensors == 0)
     assert device.scan(np.array([0.0, 5e-5]), points=[3, 4]).shape == (2, 2)
+
+
+def test_scan_indices_find_the_nearest_scan_points_and_refuse_a_far_one():
+    from modalctl.device import Capabilities, scan_indices
+
+    scan = np.linspace(-0.05, 0.05, 201)[:, None]  # a vibrometer's 0.5 mm grid
+    caps = Capabilities("vibrometer", 1, 1, 1e6, None, True, scan)
+    ours = np.linspace(-0.05, 0.05, 41)[:, None]  # the model's 2.5 mm grid
+    index = scan_indices(caps, ours)
+    assert np.array_equal(index, np.argmin(np.abs(ours - scan.T), axis=1))  # brute force, independently
+    with pytest.raises(DeviceError, match="from the nearest scan point"):
+        scan_indices(caps, np.r_[ours, [[0.06]]])  # 10 mm off the scanned beam
+    assert scan_indices(Capabilities("bare", 1, 1, 1e6, None, False), ours) is None
