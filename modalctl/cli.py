@@ -295,8 +295,8 @@ def _run(args) -> int:
     perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
                                 args.rails, args.seed)
     truth = load_scene(args.truth) if args.truth else model
-    for what, axis in (("actuator", 1), ("sensor", 1)):
-        ours, theirs = (getattr(m, f"{what}_gains").shape[axis] for m in (model, truth))
+    for what in ("actuator", "sensor"):
+        ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))
         if ours != theirs:
             raise ModelError(f"--truth {args.truth} has {theirs} {what}s, the model {ours}: the truth must be the "
                              f"same structure as the one planned on (its modes may differ)")
