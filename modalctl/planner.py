@@ -264,12 +264,21 @@ def cross_talk_matrix(the_plan: Plan) -> np.ndarray:
     and the dispatch included. The identity when the drives are perfectly decoupled (Eq 2.30).
     """
     kept = the_plan.model.select(the_plan.modes)
-    n_focus = int(round(the_plan.focus_time * the_plan.sample_rate))
+    m, n_focus = the_plan.modes.size, int(round(the_plan.focus_time * the_plan.sample_rate))
     t = np.arange(n_focus + 1) / the_plan.sample_rate + 0.5 / the_plan.sample_rate
     drives = the_plan.modal(t)[1] / the_plan.targets[:, None]  # unit-target drives, (m, nt)
-    plant = Plant(kept, the_plan.sample_rate)
-    return np.column_stack([plant.simulate(np.outer(the_plan.weights[:, k], drives[k]))[:, n_focus]
-                            for k in range(the_plan.modes.size)])
+    # Each mode alone (one channel per mode): the plant is linear and shift-invariant but for its
+    # start, at rest at the first sample whatever its input, so a mode's velocity at T_F is the
+    # convolution of its impulse response with the drive plus the first sample times the
+    # response to that start (two runs of the plant instead of one per drive)
+    alone = Plant(replace(kept, actuator_gains=np.eye(m)), the_plan.sample_rate)
+    pulse = np.zeros((m, n_focus + 2))
+    pulse[:, 1] = 1.0
+    impulse = alone.simulate(pulse)[:, 1:]  # h(n), n = 0 .. n_focus
+    pulse = np.roll(pulse, -1, axis=1)
+    start = alone.simulate(pulse)[:, n_focus] - impulse[:, n_focus]  # the start's share at T_F
+    at_focus = impulse[:, ::-1] @ drives.T + start[:, None] * drives[:, 0]  # (mode j, drive k)
+    return (kept.actuator_gains @ the_plan.weights) * at_focus
 
 
 def _compensate(the_plan: Plan) -> Plan:
