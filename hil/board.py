@@ -38,10 +38,10 @@ __all__ = ["HILBoard"]
 class HILBoard:
     """The emulated board and structure.
 
-    The period map serves periods of up to ``LIFTED_SAMPLES`` DAC samples: its build runs one
-    period sample by sample on every basis vector, so it grows with the period, while a long
-    period's Python pass by samples is small beside its samples (2 kHz at 500 kHz: 250 samples
-    a period, the loop faster than real time by samples already).
+    The period map serves periods of up to ``LIFTED_SAMPLES`` DAC samples: its build grows with
+    the period (~0.1 ms a sample), while a long period's Python pass by samples is small beside
+    its samples (2 kHz at 500 kHz: 250 samples a period, the whole shot by samples is quicker
+    than the map's build).
 
     Parameters
     ----------
@@ -71,7 +71,7 @@ class HILBoard:
         False plays every period sample by sample.
     """
 
-    LIFTED_SAMPLES = 64
+    LIFTED_SAMPLES = 128
 
     def __init__(self, truth, sample_rate: float, noise: float = 0.0, voltage_limit: float | None = None,
                  latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3,
