@@ -30,7 +30,7 @@ from modalctl.propagate import Plant
 from modalctl.schedule import HOLD, Schedule
 
 from .block import BlockLockIn, BlockPlant
-from .lifted import PeriodMap, open_envelopes
+from .lifted import PeriodMap, open_envelopes, ramp_in
 
 __all__ = ["HILBoard"]
 
@@ -230,7 +230,7 @@ class HILBoard:
             if np.any(self.plant.model.frequencies != self._base * (1 + shift)):
                 self.plant.retune(self._base * (1 + shift))
         carrier = self.osc.phasors(n)  # (k, n)
-        ramp = np.arange(1, n + 1) / n  # each phasor moves in a straight line to its new value
+        ramp = ramp_in(n)
         volts = s.feedforward[:, start:start + n] + (self.current @ carrier).real \
             + ((target - self.current) @ (carrier * ramp)).real
         if self.ramp is not None:
@@ -269,16 +269,23 @@ class HILBoard:
             return
         s, end = self.schedule, self.sample
         d, periods = s.decimation, len(self._played)
-        carrier = Oscillators(s.carriers, self.sample_rate).phasors(end)  # (k, end), as the board's own
         volts = np.array(s.feedforward[:, :end])
+        # the carriers in period p are its start's phasor (the map's turn) times one period's table,
+        # as the board's own Oscillators play them
+        table = np.exp(1j * self._map.steps[:, None] * np.arange(d))  # (k, d)
         if periods:
             this = np.array(self._played)  # (P, a, k)
-            last = np.concatenate([np.zeros_like(this[:1]), this[:-1]])
-            local = carrier[:, :periods * d].reshape(-1, periods, d).transpose(1, 0, 2)  # (P, k, d)
-            ramp = np.arange(1, d + 1) / d
-            played = (last @ local) * (1 - ramp) + (this @ local) * ramp  # (P, a, d)
-            volts[:, :periods * d] += played.real.transpose(1, 0, 2).reshape(-1, periods * d)
-        volts[:, periods * d:] += (self.current @ carrier[:, periods * d:]).real  # after the loop: held
+            a = this.shape[1]
+            both = np.concatenate([np.concatenate([np.zeros_like(this[:1]), this[:-1]]), this], axis=1)  # last, this
+            on = ((both * self._turn[:periods, None, :]).reshape(-1, table.shape[0]) @ table).real \
+                .reshape(periods, 2 * a, d)  # both on the carriers (one 2-D product: BLAS)
+            ramp = ramp_in(d)
+            played = on[:, :a] * (1 - ramp) + on[:, a:] * ramp  # (P, a, d)
+            volts[:, :periods * d] += played.transpose(1, 0, 2).reshape(-1, periods * d)
+        if end > periods * d:  # after the loop: held
+            osc = Oscillators(s.carriers, self.sample_rate)
+            osc.skip(periods * d)
+            volts[:, periods * d:] += (self.current @ osc.phasors(end - periods * d)).real
         if self.ramp is not None:  # a ramp to zero after the last period read
             first, length = self.ramp
             volts *= np.clip(1 - (np.arange(1, end + 1) - first) / length, 0, 1)

@@ -27,7 +27,13 @@ import numpy as np
 
 from modalctl.lockin import LockIn, Oscillators
 
-__all__ = ["PeriodMap", "open_envelopes"]
+__all__ = ["PeriodMap", "open_envelopes", "ramp_in"]
+
+
+def ramp_in(samples: int) -> np.ndarray:
+    """How far each phasor has moved from its last value to its new one at each of a period's
+    samples, shape (samples,): a straight line, reached at the period's last sample."""
+    return np.arange(1, samples + 1) / samples
 
 
 class PeriodMap:
@@ -108,7 +114,7 @@ class PeriodMap:
         n, ak = self.states, a * k
         e, g0, g1, r = self.e, self.g0, self.g1, residues
         carrier = np.exp(1j * np.outer(np.arange(d), self.steps))  # (d, k), the carriers at each sample
-        ramp = (np.arange(d) + 1)[:, None] / d  # each phasor moves in a straight line from the last to this one
+        ramp = ramp_in(d)[:, None]
         # the force patterns (d, 2 (last, this), k, 2 (real, imaginary part of the phasor))
         unit = np.stack([carrier.real, -carrier.imag], axis=-1)  # Re(c), Re(j c)
         force = np.stack([(1 - ramp)[:, :, None] * unit, ramp[:, :, None] * unit], axis=1).reshape(d, 4 * k)

@@ -64,6 +64,10 @@ class Oscillators:
         self.phase = np.mod(self.phase + steps * n, 2 * np.pi)
         return phases
 
+    def skip(self, n: int) -> None:
+        """Move on ``n`` samples without playing them."""
+        self.phase = np.mod(self.phase + self.steps * n, 2 * np.pi)
+
     def phasors(self, n: int) -> np.ndarray:
         """``exp(j phase)`` of the next ``n`` samples, shape (k, n); the oscillators move on. The same
         as ``exp(1j * advance(n))`` to round-off, but each block of up to ``BLOCK`` samples is its
