@@ -297,7 +297,7 @@ def plot_sweep_maps(rows, axes, methods, path) -> Path:
                 for i in range(len(ys)):
                     for j in range(len(xs)):
                         ok = table[i, j] >= good if metric == "tau" else table[i, j] <= good
-                        ax.text(j, i, f"{table[i, j]:.2f}" + ("" if ok else "\n✗"), ha="center", va="center",
+                        ax.text(j, i, f"{table[i, j]:.3f}" + ("" if ok else "\n✗"), ha="center", va="center",
                                 fontsize=8)
                 ax.set_xticks(range(len(xs)), [f"{v * _AXIS_SCALE.get(x_name, 1):g}" for v in xs])
                 ax.set_yticks(range(len(ys)), [f"{v * _AXIS_SCALE.get(axes[1], 1):g}" for v in ys])

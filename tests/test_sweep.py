@@ -42,6 +42,16 @@ def test_sweep_maps_open_against_closed(capsys, tmp_path):
     assert (tmp_path / "maps.png").stat().st_size > 10_000 and "| drift (%) |" in (tmp_path / "sweep.md").read_text()
 
 
+def test_sweep_runs_a_plate_on_its_own_grid(capsys, tmp_path):
+    """A plate scene takes its own NxM grid (the beams' 211-point default would not fit it)."""
+    code = main(["sweep", "--scene", "plate-glass", "--shape", "gaussian", "--param", "width=40mm",
+                 "--param", "center=10mm,5mm", "--focus-time", "20ms", "--vary", "drift=0,2%", "--methods", "open",
+                 "--workers", "1", "--out", str(tmp_path), "--json", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    tau = {r["drift"]: r["tau"] for r in json.loads((tmp_path / "sweep.json").read_text())["rows"]}
+    assert tau[0.0] > 0.95 and tau[0.02] < tau[0.0] - 0.1  # drift spoils the plate's open-loop focus too
+
+
 @pytest.mark.parametrize("args, message", [
     (["--vary", "speed=1,2"], "cannot sweep 'speed'"),
     (["--vary", "drift=0,1%", "--methods", "magic"], "unknown method"),
