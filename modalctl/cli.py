@@ -101,7 +101,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("decompose", help="project a target field on a scene's modes and reduce")
     _add_target(p)
-    p.add_argument("--nrmse-target", type=float, help="auto: largest NRMSE for the kept modes")
+    p.add_argument("--nrmse-target", type=_within(float, "nrmse-target", 0),
+                   help="auto: largest NRMSE for the kept modes")
     p.add_argument("--orthogonalize", action="store_true", help="Gram-Schmidt the mode shapes first")
     p.add_argument("--plot", metavar="FILE.png", help="draw the field and the modal bars")
     p.add_argument("--save-model", metavar="FILE.npz", help="also write the model used")

@@ -70,3 +70,10 @@ def test_scenes_and_plugins(capsys):
     assert code == 0 and "thesis-al-cc" in json.loads(out)
     code, out, _ = run(capsys, "plugins", "--json")
     assert code == 0 and "sinc" in json.loads(out)["shapes"]
+
+
+@pytest.mark.parametrize("option, value", [("--nrmse-target", "-1"), ("--tau-target", "1.5"), ("--points", "ten")])
+def test_decompose_refuses_targets_and_grids_that_mean_nothing(capsys, option, value):
+    with pytest.raises(SystemExit) as exit_:
+        main([*BASE, option, value])
+    assert exit_.value.code == 2 and option.lstrip("-") in capsys.readouterr().err
