@@ -59,9 +59,8 @@ class Oscillators:
 
     def advance(self, n: int) -> np.ndarray:
         """Phases (rad) of the next ``n`` samples, shape (k, n); the oscillators move on."""
-        steps = self.steps
-        phases = self.phase[:, None] + steps[:, None] * np.arange(n)
-        self.phase = np.mod(self.phase + steps * n, 2 * np.pi)
+        phases = self.phase[:, None] + self.steps[:, None] * np.arange(n)
+        self.skip(n)
         return phases
 
     def skip(self, n: int) -> None:
@@ -79,10 +78,10 @@ class Oscillators:
             table = self._tables[block] = np.exp(1j * self.steps[:, None] * np.arange(block))
         if n <= block:  # one block (a control period's samples): the short way, called every period
             start = np.exp(1j * self.phase)
-            self.phase = np.mod(self.phase + self.steps * n, 2 * np.pi)
+            self.skip(n)
             return start[:, None] * table
         starts = np.exp(1j * (self.phase[:, None] + self.steps[:, None] * (block * np.arange(-(-n // block)))))
-        self.phase = np.mod(self.phase + self.steps * n, 2 * np.pi)
+        self.skip(n)
         return (starts[:, :, None] * table[:, None, :]).reshape(self.frequencies.size, -1)[:, :n]
 
     def retune(self, frequencies) -> None:

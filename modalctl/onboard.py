@@ -98,8 +98,8 @@ class BoardLoop:
         t = np.arange(periods * decimation) / sample_rate
         velocity, _ = modal_response(t, self.targets, 2 * np.pi * carriers, self.damping, self.kappa, self.brake,
                                      self.focus_time)
-        phases = Oscillators(carriers, sample_rate).advance(t.size)
-        return LockIn(bandwidths, sample_rate, decimation, closing=True).process(self.reading @ velocity, phases)
+        phasors = Oscillators(carriers, sample_rate).phasors(t.size)
+        return LockIn(bandwidths, sample_rate, decimation, closing=True).demodulate(self.reading @ velocity, phasors)
 
     def run(self, board, references: np.ndarray, control_rate: float, each_period=None) -> BoardLog:
         """Close the loops on ``board`` (``read()`` plays a period and returns its envelopes or None,
