@@ -56,7 +56,8 @@ class HILBoard:
     latency : int
         Extra control periods before a written command is used (a slow link or board).
     drift : callable or None
-        ``drift(t, k) -> (k,)`` relative shift of every resonance of the truth at time ``t`` (s).
+        ``drift(t, k) -> (k,)`` relative shift of every resonance of the truth at time ``t`` (s),
+        held over each period at its value in the period's middle.
     fail_after : int or None
         From this period on the measurements are lost (``read`` returns None).
     watchdog : int
@@ -226,7 +227,7 @@ class HILBoard:
     def _play(self, n: int, target: np.ndarray, measure: bool = True) -> np.ndarray | None:
         s, start = self.schedule, self.sample
         if self.drift is not None:
-            shift = self.drift(start / self.sample_rate, self.plant.model.n_modes)
+            shift = self.drift((start + n / 2) / self.sample_rate, self.plant.model.n_modes)  # the period's middle
             if np.any(self.plant.model.frequencies != self._base * (1 + shift)):
                 self.plant.retune(self._base * (1 + shift))
         carrier = self.osc.phasors(n)  # (k, n)

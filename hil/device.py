@@ -1,4 +1,5 @@
-"""``sim://``: the HIL board. It runs the exact plant on the perturbed truth behind the device interface."""
+"""``sim://``: the HIL board. It runs the exact plant on the perturbed truth behind the device interface:
+drifted and erred modes, a finger resting on the surface, resonances moving during the shot."""
 
 from __future__ import annotations
 
@@ -10,12 +11,14 @@ from tqdm.auto import tqdm
 from modalctl.device import Capabilities, Capture, DeviceError
 from modalctl.model import ModalModel
 
+from .finger import Finger, FingerPlant
 from .plant import HOLDS, Plant, truncation
 from .scenario import Perturbation, perturb
 
 __all__ = ["SimDevice"]
 
 CHUNK = 8192  # samples per plant step (one progress-bar tick)
+DRIFT_STEP = 50e-6  # s: resonances moving during a shot are retuned this often (the loops' period at 20 kHz)
 
 
 class SimDevice:
@@ -42,6 +45,7 @@ class SimDevice:
             raise DeviceError(f"{url}: hold must be one of {HOLDS}, got {hold!r}")
         self.url, self.model, self.perturbation, self.hold, self.tol = url, model, perturbation, hold, tol
         self.truth = perturb(model, perturbation)
+        self.finger = _finger(model, perturbation, url)
         self.state, self.sample_rate, self.info, self.capabilities = "unconfigured", None, {}, None
         self._noise_sigma = None
         self._voltages = self._modal = self._board = None
@@ -108,15 +112,26 @@ class SimDevice:
 
     def _play(self, u: np.ndarray, progress: bool) -> None:
         p = self.perturbation
-        kept, bounds, dropped = truncation(self.truth, u, self.sample_rate, self.tol)
+        if self.finger is None:
+            kept, bounds, dropped = truncation(self.truth, u, self.sample_rate, self.tol)
+            plant = Plant(self.truth.select(kept), self.sample_rate, self.hold, p.amplifier_bandwidth,
+                          p.voltage_limit)
+        else:  # the finger couples every mode to every other: all are simulated
+            kept, dropped = np.arange(self.truth.n_modes), 0.0
+            plant = FingerPlant(self.truth, self.finger, self.sample_rate, p.voltage_limit, self.hold)
         self._kept = kept
         self.info = {"modes_simulated": int(kept.size), "modes_available": int(self.truth.n_modes),
                      "truncation_bound_m_s": dropped, "truncation_tol": self.tol}
-        plant = Plant(self.truth.select(kept), self.sample_rate, self.hold, p.amplifier_bandwidth,
-                      p.voltage_limit)
-        chunks = range(0, u.shape[1], CHUNK)
+        chunk = max(1, int(round(DRIFT_STEP * self.sample_rate))) if p.moving else CHUNK
+        chunks = range(0, u.shape[1], chunk)
         bar = tqdm(chunks, desc="HIL shot", unit="chunk", disable=not progress or len(chunks) < 4, leave=False)
-        self._modal = np.hstack([plant.step(u[:, i:i + CHUNK]) for i in bar])
+        base = plant.model.frequencies.copy()
+        played = []
+        for i in bar:
+            if p.moving:
+                plant.retune(base * (1 + p.shift((i + chunk / 2) / self.sample_rate)))  # the chunk's middle
+            played.append(plant.step(u[:, i:i + chunk]))
+        self._modal = np.hstack(played)
         self.info["clipped_samples"] = plant.clipped
         self._noise_sigma = self._sigma(self._field_peak())
         self._played = plant.sensors(self._modal)
@@ -131,9 +146,11 @@ class SimDevice:
             raise DeviceError(f"{self.url}: configure before asking for the phasor mode")
         p = self.perturbation
         sigma = self._sigma(level)
-        self._board = HILBoard(self.truth, self.sample_rate, noise=sigma, voltage_limit=p.voltage_limit,
-                               latency=latency, drift=drift, amplifier_bandwidth=p.amplifier_bandwidth,
-                               scan_noise=sigma, seed=p.seed + 1)
+        truth = self.truth if self.finger is None else FingerPlant(self.truth, self.finger, self.sample_rate,
+                                                                   p.voltage_limit)
+        self._board = HILBoard(truth, self.sample_rate, noise=sigma, voltage_limit=p.voltage_limit,
+                               latency=latency, drift=p.schedule() if drift is None else drift,
+                               amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma, seed=p.seed + 1)
         return self._board
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:
@@ -165,3 +182,18 @@ class SimDevice:
         """Noise standard deviation for a signal of this peak (0 without noise)."""
         snr = self.perturbation.snr_db
         return 0.0 if snr is None else peak / 10 ** (snr / 20)
+
+
+def _finger(model: ModalModel, p: Perturbation, url: str) -> Finger | None:
+    """The perturbation's finger on the grid point nearest to where it rests, or None."""
+    if not p.finger:
+        return None
+    at = np.atleast_1d(np.asarray(p.finger_at, float))
+    grid = model.grid
+    if at.size != grid.dim:
+        raise DeviceError(f"{url}: the finger rests at {at.size} coordinate(s) on a {grid.dim}-D structure")
+    low, high = grid.bounds
+    if np.any(at < low - 1e-9) or np.any(at > high + 1e-9):
+        raise DeviceError(f"{url}: the finger at {np.round(at * 1e3, 3).tolist()} mm is off the structure "
+                          f"({np.round(low * 1e3, 3).tolist()} to {np.round(high * 1e3, 3).tolist()} mm)")
+    return Finger(int(np.argmin(np.linalg.norm(grid.points - at, axis=1))), p.finger)

@@ -26,7 +26,7 @@ from modalctl.schedule import Schedule
 
 from .board import HILBoard
 from .device import SimDevice
-from .scenario import Perturbation, perturb
+from .scenario import Perturbation
 
 __all__ = ["BoardEmulator", "ERRORS"]
 ERRORS = p.ERRORS
@@ -38,7 +38,7 @@ class BoardEmulator:
     Parameters
     ----------
     model : ModalModel
-        The structure as built; the truth is ``perturb(model, perturbation)``.
+        The structure as built; the truth is the simulator's (:class:`~modalctl.hil.device.SimDevice`).
     perturbation : Perturbation
         Drift, damping error, sensor noise (``snr_db`` below the planned peak), rails.
     latency : int
@@ -53,7 +53,6 @@ class BoardEmulator:
     def __init__(self, model: ModalModel, perturbation: Perturbation = Perturbation(), latency: int = 0,
                  faults: dict | None = None):
         self.model, self.perturbation, self.latency = model, perturbation, int(latency)
-        self.truth = perturb(model, perturbation)
         self.faults = dict(faults or {})
         self.board: HILBoard | None = None
         self.sim = SimDevice(model, perturbation)  # open-loop shots: the simulator's own board
@@ -192,11 +191,8 @@ class BoardEmulator:
         schedule = Schedule(float(c.control_rate), decimation, c.carriers.astype(float), c.bandwidths.astype(float),
                             c.sensors.astype(float).reshape(k, -1), dummy, dummy, dummy, flat, flat,
                             self.feedforward, c.weights.astype(float).reshape(-1, k))
-        snr = self.perturbation.snr_db
-        noise = 0.0 if snr is None else float(c.level) / 10 ** (snr / 20)
-        self.board = HILBoard(self.truth, float(c.sample_rate), noise=noise,
-                              voltage_limit=self.perturbation.voltage_limit, latency=self.latency,
-                              scan_noise=noise, seed=self.perturbation.seed + 1)
+        self.sim.configure(float(c.sample_rate))  # the simulator's own truth: finger, drift, amplifier, noise
+        self.board = self.sim.phasor_board(float(c.level), float(c.control_rate), latency=self.latency)
         self.board.configure(schedule)
         if self.loops is not None:  # the board closes the loops itself, the whole shot, then reports
             loops, self.loops, self._beat_at = self.loops, None, time.perf_counter()

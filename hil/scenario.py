@@ -1,4 +1,5 @@
-"""What makes the truth differ from the controller's model: drift, damping error, noise, amplifier."""
+"""What makes the truth differ from the controller's model: drift (fixed, or moving during the shot),
+damping error, a finger on the surface, noise, amplifier."""
 
 from __future__ import annotations
 
@@ -32,6 +33,17 @@ class Perturbation:
         Amplifier rails (V).
     seed : int
         Random seed of the spread and the noise.
+    drift_rate : float
+        Further shift of every resonance during the shot, growing from the start (relative per
+        second: 0.4 = +1% after 25 ms, a structure warming under its drive).
+    drift_step : float
+        Further shift of every resonance from ``drift_step_time`` (s) on (relative).
+    drift_step_time : float
+    finger : float
+        Viscous damping of a finger resting on the surface (N s/m; 0: no finger); it couples the
+        modes (:mod:`modalctl.hil.finger`).
+    finger_at : tuple of float or None
+        Where the finger rests (m; one coordinate on a beam, two on a plate).
     """
 
     drift: float = 0.0
@@ -41,6 +53,35 @@ class Perturbation:
     amplifier_bandwidth: float | None = None
     voltage_limit: float | None = None
     seed: int = 0
+    drift_rate: float = 0.0
+    drift_step: float = 0.0
+    drift_step_time: float = 0.0
+    finger: float = 0.0
+    finger_at: tuple | None = None
+
+    def __post_init__(self):
+        if self.finger < 0:
+            raise ValueError(f"finger damping must be zero or more N s/m, got {self.finger!r}")
+        if self.finger and self.finger_at is None:
+            raise ValueError("a finger needs a place to rest (finger_at, m)")
+        if self.finger and self.moving:
+            raise ValueError("a finger on a structure whose resonances move during the shot is not simulated: "
+                             "give a fixed drift with the finger")
+        if self.amplifier_bandwidth and (self.finger or self.moving):
+            raise ValueError("the amplifier's bandwidth is not simulated with a finger or a drift during the shot")
+
+    @property
+    def moving(self) -> bool:
+        """Whether the resonances move during the shot."""
+        return bool(self.drift_rate or self.drift_step)
+
+    def shift(self, t: float) -> float:
+        """Further relative shift of every resonance at time ``t`` (s) of the shot."""
+        return self.drift_rate * t + (self.drift_step if t >= self.drift_step_time else 0.0)
+
+    def schedule(self):
+        """``drift(t, k) -> (k,)`` for the HIL board, or None when the resonances hold still."""
+        return (lambda t, k: np.full(k, self.shift(t))) if self.moving else None
 
     def describe(self) -> str:
         """One line for tables and reports."""
@@ -49,7 +90,12 @@ class Perturbation:
                  f"damping {100 * self.damping_error:+.0f}%" if self.damping_error else "",
                  f"SNR {self.snr_db:g} dB" if self.snr_db is not None else "",
                  f"amplifier {self.amplifier_bandwidth / 1e3:g} kHz" if self.amplifier_bandwidth else "",
-                 f"rails {self.voltage_limit:g} V" if self.voltage_limit else ""]
+                 f"rails {self.voltage_limit:g} V" if self.voltage_limit else "",
+                 f"drift {100 * self.drift_rate:+g}%/s" if self.drift_rate else "",
+                 f"drift step {100 * self.drift_step:+g}% at {1e3 * self.drift_step_time:g} ms"
+                 if self.drift_step else "",
+                 f"finger {self.finger:g} N s/m at {', '.join(f'{1e3 * x:g}' for x in self.finger_at)} mm"
+                 if self.finger else ""]
         return ", ".join(p for p in parts if p) or "perfect model"
 
 

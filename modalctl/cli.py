@@ -21,7 +21,7 @@ from .plugin import PluginError, get_controller, get_shape, plugin_table, shape_
 from .reduction import ReductionError
 from .scenes import SCENES, UnknownScene, load_scene
 from .shape import ParamError, parse_params
-from .units import UnitError, parse_quantity
+from .units import UnitError, parse_point, parse_quantity
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
 
@@ -33,10 +33,11 @@ def _parse_param(text: str) -> tuple[str, str]:
     return name.strip(), value.strip()
 
 
-def _quantity(unit: str, name: str):
-    def parse(text: str) -> float:
+def _quantity(unit: str, name: str, reader=parse_quantity):
+    """An argparse type reading text with units (``reader``: :func:`parse_quantity` or :func:`parse_point`)."""
+    def parse(text: str):
         try:
-            return parse_quantity(text, unit, name)
+            return reader(text, unit, name)
         except UnitError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
     return parse
@@ -53,6 +54,16 @@ def _within(parse, name: str, low: float, high: float = math.inf, low_open: bool
         return value
     checked.__name__ = name  # argparse's "invalid <name> value" for text it cannot read
     return checked
+
+
+def _drift_step(text: str) -> tuple[float, float]:
+    """``SHIFT@TIME`` (``1%@20ms``) -> (relative shift, time in s)."""
+    shift, at, time = text.partition("@")
+    if not at:
+        raise argparse.ArgumentTypeError(f"drift-step: expected SHIFT@TIME, e.g. 1%@20ms, got {text!r}")
+    step = _quantity("1", "drift-step")(shift), _within(_quantity("s", "drift-step time"), "drift-step time", 0,
+                                                        low_open=False)(time)
+    return step
 
 
 def _points(text: str):
@@ -141,8 +152,16 @@ def build_parser() -> argparse.ArgumentParser:
     truth.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
     truth.add_argument("--drift-spread", type=_quantity("1", "drift-spread"), default=0.0,
                        help="random extra shift per mode (standard deviation), e.g. 0.5%%")
+    truth.add_argument("--drift-rate", type=_quantity("1/s", "drift-rate"), default=0.0,
+                       help="resonances moving during the shot, from its start, e.g. 40%%/s (+1%% at 25 ms)")
+    truth.add_argument("--drift-step", type=_drift_step, default=(0.0, 0.0), metavar="SHIFT@TIME",
+                       help="every resonance jumps by SHIFT at TIME of the shot, e.g. 1%%@20ms")
     truth.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0,
                        help="relative damping error, e.g. 20%%")
+    truth.add_argument("--finger", type=_within(_quantity("N s/m", "finger"), "finger", 0, low_open=False),
+                       default=0.0, help="a finger resting on the surface: its viscous damping, e.g. 0.5Ns/m")
+    truth.add_argument("--finger-at", type=_quantity("m", "finger-at", parse_point), metavar="POINT",
+                       help="where the finger rests, e.g. 24mm or 30mm,20mm (default: the target's peak)")
     truth.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
     truth.add_argument("--amplifier-bandwidth",
                        type=_within(_quantity("Hz", "amplifier-bandwidth"), "amplifier-bandwidth", 0),
@@ -294,8 +313,19 @@ def _run(args) -> int:
     from .run import run_closed_loop, run_open_loop
 
     model, shape = _model_and_shape(args)
-    perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
-                                args.rails, args.seed)
+    import numpy as np
+
+    at = args.finger_at
+    if at is not None and not args.finger:
+        raise ParamError("--finger-at places a finger: give its damping too (--finger, e.g. 0.5Ns/m)")
+    if args.finger and at is None:  # where the stimulus is meant to be felt
+        at = tuple(model.grid.points[int(np.argmax(np.abs(shape.values)))])
+    try:
+        perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr,
+                                    args.amplifier_bandwidth, args.rails, args.seed, args.drift_rate,
+                                    *args.drift_step, args.finger, at)
+    except ValueError as exc:
+        raise ParamError(str(exc)) from None
     truth = load_scene(args.truth) if args.truth else model
     for what in ("actuator", "sensor"):
         ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))

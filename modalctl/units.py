@@ -28,6 +28,7 @@ DIMENSIONS: dict[str, dict[str, float]] = {
     "V": _with_prefixes("V", "mk"),
     "m/s": _with_prefixes("m/s", "u\u00b5mc"),
     "1": {"": 1.0, "%": 1e-2, "ppm": 1e-6},
+    "1/s": {"1/s": 1.0, "/s": 1.0, "%/s": 1e-2, "%/ms": 10.0, "ppm/s": 1e-6},
     "kg/m": {"kg/m": 1.0, "g/m": 1e-3, "g/mm": 1.0, "kg/mm": 1e3},
     "V/s": {"V/s": 1.0, "V/ms": 1e3, "V/us": 1e6, "V/\u00b5s": 1e6, "kV/s": 1e3, "MV/s": 1e6},
     "N s/m": {"N s/m": 1.0, "Ns/m": 1.0, "N*s/m": 1.0, "kg/s": 1.0},
