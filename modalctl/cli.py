@@ -75,6 +75,50 @@ def _points(text: str):
     return parts[0] if len(parts) == 1 else tuple(parts)
 
 
+def _add_truth(group, finger_default: str = "the target's peak") -> None:
+    """The simulator's truth options (run and emulate): how the structure differs from the model."""
+    group.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
+    group.add_argument("--drift-spread", type=_quantity("1", "drift-spread"), default=0.0,
+                       help="random extra shift per mode (standard deviation), e.g. 0.5%%")
+    group.add_argument("--drift-rate", type=_quantity("1/s", "drift-rate"), default=0.0,
+                       help="resonances moving during the shot, from its start, e.g. 40%%/s (+1%% at 25 ms)")
+    group.add_argument("--drift-step", type=_drift_step, default=(0.0, 0.0), metavar="SHIFT@TIME",
+                       help="every resonance jumps by SHIFT at TIME of the shot, e.g. 1%%@20ms")
+    group.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0,
+                       help="relative damping error, e.g. 20%%")
+    group.add_argument("--finger", type=_within(_quantity("N s/m", "finger"), "finger", 0, low_open=False),
+                       default=0.0, help="a finger resting on the surface: its viscous damping, e.g. 0.5Ns/m")
+    group.add_argument("--finger-at", type=_quantity("m", "finger-at", parse_point), metavar="POINT",
+                       help=f"where the finger rests, e.g. 24mm or 30mm,20mm (default: {finger_default})")
+    group.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
+    group.add_argument("--amplifier-bandwidth",
+                       type=_within(_quantity("Hz", "amplifier-bandwidth"), "amplifier-bandwidth", 0),
+                       help="first-order amplifier bandwidth, e.g. 100kHz")
+    group.add_argument("--rails", type=_within(_quantity("V", "rails"), "rails", 0),
+                       help="amplifier voltage rails (clipping)")
+    group.add_argument("--seed", type=int, default=0)
+
+
+def _perturbation(args, model: ModalModel, shape=None):
+    """The Perturbation the truth options ask for; a finger rests on the target's peak unless placed."""
+    import numpy as np
+
+    from .hil.scenario import Perturbation
+
+    at = args.finger_at
+    if at is not None and not args.finger:
+        raise ParamError("--finger-at places a finger: give its damping too (--finger, e.g. 0.5Ns/m)")
+    if args.finger and at is None:
+        if shape is None:
+            raise ParamError("--finger needs --finger-at here (no target to rest it on)")
+        at = tuple(model.grid.points[int(np.argmax(np.abs(shape.values)))])
+    try:
+        return Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
+                            args.rails, args.seed, args.drift_rate, *args.drift_step, args.finger, at)
+    except ValueError as exc:
+        raise ParamError(str(exc)) from None
+
+
 def _add_target(p) -> None:
     """Arguments shared by decompose and run: where the model and the shape come from."""
     source = p.add_mutually_exclusive_group(required=True)
@@ -149,26 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="periods without a measurement before the supervisor stops the shot (1)")
     truth = p.add_argument_group("simulator truth (sim:// only)")
     truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
-    truth.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
-    truth.add_argument("--drift-spread", type=_quantity("1", "drift-spread"), default=0.0,
-                       help="random extra shift per mode (standard deviation), e.g. 0.5%%")
-    truth.add_argument("--drift-rate", type=_quantity("1/s", "drift-rate"), default=0.0,
-                       help="resonances moving during the shot, from its start, e.g. 40%%/s (+1%% at 25 ms)")
-    truth.add_argument("--drift-step", type=_drift_step, default=(0.0, 0.0), metavar="SHIFT@TIME",
-                       help="every resonance jumps by SHIFT at TIME of the shot, e.g. 1%%@20ms")
-    truth.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0,
-                       help="relative damping error, e.g. 20%%")
-    truth.add_argument("--finger", type=_within(_quantity("N s/m", "finger"), "finger", 0, low_open=False),
-                       default=0.0, help="a finger resting on the surface: its viscous damping, e.g. 0.5Ns/m")
-    truth.add_argument("--finger-at", type=_quantity("m", "finger-at", parse_point), metavar="POINT",
-                       help="where the finger rests, e.g. 24mm or 30mm,20mm (default: the target's peak)")
-    truth.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
-    truth.add_argument("--amplifier-bandwidth",
-                       type=_within(_quantity("Hz", "amplifier-bandwidth"), "amplifier-bandwidth", 0),
-                       help="first-order amplifier bandwidth, e.g. 100kHz")
-    truth.add_argument("--rails", type=_within(_quantity("V", "rails"), "rails", 0),
-                       help="amplifier voltage rails (clipping)")
-    truth.add_argument("--seed", type=int, default=0)
+    _add_truth(truth)
     p.add_argument("--out", required=True, help="directory for metrics.json, fields.npz and the pictures")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -202,13 +227,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("emulate", help="serve the HIL board on a serial device path (a pty) until interrupted")
     p.add_argument("--scene", default="thesis-al-cc", help="the structure (thesis-al-cc)")
     p.add_argument("--points", type=_points, help="grid points: N for a beam, NxM for a plate (default: the scene's)")
-    p.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
-    p.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0)
-    p.add_argument("--snr", type=float, help="sensor noise, dB below the shot's peak")
-    p.add_argument("--rails", type=_within(_quantity("V", "rails"), "rails", 0), help="amplifier rails")
+    _add_truth(p.add_argument_group("the structure simulated behind the board"), "none, give it with --finger")
     p.add_argument("--latency", type=_within(int, "latency", 0, low_open=False), default=0,
                    help="extra periods before a command is used")
-    p.add_argument("--seed", type=int, default=0)
     p.add_argument("--for", dest="seconds", type=_quantity("s", "for"), help="stop after this long (default: never)")
 
     p = sub.add_parser("identify", help="identify a structure's modes from FRFs measured through a device")
@@ -309,23 +330,10 @@ def _run(args) -> int:
     warnings.simplefilter("ignore", DecouplingWarning)  # printed below from the metrics
 
     from .device import open_device
-    from .hil.scenario import Perturbation
     from .run import run_closed_loop, run_open_loop
 
     model, shape = _model_and_shape(args)
-    import numpy as np
-
-    at = args.finger_at
-    if at is not None and not args.finger:
-        raise ParamError("--finger-at places a finger: give its damping too (--finger, e.g. 0.5Ns/m)")
-    if args.finger and at is None:  # where the stimulus is meant to be felt
-        at = tuple(model.grid.points[int(np.argmax(np.abs(shape.values)))])
-    try:
-        perturbation = Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr,
-                                    args.amplifier_bandwidth, args.rails, args.seed, args.drift_rate,
-                                    *args.drift_step, args.finger, at)
-    except ValueError as exc:
-        raise ParamError(str(exc)) from None
+    perturbation = _perturbation(args, model, shape)
     truth = load_scene(args.truth) if args.truth else model
     for what in ("actuator", "sensor"):
         ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))
@@ -482,11 +490,10 @@ def _sweep(args) -> int:
 def _emulate(args) -> int:
     import time
 
-    from .hil.scenario import Perturbation
     from .hil.serial_board import SerialBoardEmulator
 
     model = load_scene(args.scene, args.points)
-    perturbation = Perturbation(args.drift, 0.0, args.damping_error, args.snr, None, args.rails, args.seed)
+    perturbation = _perturbation(args, model)
     with SerialBoardEmulator(model, perturbation, args.latency) as board:
         print(f"board emulator for {args.scene} ({perturbation.describe()}) on {board.path}", flush=True)
         print(f"use: modalctl run ... --transport serial://{board.path}   (Ctrl-C to stop)", flush=True)
