@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -31,6 +32,9 @@ def _parse_param(text: str) -> tuple[str, str]:
         raise argparse.ArgumentTypeError(f"expected name=value, got {text!r}")
     name, value = text.split("=", 1)
     return name.strip(), value.strip()
+
+
+NEGATIVE = re.compile(r"^-\.?\d")  # a value, not an option: -1%, -30mm, -.5
 
 
 def _quantity(unit: str, name: str, reader=parse_quantity):
@@ -583,11 +587,23 @@ def _say_warning(message, category, filename, lineno, file=None, line=None) -> s
     return f"modalctl: warning: {message}\n"
 
 
+def _negatives_attached(argv: list[str]) -> list[str]:
+    """``--drift -1%`` as ``--drift=-1%``: argparse takes a value with a unit after a minus sign
+    for an unknown option (it only knows bare negative numbers)."""
+    out: list[str] = []
+    for token in argv:
+        if out and NEGATIVE.match(token) and out[-1].startswith("--") and "=" not in out[-1]:
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv=None) -> int:
     import warnings
 
     warnings.formatwarning = _say_warning
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(_negatives_attached(list(sys.argv[1:] if argv is None else argv)))
     handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run,
                 "identify": _identify, "sweep": _sweep, "emulate": _emulate}
     try:

@@ -106,3 +106,14 @@ def test_a_malformed_drift_step_exits_2(capsys, tmp_path, value, words):
     with pytest.raises(SystemExit) as exit_:
         main([*RUN, "--drift-step", value, "--out", str(tmp_path)])
     assert exit_.value.code == 2 and words in capsys.readouterr().err
+
+
+def test_negative_values_with_units_read_as_values():
+    """argparse alone takes ``--drift -1%`` for an unknown option (it knows only bare negative numbers)."""
+    from modalctl.cli import _negatives_attached, build_parser
+
+    argv = [*RUN, "--drift", "-1%", "--finger", "1Ns/m", "--finger-at", "-30mm", "--param", "center=-24mm",
+            "--out", "x"]
+    args = build_parser().parse_args(_negatives_attached(argv))
+    assert args.drift == -0.01 and args.finger_at == (-0.03,) and ("center", "-24mm") in args.param
+    assert args.quiet and args.json  # flags next to it untouched
