@@ -386,7 +386,8 @@ def _report(args, model, shape, device, shot, perturbation, out) -> int:
         from .report import write_run_report
 
         metrics["pictures"] = write_run_report(shot, out, focus_velocity, args.sample_rate,
-                                               float(model.grid.points[centre, 0]))
+                                               float(model.grid.points[centre, 0]),
+                                               perturbation.finger_at if perturbation.finger else None)
         if args.loop in ("closed", "board"):
             from .report import plot_loop
 

@@ -115,10 +115,11 @@ def _window(shot, half: float = 4e-3):
     return sel
 
 
-def plot_spacetime(shot, path) -> Path:
+def plot_spacetime(shot, path, finger=None) -> Path:
     """Space-time field around the focus with margin violations in red (thesis Figs 5.3-5.5).
 
     1-D grids: velocity over x and t. 2-D grids: the largest off-target and on-target |w| over time.
+    ``finger``: where a finger rests (m, a point), marked on the field.
     """
     m, grid = shot.metrics, shot.decomposition.model.grid
     tf, sel = shot.plan.focus_time, _window(shot)
@@ -128,6 +129,8 @@ def plot_spacetime(shot, path) -> Path:
     mask = shot.decomposition.shape.target_mask
     title = (f"margin ratio {m['margin_ratio']:.2f} (criterion {m['margin_criterion']:g}, "
              f"{'met' if m['margin_ok'] else 'NOT met'}), tau {m['tau']:.3f}")
+    if finger is not None:
+        title += f"; a finger rests at {', '.join(f'{1e3 * v:g}' for v in finger)} mm"
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [3, 2]})
     if grid.dim == 1:
         x = grid.x * 1e3
@@ -137,6 +140,10 @@ def plot_spacetime(shot, path) -> Path:
         left.contourf((t - tf) * 1e3, x, bad.astype(float), levels=[0.5, 1.5], colors=["red"], alpha=0.8)
         left.axhspan(x[mask].min(), x[mask].max(), color="C2", alpha=0.12, lw=0)
         left.set_ylabel("x (mm)")
+        if finger is not None:
+            left.axhline(finger[0] * 1e3, color="k", ls=":", lw=1.2)
+            left.annotate("finger", (1, finger[0] * 1e3), xycoords=("axes fraction", "data"), xytext=(-4, 3),
+                          textcoords="offset points", ha="right", fontsize=8)
         fig.colorbar(im, ax=left, label="velocity (mm/s)")
         left.set_title("field; red: off-target above the margin, green: target zone", fontsize=9)
     off = np.max(np.abs(field[~mask]), axis=0) if (~mask).any() else np.zeros(t.size)
@@ -313,10 +320,10 @@ def plot_sweep_maps(rows, axes, methods, path) -> Path:
     return _save(fig, path)
 
 
-def write_run_report(shot, out, focus_velocity=None, sample_rate=None, where=None) -> dict:
-    """All run pictures into directory ``out``; returns {name: path}."""
+def write_run_report(shot, out, focus_velocity=None, sample_rate=None, where=None, finger=None) -> dict:
+    """All run pictures into directory ``out``; returns {name: path}. ``finger``: see :func:`plot_spacetime`."""
     out = Path(out)
-    paths = {"spacetime": plot_spacetime(shot, out / "spacetime.png"),
+    paths = {"spacetime": plot_spacetime(shot, out / "spacetime.png", finger),
              "modal_bars": plot_modal_bars(shot, out / "modal_bars.png"),
              "voltages": plot_voltages(shot, out / "voltages.png")}
     if focus_velocity is not None:

@@ -117,3 +117,11 @@ def test_negative_values_with_units_read_as_values():
     args = build_parser().parse_args(_negatives_attached(argv))
     assert args.drift == -0.01 and args.finger_at == (-0.03,) and ("center", "-24mm") in args.param
     assert args.quiet and args.json  # flags next to it untouched
+
+
+def test_a_run_under_a_finger_draws_its_report(capsys, tmp_path):
+    """The space-time picture marks where the finger rests (look at it: a dotted line, named)."""
+    args = [a for a in RUN if a != "--no-plots"]
+    assert main([*args, "--finger", "0.5Ns/m", "--finger-at", "-20mm", "--out", str(tmp_path)]) == 0
+    pictures = json.loads(capsys.readouterr().out)["pictures"]
+    assert (tmp_path / "spacetime.png").stat().st_size > 10_000 and "spacetime" in pictures
