@@ -173,6 +173,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="transient margin to plan for, e.g. 0.5 or 50%% (runs the envelope optimizer)")
     p.add_argument("--voltage-limit", type=_within(_quantity("V", "voltage-limit"), "voltage-limit", 0),
                    help="largest drive voltage, e.g. 100V")
+    p.add_argument("--margin-on", choices=("whole", "kept"), default="whole",
+                   help="where --margin must hold: whole (the field the voltages drive on every mode of the "
+                        "model; they are corrected near the focus until it does, up to a minute) or kept (the "
+                        "kept modes' references, the thesis's criterion)")
     p.add_argument("--kappa", type=float, default=1.0, help="envelope rate without --margin (default 1)")
     p.add_argument("--no-brake", action="store_true", help="optimizer: free decay after the focus only")
     p.add_argument("--after", type=_quantity("s", "after"), default=4e-3,
@@ -349,6 +353,7 @@ def _run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     common = dict(modes=args.modes, tau_min=args.tau_target, margin=args.margin, voltage_limit=args.voltage_limit,
                   sample_rate=args.sample_rate, progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake,
+                  verify="whole" if args.margin_on == "whole" else "planned",
                   after=args.after)
     try:
         if args.loop in ("closed", "board"):

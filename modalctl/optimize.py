@@ -46,12 +46,6 @@ class Problem:
     voltage_limit : float or None
     kappa_bounds, brake_bounds : ndarray, shape (m, 2)
         Bounds; ``brake_bounds`` of (1, 1) keeps the free decay.
-    offset : ndarray, shape (n_out, nt), optional
-        Off-target field the kept modes' closed forms do not carry (cross-talk into the other
-        modes, found by simulating the whole model), added to theirs (m/s).
-    offset_slope : ndarray, shape (n_out, nt, 2 m), optional
-        Its derivative with respect to ``(kappa, brake)`` at ``offset_at`` (shape (2 m,)): the
-        offset is then taken as ``offset + offset_slope @ ((kappa, brake) - offset_at)``.
     """
 
     targets: np.ndarray
@@ -66,9 +60,6 @@ class Problem:
     voltage_limit: float | None
     kappa_bounds: np.ndarray
     brake_bounds: np.ndarray
-    offset: np.ndarray | None = None
-    offset_slope: np.ndarray | None = None
-    offset_at: np.ndarray | None = None
 
 
 @dataclass
@@ -90,19 +81,11 @@ class Result:
     history: list = field(default_factory=list)
 
 
-def evaluate(problem: Problem, kappa, brake, offset=None):
-    """Dense check: off-target field (n_out, nt) and voltages (a, nt) of the closed forms.
-
-    ``offset`` replaces ``problem.offset`` as the cross-talk added to the field when given.
-    """
+def evaluate(problem: Problem, kappa, brake):
+    """Dense check: off-target field (n_out, nt) and voltages (a, nt) of the closed forms."""
     velocity, drive = modal_response(problem.times, problem.targets, problem.omega, problem.zeta, kappa, brake,
                                      problem.focus_time)
-    off = problem.shapes_out.T @ velocity
-    if offset is None:
-        offset = problem.offset
-        if offset is not None and problem.offset_slope is not None:
-            offset = offset + problem.offset_slope @ (np.r_[kappa, brake] - problem.offset_at)
-    return (off if offset is None else off + offset), problem.weights @ drive
+    return problem.shapes_out.T @ velocity, problem.weights @ drive
 
 
 def _worst(values: np.ndarray, limit: float, count: int):
@@ -196,12 +179,6 @@ def _ipopt(problem: Problem, field_set, volt_set, kappa0, brake0, scale_v: float
     rows = np.array([i for i, _ in pairs], int)
     cols = [column[j] for _, j in pairs]
     off = casadi.sum1(casadi.DM(problem.shapes_out[:, rows]) * vel[:, cols]).T
-    if problem.offset is not None:
-        times = [j for _, j in pairs]
-        off = off + casadi.DM(problem.offset[rows, times])
-        if problem.offset_slope is not None:
-            step = casadi.vertcat(kappa, brake) - casadi.DM(problem.offset_at)
-            off = off + casadi.mtimes(casadi.DM(problem.offset_slope[rows, times]), step)
     off = off / problem.peak
     vpairs = sorted(volt_set)
     volts = casadi.sum1(casadi.DM(problem.weights[[a for a, _ in vpairs]].T) * drv[:, [column[j] for _, j in vpairs]]).T

@@ -80,16 +80,21 @@ def test_thesis_margin_case_kappa_one_fails_and_optimizer_meets_it(beam):
 
 
 def test_optimizer_plan_meets_the_margin_when_simulated(beam):
-    """Whole-model verification: the HIL (all 21 modes, perfect model) measures what the planner promised."""
-    g = get_shape("sinc")
-    shape = g.generate(beam.grid, **parse_params(g, {"width": "25mm", "center": "0mm"}))
+    """The thesis's case on the whole structure: the HIL (all 21 modes, perfect model) measures the
+    margin the planner promised once the voltages are corrected near the focus; the plan that
+    holds it on the kept modes' references alone measures far above it."""
+    shape = sinc(beam, "18mm", "24mm")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
-        plain = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025)
-        shot = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, margin=0.58, verify="whole")
-    assert plain.metrics["margin_ratio"] > 0.62
-    assert shot.metrics["margin_ratio"] <= 0.58 * 1.02
-    assert shot.metrics["tau"] > 0.97
+        warnings.simplefilter("ignore", MarginWarning)
+        kept = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, modes=9, margin=0.5)
+        whole = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, modes=9, margin=0.5,
+                              verify="whole")
+    assert kept.metrics["margin_ratio"] > 0.7 and kept.plan.correction is None
+    assert whole.metrics["margin_ratio"] <= 0.5 * 1.001 and whole.metrics["margin_ok"]
+    assert whole.metrics["tau"] > 0.99  # the focus itself held
+    refinement = whole.plan.info["refinement"]
+    assert refinement["ratio_before"] > 0.7 and refinement["focus_change"] < 1e-3
 
 
 def test_voltage_limit_refusal_says_how_much(beam):
