@@ -116,7 +116,9 @@ def main() -> None:
         if "error" in r:
             lines.append(f"| {r['plan']} | refused: best reachable {r['best_ratio']:.3f} | | | | | |")
             continue
-        solver = f"{r['solver_seconds']:.2f}" if r["solver_seconds"] is not None else "-"
+        solver = "-" if r["solver_seconds"] is None else f"{r['solver_seconds']:.2f}"
+        if r.get("refinement"):
+            solver += f" + {r['refinement']['seconds']:.0f} (correction)"
         lines.append(f"| {r['plan']} | {r['planned_ratio']:.3f} | {r['whole_model_ratio']:.3f} | "
                      f"{r['measured_ratio']:.3f} | {r['peak_voltage']:.1f} | {r['tau']:.3f} | {solver} |")
     refined = next((r["refinement"] for r in rows if r.get("refinement")), None)
