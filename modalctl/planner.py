@@ -187,7 +187,7 @@ def _controllable(dec: Decomposition, modes, coefficients) -> None:
 def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
          voltage_limit: float | None = None, kappa=1.0, brake: bool = True, after: float = DEFAULT_AFTER,
          sample_rate: float = 1e6, gap_fraction: float = 0.5, decoupling_threshold: float = 0.1,
-         verify: str = "planned", compensate: bool = True) -> Plan:
+         verify: str = "planned", compensate: bool = True, progress: bool = False) -> Plan:
     """Plan the drive that builds the decomposition's reduced field at ``focus_time``.
 
     Parameters
@@ -222,6 +222,8 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
         ``dec.model`` (the exact plant): the voltages are then corrected near T_F until it does
         (:mod:`modalctl.refine`; seconds to a minute), or the plan is refused with the best ratio.
         Either way the whole-model ratio is reported in ``info``.
+    progress : bool
+        A progress bar while the voltages are corrected (``verify="whole"``).
     """
     if verify not in ("planned", "whole"):
         raise PlanError(f"verify must be 'planned' or 'whole', got {verify!r}")
@@ -260,7 +262,7 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
     if compensate and modes.size > 1:
         final = _compensate(final)
     if margin is not None and verify == "whole":
-        final = _refine(final, margin, voltage_limit)
+        final = _refine(final, margin, voltage_limit, progress)
     peak_v = float(np.max(np.abs(final.voltages())))
     info["peak_voltage"] = peak_v
     if voltage_limit is not None and peak_v > voltage_limit * 1.001:
@@ -351,12 +353,13 @@ def _optimize(proto: Plan, margin: float, voltage_limit, brake: bool, gap_fracti
     return result.kappa, result.brake, result
 
 
-def _refine(the_plan: Plan, margin: float, voltage_limit) -> Plan:
+def _refine(the_plan: Plan, margin: float, voltage_limit, progress: bool) -> Plan:
     """The plan with the voltage correction that holds ``margin`` on the whole model (PlanError if none)."""
     if the_plan.whole_model_margin() <= margin:
         return the_plan
     found = refine(the_plan.model, the_plan.voltages(), int(round(the_plan.focus_time * the_plan.sample_rate)),
-                   the_plan.sample_rate, the_plan.target_mask, margin * (1 - REFINE_AIM), voltage_limit)
+                   the_plan.sample_rate, the_plan.target_mask, margin * (1 - REFINE_AIM), voltage_limit,
+                   progress=progress)
     the_plan.info["refinement"] = {"ratio_before": found.ratio_before, "ratio": found.ratio,
                                    "focus_change": found.focus_change, "seconds": found.seconds,
                                    "plant_runs": 2 * found.evaluations,

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import minimize
+from tqdm.auto import tqdm
 
 from .model import ModalModel
 from .propagate import Plant
@@ -66,7 +67,7 @@ class Refinement:
 
 def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rate: float, target_mask,
            margin: float, voltage_limit: float | None = None, before: float = BEFORE, after: float = AFTER,
-           iterations: int = 250) -> Refinement:
+           iterations: int = 250, progress: bool = False) -> Refinement:
     """Find the correction of ``voltages`` (a, n) that brings the whole model's margin ratio to ``margin``.
 
     Parameters
@@ -86,6 +87,8 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
         Correction window around T_F (s).
     iterations : int
         L-BFGS-B iterations at most per sharpening of the p-norm.
+    progress : bool
+        A progress bar of the iterations, with the ratio reached.
     """
     begin = _time.perf_counter()
     voltages = np.asarray(voltages, float)
@@ -136,6 +139,8 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
 
     best = np.zeros(a * width)
     ratio_before = ratio_of(base)
+    bar = tqdm(total=iterations * len(STAGES), desc="margin on the whole model", unit="step", disable=not progress,
+               leave=False)
     for p, points in STAGES:
         if ratio_of(response(best)) <= margin:
             break
@@ -145,6 +150,8 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
         def check(intermediate_result):
             nonlocal best, best_ratio
             r = ratio_of(response(intermediate_result.x), watched)
+            bar.update()
+            bar.set_postfix(ratio=f"{r:.3f}", refresh=False)
             if r < best_ratio:
                 best, best_ratio = intermediate_result.x.copy(), r
             if r <= margin:
@@ -155,6 +162,7 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
         r = ratio_of(response(result.x), watched)
         if r < best_ratio:
             best, best_ratio = result.x, r
+    bar.close()
     velocity = response(best)
     change = float(np.max(np.abs(model.shapes.T @ velocity[:, focus] - focus_field)) / peak)
     return Refinement(best.reshape(a, width), start, ratio_of(velocity, every), ratio_before, change,

@@ -119,7 +119,7 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
         Passed to :func:`modalctl.planner.plan` (``kappa``, ``brake``, ``after``...).
     """
     caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
-                                                  voltage_limit, sample_rate, plan_options)
+                                                  voltage_limit, sample_rate, {**plan_options, "progress": progress})
     voltages = the_plan.voltages()
     start = _time.perf_counter()
     device.activate()
@@ -167,7 +167,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     if not hasattr(device, "phasor_board"):
         raise DeviceError(f"{device.url}: this device has no phasor mode, so it cannot run a closed loop")
     caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
-                                                  voltage_limit, sample_rate, plan_options)
+                                                  voltage_limit, sample_rate, {**plan_options, "progress": progress})
     board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
     start = _time.perf_counter()
     parts = loop_parts(the_plan, control_rate, board.noise, authority, latency, controller)
