@@ -102,8 +102,9 @@ def _model_shape(scene: str, points, shape: str, params: tuple):
 def _plan(model, target, case: Case):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
+        # a margin is held on the whole model, as modalctl run does by default
         return plan(decompose(model, target, case.modes or "auto"), case.focus_time, margin=case.margin,
-                    sample_rate=case.sample_rate)
+                    sample_rate=case.sample_rate, verify="planned" if case.margin is None else "whole")
 
 
 @lru_cache(maxsize=8)
