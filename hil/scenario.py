@@ -9,7 +9,7 @@ import numpy as np
 
 from modalctl.model import ModalModel
 
-__all__ = ["Perturbation", "perturb"]
+__all__ = ["Perturbation", "perturb", "step", "ramp"]
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ class Perturbation:
 
     def shift(self, t: float) -> float:
         """Further relative shift of every resonance at time ``t`` (s) of the shot."""
-        return self.drift_rate * t + (self.drift_step if t >= self.drift_step_time else 0.0)
+        return float(ramp(0.0, self.drift_rate)(t, 1)[0] + step(self.drift_step_time, self.drift_step)(t, 1)[0])
 
     def schedule(self):
         """``drift(t, k) -> (k,)`` for the HIL board, or None when the resonances hold still."""
@@ -105,3 +105,13 @@ def perturb(model: ModalModel, p: Perturbation) -> ModalModel:
     shift = 1 + p.drift + p.drift_spread * rng.standard_normal(model.n_modes)
     return replace(model, frequencies=model.frequencies * shift,
                    damping=model.damping * (1 + p.damping_error))
+
+
+def step(at: float, size: float):
+    """``drift(t, k)``: every resonance shifts by ``size`` (relative) at time ``at`` (s)."""
+    return lambda t, k: np.full(k, size if t >= at else 0.0)
+
+
+def ramp(start: float, rate: float):
+    """``drift(t, k)``: every resonance drifts at ``rate`` (relative per second) from ``start`` (s)."""
+    return lambda t, k: np.full(k, rate * max(t - start, 0.0))

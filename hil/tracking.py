@@ -22,6 +22,8 @@ from modalctl.propagate import Plant
 from modalctl.plugin import get_tracker
 from modalctl.track import feedthrough, sensor_weights
 
+from .scenario import ramp, step
+
 __all__ = ["TrackingRun", "run_tracking", "dither_envelopes", "step", "ramp"]
 
 
@@ -39,16 +41,6 @@ class TrackingRun:
     step_seconds: np.ndarray
     modes: np.ndarray | None = None
     tracker: object = None
-
-
-def step(at: float, size: float):
-    """Every resonance shifts by ``size`` (relative) at time ``at`` (s)."""
-    return lambda t, k: np.full(k, size if t >= at else 0.0)
-
-
-def ramp(start: float, rate: float):
-    """Every resonance drifts at ``rate`` (relative per second) from ``start`` (s)."""
-    return lambda t, k: np.full(k, rate * max(t - start, 0.0))
 
 
 def dither_envelopes(rng, periods: np.ndarray, n: int) -> np.ndarray:
