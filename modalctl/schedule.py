@@ -96,7 +96,7 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     n = plan.times.size // decimation
     t = plan.times[:n * decimation]
     drive = plan.modal(t + 0.5 / fs)[1]  # (k, N) modal forces, held as the DAC holds them
-    volts = plan.voltages()[:, :t.size]  # the same drive on the actuators, with any correction of the plan
+    volts = plan.voltages(drive)  # on the actuators, with any correction of the plan
     carriers = plan.model.frequencies[plan.modes]
     phasors = Oscillators(carriers, fs).phasors(t.size)
     expected = Plant(plan.model, fs, hold=HOLD)
