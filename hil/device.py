@@ -49,6 +49,7 @@ class SimDevice:
         self.state, self.sample_rate, self.info, self.capabilities = "unconfigured", None, {}, None
         self._noise_sigma = None
         self._voltages = self._modal = self._board = None
+        self._boards = 0  # phasor boards made so far
         self._kept = np.arange(model.n_modes)
         self._rng = np.random.default_rng(perturbation.seed + 1)
 
@@ -148,9 +149,10 @@ class SimDevice:
         sigma = self._sigma(level)
         truth = self.truth if self.finger is None else FingerPlant(self.truth, self.finger, self.sample_rate,
                                                                    p.voltage_limit)
+        self._boards += 1  # each shot its own noise
         self._board = HILBoard(truth, self.sample_rate, noise=sigma, voltage_limit=p.voltage_limit,
                                latency=latency, drift=p.schedule() if drift is None else drift,
-                               amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma, seed=p.seed + 1)
+                               amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma, seed=p.seed + self._boards)
         return self._board
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:

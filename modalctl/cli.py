@@ -199,6 +199,9 @@ def build_parser() -> argparse.ArgumentParser:
     loop.add_argument("--controller", default="pi", help="per-mode controller plugin: pi (default) or lqg")
     loop.add_argument("--watchdog", type=_within(int, "watchdog", 1, low_open=False), default=1,
                       help="periods without a measurement before the supervisor stops the shot (1)")
+    loop.add_argument("--learn", action="store_true",
+                      help="a first closed-loop shot updates the model's resonances and damping from its "
+                           "record; the shot planned again on the updated model is the one reported")
     truth = p.add_argument_group("simulator truth (sim:// only)")
     truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
     _add_truth(truth)
@@ -218,7 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="transient margin to plan for")
     p.add_argument("--vary", action="append", default=[], type=_parse_param, metavar="NAME=V1,V2,...",
                    help="a swept parameter and its values: " + ", ".join(SWEPT) + " (one or two)")
-    p.add_argument("--methods", default="open,closed,tracked", help="open, closed, tracked (all three)")
+    p.add_argument("--methods", default="open,closed,tracked",
+                   help="open, closed, tracked, learned (default the first three)")
     p.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="fixed drift when not swept")
     p.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0)
     p.add_argument("--snr", type=float, default=40.0, help="sensor noise, dB below the focus peak (40)")
@@ -340,6 +344,8 @@ def _run(args) -> int:
     from .device import open_device
     from .run import run_closed_loop, run_open_loop
 
+    if args.learn and args.loop == "open":
+        raise ParamError("--learn needs a closed loop (--loop closed or board)")
     model, shape = _model_and_shape(args)
     perturbation = _perturbation(args, model, shape)
     truth = load_scene(args.truth) if args.truth else model
@@ -360,7 +366,7 @@ def _run(args) -> int:
             shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
                                    slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
                                    log=out / "log", controller=args.controller, watchdog=args.watchdog,
-                                   on_board=args.loop == "board", **common)
+                                   on_board=args.loop == "board", learn=args.learn, **common)
         else:
             shot = run_open_loop(model, shape, device, args.focus_time, **common)
         return _report(args, model, shape, device, shot, perturbation, out)
@@ -421,6 +427,12 @@ def _report(args, model, shape, device, shot, perturbation, out) -> int:
               + (f" ({lp['fault']})" if lp["fault"] else "") + f", {lp['periods']} periods, "
               f"{where}, crossovers "
               f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
+    if "learning_shot" in m:
+        ls = m["learning_shot"]
+        print(f"learning shot: tau {ls['tau']:.4f}, margin ratio {ls['margin_ratio']:.3f}; its record moved the "
+              f"resonances by {100 * ls['common_shift']:+.2f}% in common ({100 * min(ls['relative_shift']):+.2f}% "
+              f"to {100 * max(ls['relative_shift']):+.2f}%; fit {ls['update_seconds']:.1f} s, misfit "
+              f"{100 * ls['misfit']:.1f}%); the numbers above are the shot planned again on the updated model")
     for w in m["decoupling_warnings"]:
         print("warning: " + w)
     print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in m else ")"))

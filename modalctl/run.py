@@ -1,4 +1,5 @@
-"""One open-loop focusing shot end to end: decompose, plan, play on a device, measure.
+"""A focusing shot end to end, open or closed loop (after a learning shot if asked): decompose, plan,
+play on a device, measure.
 
 The device is any :class:`modalctl.device.Device` (``sim://`` or a board); this module opens no
 port itself and draws nothing (pictures are in :mod:`modalctl.report`).
@@ -82,16 +83,29 @@ def _plan_growing(dec: Decomposition, focus_time, margin, grow: bool, **options)
                           rule=dec.rule + f", plus modes for the {margin:g} margin")
 
 
-def _plan_on(model, shape, device, focus_time, modes, tau_min, margin, voltage_limit, sample_rate, plan_options):
-    """Configure ``device``, decompose and plan (adding modes for the margin if needed)."""
+def _configure(device, sample_rate, voltage_limit):
+    """Configure ``device``; its capabilities and the voltage limit its rails leave."""
     caps = device.configure(sample_rate)
     if caps.voltage_limit is not None:
         voltage_limit = caps.voltage_limit if voltage_limit is None else min(voltage_limit, caps.voltage_limit)
     if not caps.can_scan:
         raise DeviceError(f"{device.url}: focus runs measure the field, and this device cannot scan it")
+    return caps, voltage_limit
+
+
+def _plan_for(model, shape, focus_time, modes, tau_min, margin, voltage_limit, sample_rate, plan_options):
+    """Decompose and plan (adding modes for the margin if needed); ``(decomposition, plan)``."""
     dec = decompose(model, shape, modes, tau_min=tau_min)
     the_plan, dec = _plan_growing(dec, focus_time, margin, grow=modes == "auto", voltage_limit=voltage_limit,
                                   sample_rate=sample_rate, **plan_options)
+    return dec, the_plan
+
+
+def _plan_on(model, shape, device, focus_time, modes, tau_min, margin, voltage_limit, sample_rate, plan_options):
+    """Configure ``device``, decompose and plan (adding modes for the margin if needed)."""
+    caps, voltage_limit = _configure(device, sample_rate, voltage_limit)
+    dec, the_plan = _plan_for(model, shape, focus_time, modes, tau_min, margin, voltage_limit, sample_rate,
+                              plan_options)
     return caps, voltage_limit, dec, the_plan
 
 
@@ -137,7 +151,8 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
                     tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
                     slew_limit: float | None = None, sample_rate: float = 1e6, control_rate: float = 20e3,
                     authority: float = 0.5, latency: int = 0, drift=None, log=None, progress: bool = False,
-                    controller: str = "pi", watchdog: int = 1, on_board: bool = False, **plan_options) -> Shot:
+                    controller: str = "pi", watchdog: int = 1, on_board: bool = False, learn: bool = False,
+                    **plan_options) -> Shot:
     """Plan the shape's focus and play it on ``device`` with per-mode feedback (its phasor mode).
 
     Parameters are those of :func:`run_open_loop`, and
@@ -152,7 +167,8 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     drift : callable, optional
         Simulator only: ``drift(t, k)`` relative resonance shifts during the shot.
     log : path, optional
-        Every control period recorded there (``.json`` + ``.bin``).
+        Every control period recorded there (``.json`` + ``.bin``; a learning shot's beside it,
+        ``<log>-learning``).
     controller : str
         Controller plugin (``pi``, ``lqg``...).
     watchdog : int
@@ -161,34 +177,26 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         Load the loops into the board (:mod:`modalctl.onboard`: parametric references, PI) and let
         it close them itself: no exchange per period, so no link budget; the board's rails are the
         only voltage limit.
+    learn : bool
+        Play a first closed-loop shot, update the model's resonances and damping from its record
+        (:func:`modalctl.updating.update`), plan again on the updated model and report the second
+        shot; the first's tau, margin and what was learned are in ``metrics["learning_shot"]``.
     """
-    from .loop import closed_shot, loop_parts
-
     if not hasattr(device, "phasor_board"):
         raise DeviceError(f"{device.url}: this device has no phasor mode, so it cannot run a closed loop")
+    options = dict(control_rate=control_rate, authority=authority, latency=latency, drift=drift, controller=controller,
+                   voltage_limit=voltage_limit, slew_limit=slew_limit, progress=progress, watchdog=watchdog)
+    plan_options = {**plan_options, "progress": progress}
     caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
-                                                  voltage_limit, sample_rate, {**plan_options, "progress": progress})
-    board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
-    start = _time.perf_counter()
-    parts = loop_parts(the_plan, control_rate, board.noise, authority, latency, controller)
-    designed = _time.perf_counter()
-    if on_board:
-        result = _loops_on_board(the_plan, board, parts, device, log)
-    else:
-        result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, log=log,
-                             progress=progress, watchdog=watchdog)
-    board.play_out()
-    times = np.union1d(the_plan.check_times(), [focus_time])
-    try:
-        field = board.scan(times, scan_indices(caps, model.grid.points, device.url))
-        capture = Capture(the_plan.times, board.sensed, board.applied)
-    except DeviceError as exc:
-        if result.reason is None:
-            raise
-        raise DeviceError(f"the supervisor stopped the shot ({result.reason}); every period up to it is in "
-                          f"{log}.json/.bin; the field could not be measured afterwards: {exc}") from None
-    seconds = _time.perf_counter() - start
-    shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, seconds)
+                                                  voltage_limit, sample_rate, plan_options)
+    options["voltage_limit"] = voltage_limit
+    learned = None
+    if learn:
+        learned, model = _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, options)
+        dec, the_plan = _plan_for(model, shape, focus_time, modes, tau_min, margin, voltage_limit, sample_rate,
+                                  plan_options)
+    shot, result, parts, design_seconds = _closed(dec, the_plan, shape, device, caps, margin, log, on_board,
+                                                  **options)
     shot.metrics["loop"] = {
         "controller": controller, "on_board": on_board, "state": result.state.name.lower(), "fault": result.reason,
         "periods": result.periods, "loop_seconds": result.loop_seconds,
@@ -196,10 +204,65 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         "step_seconds_median": float(np.median(result.step_seconds)) if result.step_seconds.size else None,
         "crossover_hz": parts.design.crossover_hz.tolist(), "phase_margin_deg": parts.design.phase_margin_deg.tolist(),
         "gain_margin_db": parts.design.gain_margin_db.tolist(),
-        "design_seconds": designed - start,
+        "design_seconds": design_seconds,
         # the shot on the device (loop, play-out, scan) over the time it plays; the design is once per plan
-        "real_time_factor": (seconds - (designed - start)) / the_plan.duration}
+        "real_time_factor": (shot.metrics["sim_seconds"] - design_seconds) / the_plan.duration}
+    if learned is not None:
+        shot.metrics["learning_shot"] = learned
     return shot
+
+
+def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, tracker=None, *, control_rate,
+            authority, latency, drift, controller, voltage_limit, slew_limit, progress, watchdog):
+    """Play ``the_plan`` closed loop on the device's phasor board and measure it; returns
+    ``(shot, run result, loop parts, design seconds)``."""
+    from .loop import closed_shot, loop_parts
+
+    focus_time = the_plan.focus_time
+    board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
+    start = _time.perf_counter()
+    parts = loop_parts(the_plan, control_rate, board.noise, authority, latency, controller)
+    designed = _time.perf_counter()
+    if on_board:
+        result = _loops_on_board(the_plan, board, parts, device, log)
+    else:
+        result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, tracker=tracker,
+                             log=log, progress=progress, watchdog=watchdog)
+    board.play_out()
+    times = np.union1d(the_plan.check_times(), [focus_time])
+    try:
+        field = board.scan(times, scan_indices(caps, dec.model.grid.points, device.url))
+        capture = Capture(the_plan.times, board.sensed, board.applied)
+    except DeviceError as exc:
+        if result.reason is None:
+            raise
+        raise DeviceError(f"the supervisor stopped the shot ({result.reason}); every period up to it is in "
+                          f"{log}.json/.bin; the field could not be measured afterwards: {exc}") from None
+    shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, _time.perf_counter() - start)
+    return shot, result, parts, designed - start
+
+
+def _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, options):
+    """A closed-loop shot whose record updates the model; ``(what it measured and learned, the
+    updated model)``."""
+    from .schedule import HOLD
+    from .updating import update
+
+    learning_log = None if log is None else type(log)(f"{log}-learning")
+    shot, result, _, _ = _closed(dec, the_plan, shape, device, caps, margin, learning_log, on_board, **options)
+    if result.reason is not None:
+        raise DeviceError(f"the supervisor stopped the learning shot ({result.reason}); log in {learning_log}.json")
+    model = dec.model
+    got = update(model, shot.capture.voltages, shot.capture.sensors, the_plan.sample_rate, hold=HOLD)
+    m = shot.metrics
+    return {"tau": m["tau"], "margin_ratio": m["margin_ratio"], "peak_voltage": m["peak_voltage"],
+            "sim_seconds": m["sim_seconds"], "modes_used": m["modes_used"],
+            "update_seconds": got.seconds, "update_evaluations": got.evaluations, "common_shift": got.shift,
+            "common_shift_error": got.shift_error, "common_damping_change": got.damping_change,
+            "frequencies_hz": got.model.frequencies.tolist(), "frequency_error_hz": got.frequency_error.tolist(),
+            "damping": got.model.damping.tolist(), "damping_error": got.damping_error.tolist(),
+            "relative_shift": (got.model.frequencies / model.frequencies - 1).tolist(),
+            "residual_noise": got.noise, "misfit": got.misfit}, got.model
 
 
 def _loops_on_board(the_plan, board, parts, device, log):

@@ -1,0 +1,103 @@
+"""Model updating from a shot's record: the truth's resonances from what the sensors measured."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from modalctl.model import ModelError
+from modalctl.scenes import load_scene
+from modalctl.updating import update
+
+FS = 500e3
+
+
+def record_of(truth, voltages, fs):
+    """The sensors' velocities (s, n) of ``truth`` under ``voltages`` held between samples, from
+    scipy's ``lsim`` on the state space of its modes (q'' + 2 zeta w q' + w^2 q = actuator force),
+    an integration independent of :mod:`modalctl.propagate`."""
+    k = truth.n_modes
+    w, z = truth.omega, truth.damping
+    a = np.zeros((2 * k, 2 * k))
+    a[:k, k:] = np.eye(k)
+    a[k:, :k], a[k:, k:] = -np.diag(w ** 2), -np.diag(2 * z * w)
+    b = np.vstack([np.zeros_like(truth.actuator_gains), truth.actuator_gains])
+    c = np.hstack([np.zeros_like(truth.sensor_gains.T), truth.sensor_gains.T])
+    t = np.arange(voltages.shape[1]) / fs
+    _, y, _ = scipy.signal.lsim((a, b, c, np.zeros((c.shape[0], b.shape[1]))), voltages.T, t, interp=False)
+    return y.T
+
+
+@pytest.fixture(scope="module")
+def shot(sinc18):
+    """The truth (+1% common, 0.3% per mode, damping +20%), the focus plan's voltages and the
+    sensors' record with noise 40 dB below the record's peak."""
+    model, _, plan = sinc18
+    rng = np.random.default_rng(7)
+    truth = replace(model, frequencies=model.frequencies * (1.01 + 0.003 * rng.standard_normal(model.n_modes)),
+                    damping=model.damping * 1.2)
+    volts = plan.voltages()
+    clean = record_of(truth, volts, FS)
+    noise = 0.01 * np.abs(clean).max()
+    return model, truth, volts, clean + noise * rng.standard_normal(clean.shape), noise
+
+
+def test_update_finds_the_truths_resonances_within_its_stated_errors(shot):
+    model, truth, volts, sensed, noise = shot
+    got = update(model, volts, sensed, FS)
+    error = got.model.frequencies - truth.frequencies
+    seen = got.frequency_error / truth.frequencies < 1e-3  # modes the record sees well
+    assert seen.sum() >= 8
+    assert np.all(np.abs(error[seen]) / truth.frequencies[seen] < 1e-3)
+    # the stated errors are honest: the misses in units of them are of order one
+    assert np.sqrt(np.mean((error[seen] / got.frequency_error[seen]) ** 2)) < 3
+    assert np.all(np.abs(error[seen]) < 5 * got.frequency_error[seen])
+    # the stale model was 1% off everywhere; the well-seen damping ratios come back within 10%
+    assert np.all(np.abs(got.model.damping[seen][:6] / truth.damping[seen][:6] - 1) < 0.1)
+    assert abs(got.shift - 0.01) < 2e-3 and abs(got.damping_change - 0.2) < 0.05
+    # the modes it cannot see follow the common change, within the prior's spread of theirs
+    assert np.all(np.abs(got.model.frequencies[~seen] / truth.frequencies[~seen] - 1) < 0.02)
+    assert got.noise == pytest.approx(noise, rel=0.05)  # what is left is the sensor noise
+
+
+def test_update_refuses_records_it_cannot_learn_from(shot):
+    model, _, volts, sensed, _ = shot
+    with pytest.raises(ModelError, match="actuators"):
+        update(model, volts[:3], sensed, FS)
+    with pytest.raises(ModelError, match="no drive"):
+        update(model, np.zeros_like(volts), sensed, FS)
+    with pytest.raises(ModelError, match="samples"):
+        update(model, volts[:, :100], sensed, FS)
+
+
+def test_closed_loop_learns_the_truth_and_focuses_better(capsys, tmp_path):
+    """``run --loop closed --learn``: the learning shot's record moves the model by the truth's
+    common drift, and the shot planned on the updated model focuses better than the first."""
+    from modalctl.cli import main
+
+    code = main(["run", "--scene", "thesis-al-cc", "--points", "351", "--shape", "sinc", "--param", "width=18mm",
+                 "--param", "center=24mm", "--quiet", "--focus-time", "25ms", "--drift", "1%",
+                 "--damping-error", "20%", "--snr", "40", "--sample-rate", "500kHz", "--loop", "closed", "--learn",
+                 "--no-plots", "--out", str(tmp_path)])
+    assert code == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    learned = m["learning_shot"]
+    model = load_scene("thesis-al-cc", 351)
+    error = np.array(learned["frequencies_hz"]) / (1.01 * model.frequencies) - 1
+    stated = np.array(learned["frequency_error_hz"]) / model.frequencies
+    seen = stated < 1e-3
+    assert seen.sum() >= 6 and np.all(np.abs(error[seen]) < 5e-4) and np.all(np.abs(error[seen]) < 5 * stated[seen])
+    assert abs(learned["common_shift"] - 0.01) < 3 * learned["common_shift_error"]
+    assert m["tau"] > learned["tau"] and m["tau"] > 0.98
+    assert (tmp_path / "log-learning.json").exists() and (tmp_path / "log.json").exists()
+
+
+def test_learn_needs_a_closed_loop(capsys, tmp_path):
+    from modalctl.cli import main
+
+    code = main(["run", "--scene", "thesis-al-cc", "--shape", "sinc", "--focus-time", "25ms", "--quiet", "--learn", "--out",
+                 str(tmp_path / "r")])
+    assert code == 2 and "--learn needs a closed loop" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
