@@ -6,7 +6,9 @@ model (drift, damping error, a finger, loop latency, sensor noise) and the metho
 - ``open``: the plan's feed-forward alone (the thesis);
 - ``closed``: feed-forward plus the per-mode loops;
 - ``tracked``: a first closed-loop shot during which the pole tracker learns each mode, then the
-  plan remade on the tracked model and played closed loop (the number reported is the second shot's).
+  plan remade on the tracked model and played closed loop (the number reported is the second shot's);
+- ``learned``: a first closed-loop shot whose record updates the model's resonances and damping
+  (:func:`modalctl.updating.update`), then the plan remade on it and played closed loop.
 
 :func:`run_case` is a plain function of a picklable case, so any executor
 (:mod:`modalctl.executor`) can run a sweep's cases wherever it runs things.
@@ -26,7 +28,9 @@ from modalctl.planner import plan
 from modalctl.plugin import get_shape, get_tracker
 from modalctl.scenes import load_scene
 from modalctl.shape import parse_params
+from modalctl.schedule import HOLD
 from modalctl.track import updated_model
+from modalctl.updating import update
 
 from .closed import run_focus
 from .finger import Finger, FingerPlant, added_damping
@@ -34,7 +38,8 @@ from .scenario import Perturbation, perturb
 
 __all__ = ["Case", "run_case", "METHODS"]
 
-METHODS = ("open", "closed", "tracked")
+METHODS = ("open", "closed", "tracked", "learned")
+LEARNING_SEED = 10007  # offset of a learning shot's noise seed
 
 
 @dataclass(frozen=True)
@@ -48,7 +53,7 @@ class Case:
         Shape parameters with units, e.g. ``(("width", "18mm"), ("center", "24mm"))``.
     focus_time : float
         s.
-    method : {"open", "closed", "tracked"}
+    method : {"open", "closed", "tracked", "learned"}
     drift, damping_error : float
         Relative shift of every resonance and relative damping error of the truth.
     finger : float
@@ -128,12 +133,17 @@ def run_case(case: Case) -> dict:
     options = dict(control_rate=case.control_rate, snr_db=case.snr_db, latency=case.latency, seed=case.seed,
                    controller=case.controller)
     first = None
+    learning = {**options, "seed": case.seed + LEARNING_SEED}  # the first shot's noise is not the second's
     if case.method == "tracked":
         modes = shot.modes
         tracker = get_tracker("pole").create(model.frequencies[modes], model.damping[modes], case.control_rate,
                                              retune=np.inf)  # the carriers stay on the plan's during a shot
-        first = run_focus(truth, shot, target, tracker=tracker, **options)
+        first = run_focus(truth, shot, target, tracker=tracker, **learning)
         shot = _plan(updated_model(model, modes, tracker), target, case)
+    elif case.method == "learned":
+        first = run_focus(truth, shot, target, **learning)
+        board = first.board
+        shot = _plan(update(model, board.applied, board.sensed, case.sample_rate, hold=HOLD).model, target, case)
     result = run_focus(truth, shot, target, closed=case.method != "open", **options)
     row = {**asdict(case), "params": dict(case.params), "tau": result.tau, "margin_ratio": result.margin_ratio,
            "peak_voltage": result.peak_voltage, "state": result.result.state.name.lower(),

@@ -231,10 +231,9 @@ class PoleTracker(RLSTracker):
         self._read()
 
 
-def updated_model(model, modes, tracker):
+def updated_model(model, modes, tracker, others: str = "shift"):
     """``model`` with the tracked modes' resonances and damping replaced by the tracker's
-    estimates where it is tracking (others keep the model's values): what the planner and the
-    controllers plan the next shot with.
+    estimates where it is tracking: what the planner and the controllers plan the next shot with.
 
     Parameters
     ----------
@@ -242,11 +241,22 @@ def updated_model(model, modes, tracker):
     modes : sequence of int
         Positional indices in ``model`` of the tracker's modes, in its order.
     tracker : object with ``frequencies``, ``damping``, ``status``
+    others : {"shift", "keep"}
+        The resonances the tracker does not follow (modes not driven, or not tracking):
+        ``"shift"`` moves them by the median relative shift of those it tracks (a uniform change
+        of stiffness, such as temperature, moves every resonance alike; the median ignores one bad
+        estimate), ``"keep"`` leaves the model's. Their damping stays the model's either way.
+        Untracked modes matter to a transient margin: the off-target field is everyone's.
     """
     from dataclasses import replace
 
+    if others not in ("shift", "keep"):
+        raise ValueError(f"others must be 'shift' or 'keep', got {others!r}")
     f, z = np.array(model.frequencies, copy=True), np.array(model.damping, copy=True)
     ok = np.asarray(tracker.status) == TRACKING
     idx = np.asarray(modes, int)[ok]
     f[idx], z[idx] = np.asarray(tracker.frequencies)[ok], np.asarray(tracker.damping)[ok]
+    if others == "shift" and idx.size:
+        rest = np.setdiff1d(np.arange(f.size), idx)
+        f[rest] *= np.median(f[idx] / np.asarray(model.frequencies)[idx])
     return replace(model, frequencies=f, damping=z)

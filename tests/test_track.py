@@ -79,3 +79,26 @@ def test_tracked_model_plans_a_better_focus(sinc18):
         taus = [run_open_loop(m, shape, SimDevice(model, Perturbation(drift=0.01)), 0.025).metrics["tau"]
                 for m in (model, updated_model(model, run.modes, run.tracker))]
     assert taus[1] > taus[0] + 0.1
+
+
+def test_updated_model_moves_the_untracked_resonances_by_the_median_shift():
+    """Three modes tracked (one lost): the tracking ones take their estimates; every other mode moves
+    by their median relative shift, or keeps the model's value when asked."""
+    from types import SimpleNamespace
+
+    from modalctl.track import updated_model
+
+    model = load_scene("thesis-al-cc", 211)
+    modes = [0, 2, 4]
+    tracker = SimpleNamespace(frequencies=model.frequencies[modes] * [1.01, 1.03, 2.0],
+                              damping=model.damping[modes] * 1.2, status=[TRACKING, TRACKING, LOST])
+    shifted = updated_model(model, modes, tracker)
+    kept = updated_model(model, modes, tracker, others="keep")
+    ratio = shifted.frequencies / model.frequencies
+    assert np.allclose(ratio[[0, 2]], [1.01, 1.03]) and np.allclose(shifted.damping[[0, 2]], model.damping[[0, 2]] * 1.2)
+    others = np.setdiff1d(np.arange(model.n_modes), [0, 2])
+    assert np.allclose(ratio[others], 1.02)  # the median of 1.01 and 1.03; the lost estimate ignored
+    assert np.array_equal(shifted.damping[others], model.damping[others])
+    assert np.array_equal(kept.frequencies[others], model.frequencies[others])
+    with pytest.raises(ValueError, match="others"):
+        updated_model(model, modes, tracker, others="all")
