@@ -53,6 +53,8 @@ def main() -> None:
                          "real_time_factor": r.real_time_factor, "shot_real_time_factor": r.shot_real_time_factor,
                          "samples_real_time_factor": by_samples.real_time_factor,
                          "samples_shot_real_time_factor": by_samples.shot_real_time_factor,
+                         "run_real_time_factor": r.run_real_time_factor,
+                         "configure_seconds": r.result.configure_seconds,
                          "crossover_hz": [float(v) for v in (r.design.crossover_hz.min(), r.design.crossover_hz.max())]})
             print(f"{rate / 1e3:4g} kHz seed {seed}: tau {r.tau:.3f}, {1e6 * rows[-1]['step_seconds']:.0f} us/period, "
                   f"loop x{r.real_time_factor:.2f} real time (by samples x{by_samples.real_time_factor:.2f}), "
@@ -65,7 +67,7 @@ def main() -> None:
                         "step_seconds": float(np.median([r["step_seconds"] for r in mine])),
                         **{key: float(np.median([r[key] for r in mine])) for key in
                            ("real_time_factor", "shot_real_time_factor", "samples_real_time_factor",
-                            "samples_shot_real_time_factor")},
+                            "samples_shot_real_time_factor", "run_real_time_factor", "configure_seconds")},
                         "crossover_hz": mine[0]["crossover_hz"]})
     path = write_json("control_rate", {"rows": rows, "summary": summary, "open_loop_tau": open_tau})
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -92,17 +94,20 @@ def main() -> None:
           "Command: `python benchmarks/control_rate.py`. sinc 18 mm at 24 mm, truth +1% / +20% damping / 40 dB, "
           f"DAC 500 kHz. Open loop tau {np.median(open_tau):.3f}.", "",
           "| rate (kHz) | tau median (min-max, 3 seeds) | crossovers (Hz) | runtime us/period "
-          "| loop wall / real time: period map (by samples) | whole shot wall / real time: period map (by samples) |",
-          "|---|---|---|---|---|---|"]
+          "| loop wall / real time: period map (by samples) | shot without configure / real time (period map) "
+          "| board's configure (ms) | whole shot wall / real time: period map (by samples) |",
+          "|---|---|---|---|---|---|---|---|"]
     md += [f"| {s['rate_hz'] / 1e3:g} | {s['tau_median']:.3f} ({s['tau_min']:.3f}-{s['tau_max']:.3f}) | "
            f"{s['crossover_hz'][0]:.0f}-{s['crossover_hz'][1]:.0f} | {1e6 * s['step_seconds']:.0f} | "
            f"{s['real_time_factor']:.2f} ({s['samples_real_time_factor']:.2f}) | "
+           f"{s['run_real_time_factor']:.2f} | {1e3 * s['configure_seconds']:.1f} | "
            f"{s['shot_real_time_factor']:.2f} ({s['samples_shot_real_time_factor']:.2f}) |" for s in summary]
     md += ["", "Medians of the 3 seeds. The loop's wall time includes the emulated board (plant at 500 kHz, lock-in, "
-           "modulation) and the runtime, one Python pass per period; the whole shot adds the board's set-up (its "
-           "period map, the feed-forward's and noise's share of the readings) and the records of every DAC sample "
-           "(played back from the commands), over the shot's whole duration (29 ms, ring-down included); the "
-           "loops' design is not in it. Period map and samples measure the same tau (to 1e-9, checked in the run).",
+           "modulation) and the runtime, one Python pass per period; the shot without configure adds the activation "
+           "(this shot's noise and its share of the readings) and the records of every DAC sample (played back "
+           "from the commands), over the shot's whole duration (29 ms, ring-down included); the whole shot adds "
+           "the board's configuration before it (ros2_control's configure: its period map and the feed-forward's "
+           "share of the readings, the same for every shot of a plan). The loops' design is in none of them. Period map and samples measure the same tau (to 1e-9, checked in the run).",
            ""]
     write_markdown("control_rate", md, path)
 

@@ -19,7 +19,7 @@ from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
-from scipy.signal import tf2ss
+from scipy.signal import lfilter, tf2ss
 
 from modalctl.lockin import lowpass
 from modalctl.model import ModalModel
@@ -277,6 +277,27 @@ class BlockLockIn:
     def process(self, signals: np.ndarray, phases: np.ndarray) -> np.ndarray:
         """Envelope (k,) complex at the last of ``samples`` samples of ``signals`` (k, d) mixed with ``phases``."""
         return self.filter(2 * signals * np.exp(-1j * phases))
+
+    def periods(self, mixed: np.ndarray) -> np.ndarray:
+        """The outputs (k, P) at the last sample of each period of already mixed signals
+        (k, P d), from rest; the filters' own state is left as it is (a pure function).
+
+        Every period's inputs go in at once (one batched product); the state then runs from period
+        to period in the eigenvectors of each mode's ``A^d`` (the Butterworth's poles are distinct),
+        one first-order recursion per pole (scipy's ``lfilter``)."""
+        k, n = mixed.shape
+        p = n // self.samples
+        pushed = np.matmul(mixed[:, :p * self.samples].reshape(k, p, self.samples),
+                           self._from_inputs.transpose(0, 2, 1))  # (k, P, o + 1)
+        poles, vectors = np.linalg.eig(self._from_state[:, :-1])  # A^d = V diag(poles) V^-1, per mode
+        kicks = np.matmul(pushed[:, :, :-1], np.linalg.inv(vectors).transpose(0, 2, 1))  # (k, P, o), V's coordinates
+        after = np.empty_like(kicks)  # the state after each period, in V's coordinates
+        for m in range(k):
+            for j in range(poles.shape[1]):
+                after[m, :, j] = lfilter([1.0], [1.0, -poles[m, j]], kicks[m, :, j])
+        before = np.concatenate([np.zeros_like(after[:, :1]), after[:, :-1]], axis=1)  # at each period's start
+        read = np.einsum("ka,kab->kb", self._from_state[:, -1], vectors)  # C A^(d-1) V (k, o)
+        return np.matmul(before, read[:, :, None])[:, :, 0] + pushed[:, :, -1]
 
     def filter(self, mixed: np.ndarray) -> np.ndarray:
         """The low-pass of already mixed signals (k, d): the output at the last sample, complex (k,)."""

@@ -12,8 +12,9 @@ The board's own watchdog ramps its outputs to zero when no command came for ``wa
 (the host died); :meth:`ramp_down` does the same on request.
 
 When the board is linear (a modal truth without drift, rails or amplifier bandwidth), a period is
-one product (:class:`~modalctl.hil.lifted.PeriodMap`): the feed-forward's and the noise's share
-of the readings is computed for the whole shot at :meth:`start`, and the records (``velocity``,
+one product (:class:`~modalctl.hil.lifted.PeriodMap`): the feed-forward's share of the readings
+is computed for the whole shot at :meth:`configure` (with the map), the noise's at :meth:`start`
+(each shot its own), and the records (``velocity``,
 ``applied``, ``sensed``) are played back at the DAC rate from the commands when they are read.
 A period read during a ramp to zero is played sample by sample (the periods so far replayed).
 """
@@ -104,8 +105,16 @@ class HILBoard:
         self.lockin = BlockLockIn(schedule.bandwidths, self.sample_rate, schedule.decimation)
         self._map = None
         if self.linear and schedule.decimation <= self.LIFTED_SAMPLES:
-            self._map = PeriodMap(self.plant, self.lockin, schedule.carriers, schedule.sensors,
-                                  schedule.feedforward.shape[0], schedule.decimation, self.sample_rate)
+            s, d = schedule, schedule.decimation
+            self._map = PeriodMap(self.plant, self.lockin, s.carriers, s.sensors, s.feedforward.shape[0], d,
+                                  self.sample_rate)
+            # what the feed-forward alone reads, and each period's carrier turns: the same every shot
+            periods = s.feedforward.shape[1] // d
+            plant = Plant(self.truth, self.sample_rate, hold=HOLD)
+            self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
+            self._phasors = Oscillators(s.carriers, self.sample_rate).phasors(periods * d)  # (k, P d)
+            self._fed = open_envelopes(plant.sensors(plant.simulate(s.feedforward[:, :periods * d])), s.sensors,
+                                       self._phasors, self.lockin)
 
     def start(self) -> None:
         s = self.schedule
@@ -131,13 +140,11 @@ class HILBoard:
         self._lifted = self._map is not None
         self._played: list[np.ndarray] = []  # each period's phasors, while lifted
         self._stale = False  # records behind the periods played lifted
-        if self._lifted:
+        if self._lifted:  # the readings without feedback: the feed-forward's and this shot's noise's
             self._state = self._map.zero()
-            periods = total // s.decimation
-            opened = open_envelopes(Plant(self.truth, self.sample_rate, hold=HOLD), s.feedforward, self._noise,
-                                    s.sensors, s.carriers, s.bandwidths, self.sample_rate, s.decimation, periods)
-            turns = np.exp(1j * np.mod(self._map.steps * s.decimation * np.arange(periods)[:, None], 2 * np.pi))
-            self._open, self._turn = np.ascontiguousarray(opened.T), turns  # one row per period
+            opened = self._fed if self._noise is None else self._fed + open_envelopes(
+                self._noise, s.sensors, self._phasors, self.lockin)
+            self._open = np.ascontiguousarray(opened.T)  # one row per period
 
     def _draw_noise(self, sensors: int, total: int, d: int) -> np.ndarray:
         """The sensors' noise (s, total) for the whole shot, drawn in the order the periods play

@@ -51,7 +51,19 @@ class ClosedShot:
     @property
     def shot_real_time_factor(self) -> float:
         """The shot's wall time over the shot's duration (every DAC sample of it)."""
-        return self.shot_seconds / (self.board.schedule.feedforward.shape[1] / self.board.sample_rate)
+        return self.shot_seconds / self.duration
+
+    @property
+    def run_real_time_factor(self) -> float:
+        """The shot's wall time without the board's configuration (ros2_control's configure, before
+        the shot: the period map and the feed-forward's readings), over its duration: activate,
+        the loop, the ring-down and the records of every DAC sample."""
+        return (self.shot_seconds - self.result.configure_seconds) / self.duration
+
+    @property
+    def duration(self) -> float:
+        """Played time of the shot, every DAC sample of it (s)."""
+        return self.board.schedule.feedforward.shape[1] / self.board.sample_rate
 
 
 def run_focus(truth, plan, target, closed: bool = True, control_rate: float = 20e3,

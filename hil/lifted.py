@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from modalctl.lockin import LockIn, Oscillators
+from modalctl.lockin import Oscillators
+
 
 __all__ = ["PeriodMap", "open_envelopes", "ramp_in"]
 
@@ -161,23 +162,18 @@ class PeriodMap:
                           np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
 
 
-def open_envelopes(truth_plant, feedforward: np.ndarray, noise, sensors: np.ndarray, carriers, bandwidths,
-                   sample_rate: float, samples: int, periods: int) -> np.ndarray:
-    """The readings (k, periods) of the feed-forward and the noise alone, at each period's end.
+def open_envelopes(measured: np.ndarray, sensors: np.ndarray, phasors: np.ndarray, lockin) -> np.ndarray:
+    """The readings (k, P) at each period's end of what the sensors measured without feedback
+    (the feed-forward's answer, the noise, or both: the lock-in is linear).
 
     Parameters
     ----------
-    truth_plant : Plant
-        A fresh :class:`modalctl.propagate.Plant` of the truth.
-    feedforward : ndarray, shape (a, N)
-        V, N at least ``periods * samples``.
-    noise : ndarray, shape (s, N) or None
-        The sensors' noise (m/s).
+    measured : ndarray, shape (s, N)
+        The sensors' velocities (m/s), N at least that of ``phasors``.
     sensors : ndarray, shape (k, s)
+    phasors : ndarray, shape (k, P d)
+        The carriers over the P periods read (:meth:`modalctl.lockin.Oscillators.phasors`).
+    lockin : BlockLockIn
+        The board's lock-in (its per-period form; its state is not touched).
     """
-    end = periods * samples
-    measured = truth_plant.sensors(truth_plant.simulate(feedforward[:, :end]))
-    if noise is not None:
-        measured = measured + noise[:, :end]
-    phasors = Oscillators(carriers, sample_rate).phasors(end)
-    return LockIn(bandwidths, sample_rate, samples, closing=True).demodulate(sensors @ measured, phasors)
+    return lockin.periods(2 * (sensors @ measured[:, :phasors.shape[1]]) * phasors.conj())

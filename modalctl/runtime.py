@@ -76,7 +76,8 @@ class Controller(Protocol):
 class RunResult:
     """How a run ended: final ``state``, the ``reason`` of a fault (None if it ran out its schedule),
     the periods played, the compute time of each period's update (s), periods held back by a limit,
-    and the wall time of the loop from the first read to the last write (s)."""
+    the wall time of the loop from the first read to the last write (s), and of the board's
+    configuration before it (s; zero when it came configured)."""
 
     state: State
     reason: str | None
@@ -84,6 +85,7 @@ class RunResult:
     step_seconds: np.ndarray = field(repr=False)
     limited: int = 0
     loop_seconds: float = float("nan")
+    configure_seconds: float = 0.0
 
 
 def log_fields(k: int, a: int) -> dict:
@@ -211,8 +213,10 @@ class Runtime:
             from tqdm import tqdm
             periods = tqdm(periods, desc="closed loop", unit="period", leave=False)
         try:
+            configured = time.perf_counter()
             if self.state == State.UNCONFIGURED:
                 self.configure()
+            configured = time.perf_counter() - configured
             self.activate()
             start = time.perf_counter()
             for _ in periods:
@@ -228,4 +232,4 @@ class Runtime:
             if self.recorder is not None:
                 self.recorder.close()
         return RunResult(self.state, self.reason, self.period, np.array(self._costs), self.supervisor.scaled,
-                         time.perf_counter() - start)
+                         time.perf_counter() - start, configured)

@@ -40,6 +40,11 @@ def test_block_lockin_is_the_lockin_at_each_period_end():
     ours = np.column_stack([block.process(signals[:, i * D:(i + 1) * D], phases[:, i * D:(i + 1) * D])
                             for i in range(30)])
     assert np.max(np.abs(ours - reference)) < 1e-9 * np.max(np.abs(reference))
+    # every period at once (the board's readings without feedback), its own state untouched
+    block.reset()
+    whole = block.periods(2 * signals * np.exp(-1j * phases))
+    assert np.max(np.abs(whole - reference)) < 1e-9 * np.max(np.abs(reference))
+    assert not np.any(block.state)
 
 
 def test_block_plant_is_the_plant_for_chunks_of_any_length():
