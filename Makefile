@@ -19,8 +19,11 @@ demo: $(STAMP)
 		--focus-time 25ms --margin 0.5 --out demo/run
 	$(BIN)/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm \
 		--focus-time 25ms --drift 1% --damping-error 20% --snr 40 --loop closed --out demo/closed
+	$(BIN)/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm \
+		--focus-time 25ms --drift 1% --damping-error 20% --snr 40 --loop closed --learn --out demo/learned
 	@echo "demo: open loop in demo/run/ (metrics.json, fields.npz, spacetime.png, modal_bars.png, voltages.png, spectrogram.png)"
 	@echo "demo: closed loop on a drifted beam in demo/closed/ (the same, plus loop.png and the log)"
+	@echo "demo: the same after a learning shot updated the model in demo/learned/"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
