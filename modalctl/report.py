@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from .decompose import Decomposition  # noqa: E402
 
 __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
-           "plot_spectrogram", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table"]
+           "plot_spectrogram", "plot_learning", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table"]
 
 
 def _save(fig, path) -> Path:
@@ -320,6 +320,41 @@ def plot_sweep_maps(rows, axes, methods, path) -> Path:
     return _save(fig, path)
 
 
+def plot_learning(learned: dict, labels, path) -> Path:
+    """What a learning shot's record taught (``metrics["learning_shot"]``): each mode's resonance
+    and damping relative to the model it was planned on, with two standard errors, and the common
+    shift; the modes of the shot drawn in colour, the others (seen less, held near the common
+    change by the prior) in grey."""
+    shift = 100 * np.asarray(learned["relative_shift"])
+    f = np.asarray(learned["frequencies_hz"])
+    f_error = 200 * np.asarray(learned["frequency_error_hz"]) / (f / (1 + shift / 100))
+    pos = np.arange(shift.size)
+    used = np.isin(np.asarray(labels), learned["modes_used"])
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for mask, colour, name in ((used, "C0", "modes of the shot"), (~used, "0.6", "other modes")):
+        top.errorbar(pos[mask], shift[mask], yerr=f_error[mask], fmt="o", color=colour, capsize=3, label=name)
+    common, error = 100 * learned["common_shift"], 100 * learned["common_shift_error"]
+    top.axhspan(common - 2 * error, common + 2 * error, color="C3", alpha=0.15)
+    top.axhline(common, color="C3", lw=1, label=f"common shift {common:+.2f}% (+-{2 * error:.2f}%)")
+    top.axhline(0, color="k", lw=0.5)
+    top.set_ylabel("resonance change (%)")
+    top.legend(frameon=False, fontsize=8)
+    change = np.asarray(learned["relative_damping_change"])
+    z_error = 200 * np.asarray(learned["damping_error"]) / (np.asarray(learned["damping"]) / (1 + change))
+    for mask, colour in ((used, "C0"), (~used, "0.6")):
+        bottom.errorbar(pos[mask], 100 * change[mask], yerr=z_error[mask], fmt="o", color=colour, capsize=3)
+    bottom.axhline(100 * learned["common_damping_change"], color="C3", lw=1,
+                   label=f"common change {100 * learned['common_damping_change']:+.0f}%")
+    bottom.axhline(0, color="k", lw=0.5)
+    bottom.set_ylabel("damping change (%)")
+    bottom.legend(frameon=False, fontsize=8)
+    bottom.set_xticks(pos, [str(l) for l in labels], fontsize=7)
+    bottom.set_xlabel("mode")
+    top.set_title(f"learned from the first shot (tau {learned['tau']:.3f}, margin {learned['margin_ratio']:.3f}): "
+                  f"2 standard errors, fit {learned['update_seconds']:.1f} s", fontsize=10)
+    return _save(fig, path)
+
+
 def write_run_report(shot, out, focus_velocity=None, sample_rate=None, where=None, finger=None) -> dict:
     """All run pictures into directory ``out``; returns {name: path}. ``finger``: see :func:`plot_spacetime`."""
     out = Path(out)
@@ -328,6 +363,9 @@ def write_run_report(shot, out, focus_velocity=None, sample_rate=None, where=Non
              "voltages": plot_voltages(shot, out / "voltages.png")}
     if focus_velocity is not None:
         paths["spectrogram"] = plot_spectrogram(shot, focus_velocity, sample_rate, where, out / "spectrogram.png")
+    if "learning_shot" in shot.metrics:
+        paths["learning"] = plot_learning(shot.metrics["learning_shot"], shot.decomposition.model.labels,
+                                          out / "learning.png")
     return {k: str(v) for k, v in paths.items()}
 
 

@@ -262,6 +262,7 @@ def _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, op
             "frequencies_hz": got.model.frequencies.tolist(), "frequency_error_hz": got.frequency_error.tolist(),
             "damping": got.model.damping.tolist(), "damping_error": got.damping_error.tolist(),
             "relative_shift": (got.model.frequencies / model.frequencies - 1).tolist(),
+            "relative_damping_change": (got.model.damping / model.damping - 1).tolist(),
             "residual_noise": got.noise, "misfit": got.misfit}, got.model
 
 

@@ -80,7 +80,7 @@ def test_closed_loop_learns_the_truth_and_focuses_better(capsys, tmp_path):
     code = main(["run", "--scene", "thesis-al-cc", "--points", "351", "--shape", "sinc", "--param", "width=18mm",
                  "--param", "center=24mm", "--quiet", "--focus-time", "25ms", "--drift", "1%",
                  "--damping-error", "20%", "--snr", "40", "--sample-rate", "500kHz", "--loop", "closed", "--learn",
-                 "--no-plots", "--out", str(tmp_path)])
+                 "--out", str(tmp_path)])
     assert code == 0, capsys.readouterr().err
     m = json.loads((tmp_path / "metrics.json").read_text())
     learned = m["learning_shot"]
@@ -92,6 +92,7 @@ def test_closed_loop_learns_the_truth_and_focuses_better(capsys, tmp_path):
     assert abs(learned["common_shift"] - 0.01) < 3 * learned["common_shift_error"]
     assert m["tau"] > learned["tau"] and m["tau"] > 0.98
     assert (tmp_path / "log-learning.json").exists() and (tmp_path / "log.json").exists()
+    assert (tmp_path / "learning.png").stat().st_size > 10_000
 
 
 def test_learn_needs_a_closed_loop(capsys, tmp_path):
