@@ -134,13 +134,14 @@ class SimDevice:
             played.append(plant.step(u[:, i:i + chunk]))
         self._modal = np.hstack(played)
         self.info["clipped_samples"] = plant.clipped
-        self._noise_sigma = self._sigma(self._field_peak())
+        self._noise_sigma = self._sigma(self._field_peak()) / np.sqrt(self.perturbation.scan_repeats)
         self._played = plant.sensors(self._modal)
 
     def phasor_board(self, level: float, control_rate: float, latency: int = 0, drift=None):
         """The board in phasor mode (closed loop) on the same truth, for a shot whose field peaks
-        near ``level`` (m/s): sensor and vibrometer noise ``snr_db`` below it, the same rails and
-        amplifier. Returns an :class:`~modalctl.hil.board.HILBoard` at the configured sample rate."""
+        near ``level`` (m/s): sensor and vibrometer noise ``snr_db`` below it (the vibrometer's
+        averaged over ``scan_repeats``), the same rails and amplifier. Returns an
+        :class:`~modalctl.hil.board.HILBoard` at the configured sample rate."""
         from .board import HILBoard
 
         if self.sample_rate is None:
@@ -152,7 +153,8 @@ class SimDevice:
         self._boards += 1  # each shot its own noise
         self._board = HILBoard(truth, self.sample_rate, noise=sigma, voltage_limit=p.voltage_limit,
                                latency=latency, drift=p.schedule() if drift is None else drift,
-                               amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma, seed=p.seed + self._boards)
+                               amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma / np.sqrt(p.scan_repeats),
+                               seed=p.seed + self._boards)
         return self._board
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:

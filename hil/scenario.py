@@ -44,6 +44,9 @@ class Perturbation:
         modes (:mod:`modalctl.hil.finger`).
     finger_at : tuple of float or None
         Where the finger rests (m; one coordinate on a beam, two on a plate).
+    scan_repeats : int
+        The vibrometer measures each point this many times and keeps the mean (the thesis's way to
+        raise its signal-to-noise ratio): its noise falls by the square root (the sensors' does not).
     """
 
     drift: float = 0.0
@@ -58,8 +61,11 @@ class Perturbation:
     drift_step_time: float = 0.0
     finger: float = 0.0
     finger_at: tuple | None = None
+    scan_repeats: int = 1
 
     def __post_init__(self):
+        if int(self.scan_repeats) != self.scan_repeats or self.scan_repeats < 1:
+            raise ValueError(f"scan_repeats must be a whole number of shots, 1 or more, got {self.scan_repeats!r}")
         if self.finger < 0:
             raise ValueError(f"finger damping must be zero or more N s/m, got {self.finger!r}")
         if self.finger and self.finger_at is None:
@@ -95,7 +101,9 @@ class Perturbation:
                  f"drift step {100 * self.drift_step:+g}% at {1e3 * self.drift_step_time:g} ms"
                  if self.drift_step else "",
                  f"finger {self.finger:g} N s/m at {', '.join(f'{1e3 * x:g}' for x in self.finger_at)} mm"
-                 if self.finger else ""]
+                 if self.finger else "",
+                 f"vibrometer mean of {self.scan_repeats}" if self.scan_repeats > 1 and self.snr_db is not None
+                 else ""]
         return ", ".join(p for p in parts if p) or "perfect model"
 
 

@@ -95,6 +95,8 @@ def _add_truth(group, finger_default: str = "the target's peak") -> None:
     group.add_argument("--finger-at", type=_quantity("m", "finger-at", parse_point), metavar="POINT",
                        help=f"where the finger rests, e.g. 24mm or 30mm,20mm (default: {finger_default})")
     group.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
+    group.add_argument("--scan-repeats", type=_within(int, "scan-repeats", 1, low_open=False), default=1,
+                       help="the vibrometer measures each point N times and keeps the mean (1)")
     group.add_argument("--amplifier-bandwidth",
                        type=_within(_quantity("Hz", "amplifier-bandwidth"), "amplifier-bandwidth", 0),
                        help="first-order amplifier bandwidth, e.g. 100kHz")
@@ -118,7 +120,8 @@ def _perturbation(args, model: ModalModel, shape=None):
         at = tuple(model.grid.points[int(np.argmax(np.abs(shape.values)))])
     try:
         return Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
-                            args.rails, args.seed, args.drift_rate, *args.drift_step, args.finger, at)
+                            args.rails, args.seed, args.drift_rate, *args.drift_step, args.finger, at,
+                            args.scan_repeats)
     except ValueError as exc:
         raise ParamError(str(exc)) from None
 

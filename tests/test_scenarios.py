@@ -125,3 +125,25 @@ def test_a_run_under_a_finger_draws_its_report(capsys, tmp_path):
     assert main([*args, "--finger", "0.5Ns/m", "--finger-at", "-20mm", "--out", str(tmp_path)]) == 0
     pictures = json.loads(capsys.readouterr().out)["pictures"]
     assert (tmp_path / "spacetime.png").stat().st_size > 10_000 and "spacetime" in pictures
+
+
+def test_the_vibrometer_averages_its_repeats():
+    """Sixteen repeats of each point: the scan's noise about the truth falls by four (the sensors' not)."""
+    model = load_scene("thesis-al-cc", 105).select(np.arange(5))
+    fs, n = 200e3, 2000
+    u = np.zeros((8, n))
+    u[0] = np.sin(model.omega[1] * np.arange(n) / fs)
+    spread = []
+    for repeats in (1, 16):
+        device = SimDevice(model, Perturbation(snr_db=30.0, scan_repeats=repeats))
+        device.configure(fs)
+        device.activate()
+        device.upload(u)
+        device.trigger()
+        kept, velocity = device.modal_truth()
+        times = np.arange(0, n, 5) / fs
+        truth = model.shapes[kept].T @ velocity[:, ::5]
+        spread.append(np.std(device.scan(times) - truth))
+    assert spread[0] / spread[1] == pytest.approx(4.0, rel=0.1)
+    with pytest.raises(ValueError, match="scan_repeats"):
+        Perturbation(scan_repeats=0)
