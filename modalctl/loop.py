@@ -68,7 +68,8 @@ def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, 
         Sensor noise the controller expects (m/s).
     authority : float
         Largest feedback command of a mode, as a fraction of its planned drive at that moment;
-        a loop rests while its mode's reference is within a few noise deviations of zero.
+        a loop rests while its mode's own answer is within a few noise deviations of zero (so
+        always for a mode the sensors cannot see).
     latency : int
         Periods the board adds between a command and its use (the design allows for them).
     controller : str
@@ -84,7 +85,9 @@ def loop_parts(plan, control_rate: float, sigma: float, authority: float = 0.5, 
     level = np.abs(plan_schedule.reference).max(axis=1)
     loops = get_controller(controller).create(LoopPlant(model.frequencies[modes], model.damping[modes], bands,
                                                         control_rate, 1 + latency, noise, level, drift))
-    excess, spread = np.abs(plan_schedule.reference) - 3 * noise[:, None], 7 * noise[:, None]
+    # trust a reading as far as the mode's own answer rises above its noise (a mode at a node of
+    # every sensor reads only the others' leak, amplified: its loop must rest)
+    excess, spread = np.abs(plan_schedule.own) - 3 * noise[:, None], 7 * noise[:, None]
     trust = np.clip(np.divide(excess, spread, out=(excess > 0).astype(float), where=spread > 0), 0, 1)  # no noise: 1
     limit = authority * np.abs(plan_schedule.drive) * trust
     return LoopParts(plan_schedule, loops, loops.design, limit, feedthrough(model, modes, sensors, plan.weights),

@@ -68,3 +68,30 @@ def test_feedback_holds_the_focus_while_the_resonances_ramp(sinc18):
     closed = run_focus(model, shot, shape, closed=True, drift=drifting)
     assert open_loop.tau < 0.85
     assert closed.tau > open_loop.tau + 0.05
+
+
+def test_loops_rest_on_modes_the_sensors_cannot_see():
+    """The Rython beam's one sensor sits on a node of every second mode: those modes' readings are
+    only the others' leak, amplified. Their loops must rest (no authority), the others' act, and
+    on a perfect model the closed loop keeps the open loop's focus (before, tau fell 0.02)."""
+    import warnings
+
+    from modalctl.decompose import decompose
+    from modalctl.loop import loop_parts
+    from modalctl.planner import plan
+    from modalctl.plugin import get_shape
+    from modalctl.scenes import load_scene
+    from modalctl.shape import parse_params
+
+    model = load_scene("thesis-rython-pp")
+    sinc = get_shape("sinc")
+    shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "20mm", "center": "19mm"}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        shot = plan(decompose(model, shape, 13), 0.025, sample_rate=500e3)
+    seen = np.abs(model.sensor_gains[shot.modes, 0]) > 1e-6 * np.abs(model.sensor_gains[:, 0]).max()
+    assert 0 < seen.sum() < seen.size
+    authority = loop_parts(shot, 20e3, shot.focus_peak / 100).authority.max(axis=1)
+    assert np.all(authority[~seen] == 0) and np.all(authority[seen] > 0)
+    taus = [run_focus(model, shot, shape, closed=closed, snr_db=40.0).tau for closed in (False, True)]
+    assert taus[1] > taus[0] - 0.005
