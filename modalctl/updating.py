@@ -142,6 +142,7 @@ def update(model: ModalModel, voltages: np.ndarray, sensed: np.ndarray, sample_r
         jac[n + np.arange(2 * k), 2 + np.arange(2 * k)] = 1 / prior
         return jac
 
+    floor = 1e-12 * float(np.sqrt(np.mean(y ** 2)))  # keeps the weights finite on a record explained exactly
     start = time.perf_counter()
     # the common shift first, over a grid (the misfit of a long record is not convex in it), then
     # every parameter from there, weighted by the noise the previous fit left
@@ -151,14 +152,13 @@ def update(model: ModalModel, voltages: np.ndarray, sensed: np.ndarray, sample_r
         x[0] = shift
         costs.append(float(np.sum(misfit(x) ** 2)))
     x[0] = SHIFTS[int(np.argmin(costs))]
-    noise = float(np.sqrt(min(costs) / y.size))
+    noise = max(float(np.sqrt(min(costs) / y.size)), floor)
     evaluations = len(SHIFTS)
     for _ in range(max(1, passes)):
         weight = noise
         fit = least_squares(residual, x, jac=jacobian, method="lm", args=(weight,))
         x, evaluations = fit.x, evaluations + fit.nfev
-        # (a floor keeps the weights finite on a record the model explains exactly)
-        noise = max(float(np.sqrt(np.mean((fit.fun[:y.size] * weight) ** 2))), 1e-9 * weight)
+        noise = max(float(np.sqrt(np.mean((fit.fun[:y.size] * weight) ** 2))), floor)
     f, z = unpack(x)
     # the covariance of the last fit, its data weighted by the noise it left
     jac = np.array(fit.jac)
@@ -167,6 +167,6 @@ def update(model: ModalModel, voltages: np.ndarray, sensed: np.ndarray, sample_r
     diag = np.diag(cov)
     var_f = cov[0, 0] + diag[d] + 2 * cov[0, d]
     var_z = cov[1, 1] + diag[e] + 2 * cov[1, e]
-    return Updated(replace(model, frequencies=f, damping=z), float(x[0]), float(np.sqrt(cov[0, 0])), float(np.exp(x[1]) - 1),
-                   f0 * np.sqrt(np.maximum(var_f, 0)), z * np.sqrt(np.maximum(var_z, 0)), noise,
-                   noise / float(np.sqrt(np.mean(y ** 2))), time.perf_counter() - start, evaluations)
+    return Updated(replace(model, frequencies=f, damping=z), float(x[0]), float(np.sqrt(cov[0, 0])),
+                   float(np.exp(x[1]) - 1), f0 * np.sqrt(np.maximum(var_f, 0)), z * np.sqrt(np.maximum(var_z, 0)),
+                   noise, noise / float(np.sqrt(np.mean(y ** 2))), time.perf_counter() - start, evaluations)

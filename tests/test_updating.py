@@ -98,7 +98,20 @@ def test_closed_loop_learns_the_truth_and_focuses_better(capsys, tmp_path):
 def test_learn_needs_a_closed_loop(capsys, tmp_path):
     from modalctl.cli import main
 
-    code = main(["run", "--scene", "thesis-al-cc", "--shape", "sinc", "--focus-time", "25ms", "--quiet", "--learn", "--out",
-                 str(tmp_path / "r")])
+    code = main(["run", "--scene", "thesis-al-cc", "--shape", "sinc", "--focus-time", "25ms", "--quiet", "--learn",
+                 "--out", str(tmp_path / "r")])
     assert code == 2 and "--learn needs a closed loop" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_a_record_without_noise_gives_the_truth_back(sinc18):
+    """No noise, every resonance +1% and damping +20%: the fit (its weights held finite by a floor)
+    returns every mode the record sees to round-off."""
+    model, _, plan = sinc18
+    truth = replace(model, frequencies=model.frequencies * 1.01, damping=model.damping * 1.2)
+    volts = plan.voltages()
+    got = update(model, volts, record_of(truth, volts, FS), FS)
+    assert np.all(np.isfinite(got.model.frequencies))
+    assert got.shift == pytest.approx(0.01, abs=1e-6) and got.damping_change == pytest.approx(0.2, abs=1e-4)
+    seen = got.frequency_error / truth.frequencies < 1e-3
+    assert np.max(np.abs(got.model.frequencies[seen] / truth.frequencies[seen] - 1)) < 1e-6
