@@ -212,7 +212,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     return shot
 
 
-def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, tracker=None, *, control_rate,
+def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, *, control_rate,
             authority, latency, drift, controller, voltage_limit, slew_limit, progress, watchdog):
     """Play ``the_plan`` closed loop on the device's phasor board and measure it; returns
     ``(shot, run result, loop parts, design seconds)``."""
@@ -226,7 +226,7 @@ def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, tra
     if on_board:
         result = _loops_on_board(the_plan, board, parts, device, log)
     else:
-        result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency, tracker=tracker,
+        result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency,
                              log=log, progress=progress, watchdog=watchdog)
     board.play_out()
     times = np.union1d(the_plan.check_times(), [focus_time])
