@@ -267,6 +267,10 @@ class BlockLockIn:
         self._from_state = np.concatenate([powers[samples], read_state[:, None, :]], axis=1).astype(complex)
         self._from_inputs = np.concatenate([inputs, read_inputs[:, None, :]], axis=1).astype(complex)
         self.powers, self.inputs = powers, inputs  # A^0 ... A^d (d + 1, k, o, o); A^(d-1-j) b (k, o, d)
+        # A^d = V diag(poles) V^-1 per mode (the Butterworth's poles are distinct), for :meth:`periods`
+        self._poles, vectors = np.linalg.eig(self._from_state[:, :-1])
+        self._to_poles = np.linalg.inv(vectors).transpose(0, 2, 1)  # right-multiplies a row of states
+        self._read_poles = np.einsum("ka,kab->kb", self._from_state[:, -1], vectors)  # C A^(d-1) V (k, o)
         self.samples = int(samples)
         self.reset()
 
@@ -289,15 +293,13 @@ class BlockLockIn:
         p = n // self.samples
         pushed = np.matmul(mixed[:, :p * self.samples].reshape(k, p, self.samples),
                            self._from_inputs.transpose(0, 2, 1))  # (k, P, o + 1)
-        poles, vectors = np.linalg.eig(self._from_state[:, :-1])  # A^d = V diag(poles) V^-1, per mode
-        kicks = np.matmul(pushed[:, :, :-1], np.linalg.inv(vectors).transpose(0, 2, 1))  # (k, P, o), V's coordinates
+        kicks = np.matmul(pushed[:, :, :-1], self._to_poles)  # (k, P, o), in V's coordinates
         after = np.empty_like(kicks)  # the state after each period, in V's coordinates
         for m in range(k):
-            for j in range(poles.shape[1]):
-                after[m, :, j] = lfilter([1.0], [1.0, -poles[m, j]], kicks[m, :, j])
+            for j in range(self._poles.shape[1]):
+                after[m, :, j] = lfilter([1.0], [1.0, -self._poles[m, j]], kicks[m, :, j])
         before = np.concatenate([np.zeros_like(after[:, :1]), after[:, :-1]], axis=1)  # at each period's start
-        read = np.einsum("ka,kab->kb", self._from_state[:, -1], vectors)  # C A^(d-1) V (k, o)
-        return np.matmul(before, read[:, :, None])[:, :, 0] + pushed[:, :, -1]
+        return np.matmul(before, self._read_poles[:, :, None])[:, :, 0] + pushed[:, :, -1]
 
     def filter(self, mixed: np.ndarray) -> np.ndarray:
         """The low-pass of already mixed signals (k, d): the output at the last sample, complex (k,)."""
