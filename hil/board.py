@@ -100,6 +100,7 @@ class HILBoard:
             raise ValueError(f"board runs at {self.sample_rate:g} Hz, the schedule at "
                              f"{schedule.decimation} x {schedule.control_rate:g} Hz")
         self.schedule = schedule
+        self._weights = np.asarray(schedule.weights, complex)
         if isinstance(self.truth, ModalModel) and self.amplifier_bandwidth is None:  # one product per period
             self.plant = BlockPlant(self.truth, self.sample_rate, HOLD, self.voltage_limit)
         self.lockin = BlockLockIn(schedule.bandwidths, self.sample_rate, schedule.decimation)
@@ -107,7 +108,7 @@ class HILBoard:
         if self.linear and schedule.decimation <= self.LIFTED_SAMPLES:
             s, d = schedule, schedule.decimation
             self._map = PeriodMap(self.plant, self.lockin, s.carriers, s.sensors, s.feedforward.shape[0], d,
-                                  self.sample_rate)
+                                  self.sample_rate, s.weights)
             # what the feed-forward alone reads, and each period's carrier turns: the same every shot
             periods = s.feedforward.shape[1] // d
             plant = Plant(self.truth, self.sample_rate, hold=HOLD)
@@ -124,9 +125,11 @@ class HILBoard:
         self.osc = Oscillators(s.carriers, self.sample_rate)
         self.lockin.reset()
         a, k = s.feedforward.shape[0], s.carriers.size
-        self.current = np.zeros((a, k), complex)
-        self.queue = deque([np.zeros((a, k), complex)] * self.latency)
+        self.current = np.zeros((a, k), complex)  # each channel's phasors, (a, k)
         self.pending = np.zeros((a, k), complex)
+        # the per-mode commands behind them, or None when they were set per channel
+        self._commands, self._pending_commands = np.zeros(k, complex), np.zeros(k, complex)
+        self.queue = deque([(self.pending, self._pending_commands)] * self.latency)
         self.sample = 0  # next DAC sample
         self.period = 0
         self.idle = 0  # periods since the last command
@@ -186,10 +189,12 @@ class HILBoard:
             self.ramp_down(1 / s.control_rate)
         if self._lifted and self.ramp is not None:  # a period ramping to zero is not linear
             self._to_samples()
-        target = self.queue.popleft() if self.latency else self.pending
+        given = (self.pending, self._pending_commands)
+        target, commands = self.queue.popleft() if self.latency else given
         if self.latency:
-            self.queue.append(self.pending)
-        envelopes = self._play_lifted(target) if self._lifted else self._play(d, target)
+            self.queue.append(given)
+        envelopes = self._play_lifted(target, commands) if self._lifted else self._play(d, target)
+        self._commands = commands
         self.period += 1
         if self.fail_after is not None and self.period > self.fail_after:
             return None
@@ -197,7 +202,14 @@ class HILBoard:
 
     def write(self, commands: np.ndarray) -> None:
         """Per-mode commands (k,) for the next period, dispatched to the channels."""
-        self.pending = self.schedule.weights * np.asarray(commands, complex)[None, :]
+        self._pending_commands = np.array(commands, complex)
+        self.pending = self._weights * self._pending_commands
+        self.idle = 0
+
+    def write_phasors(self, phasors: np.ndarray) -> None:
+        """Each channel's phasors (a, k) for the next period, as they are (a board of several,
+        each with its own channels' share, some perhaps missing)."""
+        self.pending, self._pending_commands = np.array(phasors, complex), None
         self.idle = 0
 
     def run_loops(self, loops, each_period=None):
@@ -257,13 +269,17 @@ class HILBoard:
         self._sensed[:, start:start + n] = measured
         return self.lockin.filter(2 * (s.sensors @ measured) * carrier.conj()) if measure else None
 
-    def _play_lifted(self, target: np.ndarray) -> np.ndarray:
-        """One period by the period map; the envelopes at its end (k,)."""
+    def _play_lifted(self, target: np.ndarray, commands: np.ndarray | None) -> np.ndarray:
+        """One period by the period map, to the phasors ``target`` (a, k), the ``commands`` (k,)
+        behind them if any; the envelopes at its end (k,)."""
         n = self.sample // self.schedule.decimation
         turn = self._turn[n]
         if n == 0 and np.any(target):
             self._state = self._map.at_rest(target)
-        self._state, turned = self._map.step(self._state, self.current, target, turn)
+        if commands is not None and self._commands is not None:  # the smaller product
+            self._state, turned = self._map.step_commands(self._state, self._commands, commands, turn)
+        else:
+            self._state, turned = self._map.step(self._state, self.current, target, turn)
         self._played.append(target)
         self.current = target
         self.sample += self.schedule.decimation
@@ -279,18 +295,15 @@ class HILBoard:
         s, end = self.schedule, self.sample
         d, periods = s.decimation, len(self._played)
         volts = np.array(s.feedforward[:, :end])
-        # the carriers in period p are its start's phasor (the map's turn) times one period's table,
-        # as the board's own Oscillators play them
-        table = np.exp(1j * self._map.steps[:, None] * np.arange(d))  # (k, d)
         if periods:
             this = np.array(self._played)  # (P, a, k)
-            a = this.shape[1]
-            both = np.concatenate([np.concatenate([np.zeros_like(this[:1]), this[:-1]]), this], axis=1)  # last, this
-            on = ((both * self._turn[:periods, None, :]).reshape(-1, table.shape[0]) @ table).real \
-                .reshape(periods, 2 * a, d)  # both on the carriers (one 2-D product: BLAS)
-            ramp = ramp_in(d)
-            played = on[:, :a] * (1 - ramp) + on[:, a:] * ramp  # (P, a, d)
-            volts[:, :periods * d] += played.transpose(1, 0, 2).reshape(-1, periods * d)
+            (_, a, k), turn = this.shape, self._turn[:periods, None, :]
+            turned = np.empty((periods, a, 2 * k), complex)  # the last and this period's phasors, turned
+            np.multiply(this[:-1], turn[1:], out=turned[1:, :, :k])
+            turned[0, :, :k] = 0
+            np.multiply(this, turn, out=turned[:, :, k:])
+            played = turned.view(float).reshape(periods * a, 4 * k) @ self._on_carriers()  # one real product
+            volts[:, :periods * d] += played.reshape(periods, a, d).transpose(1, 0, 2).reshape(a, periods * d)
         if end > periods * d:  # after the loop: held
             osc = Oscillators(s.carriers, self.sample_rate)
             osc.skip(periods * d)
@@ -303,6 +316,17 @@ class HILBoard:
         self._applied[:, :end], self._velocity[:, :end] = volts, velocity
         self._sensed[:, :end] = plant.sensors(velocity) + (0 if self._noise is None else self._noise[:, :end])
         self._stale = False
+
+    def _on_carriers(self) -> np.ndarray:
+        """What the turned phasors of the last and this period (``k`` each, their real and
+        imaginary parts interleaved) put on a channel at each sample of a period, shape (4 k, d):
+        the straight-line ramp from one to the other times the carriers, which in period p are its
+        start's phasor (the turn) times one period's table, as the board's own Oscillators play them."""
+        d = self.schedule.decimation
+        table = np.exp(1j * self._map.steps[:, None] * np.arange(d))  # (k, d)
+        ramp = ramp_in(d)
+        rows = np.stack([(1 - ramp) * table, ramp * table])  # (last, this), k, d
+        return np.stack([rows.real, -rows.imag], axis=2).reshape(-1, d)  # Re(v c) = Re v Re c - Im v Im c
 
     def _to_samples(self) -> None:
         """Leave the period map: replay the periods played so far sample by sample (the plant's,

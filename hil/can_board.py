@@ -230,8 +230,7 @@ class CanBoardEmulator(BoardEmulator):
         rows = np.zeros((self.model.actuator_gains.shape[1], k), complex)
         for node, (channels, _) in self.layout.items():
             rows[channels] = self._commands.get(node, np.zeros(k))  # a board that missed its commands: none
-        self.board.pending = self.board.schedule.weights * rows
-        self.board.idle = 0
+        self.board.write_phasors(self.board.schedule.weights * rows)
         self._node = self.sensing
         reset = self.faults.get("reset_after")
         if reset is not None and self.board.period >= reset:

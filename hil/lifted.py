@@ -18,7 +18,9 @@ per shot from the board's equations over one period's samples (the hold's recurs
 :mod:`modalctl.propagate`, the straight-line phasor ramp, the sensors' combinations and the
 lock-in's Butterworth at the sample rate), so the readings agree with the board's
 sample-by-sample path to round-off (tested). A period then costs one product instead of a dozen
-array operations on every sample.
+array operations on every sample. Phasors that are the dispatch's weights times per-mode commands
+(every period the host writes) go through a smaller map, the weights folded in (``4 k`` phasor
+columns instead of ``4 a k``); the per-channel map (a CAN board's rows) is built when first needed.
 """
 
 from __future__ import annotations
@@ -57,9 +59,14 @@ class PeriodMap:
         Samples per period d.
     sample_rate : float
         Hz.
+    weights : ndarray, shape (a, k), optional
+        The dispatch of each mode's command to the channels. With it, :meth:`step_commands` plays
+        a period whose phasors are ``weights`` times per-mode commands by a matrix with ``4 k``
+        phasor columns instead of ``4 a k`` (the same map, the weights folded in).
     """
 
-    def __init__(self, plant, lockin, carriers, sensors, channels: int, samples: int, sample_rate: float):
+    def __init__(self, plant, lockin, carriers, sensors, channels: int, samples: int, sample_rate: float,
+                 weights: np.ndarray | None = None):
         if lockin.samples != samples:
             raise ValueError(f"period map: a lock-in built for {lockin.samples} samples a period, not {samples}")
         rec = plant.modes
@@ -69,13 +76,29 @@ class PeriodMap:
         self.states = 3 * self.K + 2 * self.k * self.o
         self.steps = Oscillators(carriers, sample_rate).steps  # rad per sample
         self.samples = int(samples)
-        self.matrix = self._build(plant.residues, np.asarray(sensors) @ plant.model.sensor_gains.T, lockin)
-        # the product's input: the state, then both phasor sets as complex views (real and
-        # imaginary parts interleaved), written in place
-        self._input = np.zeros(self.matrix.shape[1])
-        ak, n = self.a * self.k, self.states
-        self._last = self._input[n:n + 2 * ak].view(complex).reshape(self.a, self.k)
-        self._this = self._input[n + 2 * ak:].view(complex).reshape(self.a, self.k)
+        self._parts = (plant.residues, np.asarray(sensors) @ plant.model.sensor_gains.T, lockin)
+        self._matrix = None
+        if weights is not None:  # channel a's phasor of mode m is w = weights[a, m] times the command v:
+            w = np.asarray(weights, complex)  # Re and Im of it are Re w Re v - Im w Im v, Im w Re v + Re w Im v
+            turn = np.stack([np.stack([w.real, w.imag], -1), np.stack([-w.imag, w.real], -1)], -2)  # (a, k, 2, 2)
+            self.folded = self._build(*self._parts, np.einsum("ma,acqp->mcqp", self.gains, turn)[:, None])
+            self._folded_input = np.zeros(self.folded.shape[1])
+            n, k2 = self.states, 2 * self.k
+            self._last_command = self._folded_input[n:n + k2].view(complex)
+            self._this_command = self._folded_input[n + k2:].view(complex)
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The map for any per-channel phasors (built when first needed: the per-mode commands'
+        :attr:`folded` map is the one a shot usually plays)."""
+        if self._matrix is None:
+            unit = np.eye(2)[None, None, None] * np.ones((1, 1, self.k, 1, 1))  # (1, 1, k, 2, 2)
+            self._matrix = self._build(*self._parts, self.gains[:, :, None, None, None] * unit)
+            self._input = np.zeros(self._matrix.shape[1])
+            ak, n = self.a * self.k, self.states
+            self._last = self._input[n:n + 2 * ak].view(complex).reshape(self.a, self.k)
+            self._this = self._input[n + 2 * ak:].view(complex).reshape(self.a, self.k)
+        return self._matrix
 
     def zero(self) -> np.ndarray:
         """The state at rest (real, ``states``)."""
@@ -94,47 +117,60 @@ class PeriodMap:
         """One period: ``state`` (real), the phasors of the last and this period (a, k) and each
         carrier's turn at the period's start (k,); returns the next state and the lock-in outputs at
         the period's end (k,), complex, still turned."""
-        n = self.states
+        n, matrix = self.states, self.matrix
         self._input[:n] = state
         np.multiply(last, turn, out=self._last)
         np.multiply(this, turn, out=self._this)
-        out = self.matrix @ self._input
+        out = matrix @ self._input
         return out[:n], out[n:].view(complex)
 
-    def _build(self, residues, reading, lockin) -> np.ndarray:
+    def step_commands(self, state: np.ndarray, last: np.ndarray, this: np.ndarray, turn: np.ndarray):
+        """As :meth:`step` for phasors that are the weights times per-mode commands: ``last`` and
+        ``this`` are the commands (k,) of the last period and of this one."""
+        n = self.states
+        self._folded_input[:n] = state
+        np.multiply(last, turn, out=self._last_command)
+        np.multiply(this, turn, out=self._this_command)
+        out = self.folded @ self._folded_input
+        return out[:n], out[n:].view(complex)
+
+    def _build(self, residues, reading, lockin, drive) -> np.ndarray:
         """One period's response to every basis vector of (state, last, this), from the board's
         equations over the period's samples: the hold's recursion of each mode, the straight-line
         phasor ramp on the carriers, the sensors' combinations, the lock-in's Butterworth.
 
-        The modes are independent and a phasor on channel a reaches mode m as ``G[m, a]`` times
-        a force that depends on (this or last, carrier, real or imaginary part) only, so each mode
-        is run once per such force pattern (``4 k`` of them) rather than once per basis vector;
-        the lock-in is linear and time-invariant per sample, so its state at the period's end
-        is a sum over the samples with the powers of its matrix."""
-        K, k, o, a, d = self.K, self.k, self.o, self.a, self.samples
-        n, ak = self.states, a * k
+        ``drive`` (K, h, k, 2, 2) is the force on mode m of a unit input column (channel h of the
+        columns' h, carrier c, real or imaginary part q) per unit of each force pattern's part p:
+        ``G[m, a]`` for per-channel phasors, the dispatch's weights folded in for per-mode
+        commands. A phasor's force depends on (this or last, carrier, part) only, so each mode is
+        run once per such pattern (``4 k`` of them, one pass over the samples) rather than once per
+        basis vector; the lock-in is linear and time-invariant per sample, so its state at the
+        period's end is a sum over the samples with the powers of its matrix."""
+        K, k, o, d, h = self.K, self.k, self.o, self.samples, drive.shape[1]
+        n = self.states
         e, g0, g1, r = self.e, self.g0, self.g1, residues
         carrier = np.exp(1j * np.outer(np.arange(d), self.steps))  # (d, k), the carriers at each sample
-        ramp = ramp_in(d)[:, None]
+        ramp = ramp_in(d)[:, None, None]
         # the force patterns (d, 2 (last, this), k, 2 (real, imaginary part of the phasor))
         unit = np.stack([carrier.real, -carrier.imag], axis=-1)  # Re(c), Re(j c)
-        force = np.stack([(1 - ramp)[:, :, None] * unit, ramp[:, :, None] * unit], axis=1).reshape(d, 4 * k)
-        mode = np.zeros((d, K, 4 * k), complex)  # each mode's state after each sample, per unit force pattern
-        z = np.zeros((K, 4 * k), complex)
-        for i in range(d):
-            z = mode[i] = e[:, None] * z + g0[:, None] * (force[i - 1] if i else 0.0) + g1[:, None] * force[i]
-        # columns of the input phasors: (which, channel, carrier, part) -> n + which 2ak + 2 (channel k + carrier) + part
-        which, channel, car, part = np.meshgrid(np.arange(2), np.arange(a), np.arange(k), np.arange(2), indexing="ij")
-        columns = (n + which * 2 * ak + 2 * (channel * k + car) + part).transpose(1, 0, 2, 3).reshape(a, 4 * k)
-        width = n + 4 * ak
+        force = np.stack([(1 - ramp) * unit, ramp * unit], axis=1)
+        flat = force.reshape(d, 1, 4 * k)
+        # each mode's state after each sample, per unit force pattern: z_i = e z_(i-1) + g0 f_(i-1) + g1 f_i
+        mode = g1[:, None] * flat + g0[:, None] * np.concatenate([np.zeros_like(flat[:1]), flat[:-1]])
+        carried = np.empty(mode.shape[1:], complex)
+        for i in range(1, d):
+            mode[i] += np.multiply(e[:, None], mode[i - 1], out=carried)
+        mode = mode.reshape(d, K, 2, k, 2)
+        width = n + 4 * h * k  # the input columns: (which, channel, carrier, part) after the state
         mixed = np.zeros((d, k, width), complex)  # what each basis vector puts into each lock-in at each sample
         turn = 2 * carrier.conj()[:, :, None]
         after = e[None, :] ** (np.arange(d) + 1)[:, None]  # (d, K): a mode's own state after each sample
         mixed[:, :, :K] = turn * (reading[None] * (2 * (r * after).real)[:, None, :])
         mixed[:, :, K:2 * K] = turn * (reading[None] * (-2 * (r * after).imag)[:, None, :])
         mixed[:, :, 2 * K:3 * K] = turn * (reading[None] * (2 * (r * g0 * after / e).real)[:, None, :])
-        seen = np.tensordot(reading[:, :, None] * self.gains[None], 2 * (r[:, None] * mode).real, axes=([1], [1]))
-        mixed[:, :, columns] = turn[:, :, :, None] * seen.transpose(2, 0, 1, 3)  # (k, a, d, 4k) -> (d, k, a, 4k)
+        answer = 2 * (r[None, :, None, None, None] * mode).real
+        seen = np.einsum("lm,mhcqp,imwcp->ilwhcq", reading, drive, answer, optimize=True)
+        mixed[:, :, n:] = turn * seen.reshape(d, k, width - n)
         # the lock-in: q_(i+1) = A q_i + b mixed_i from the basis's own lock-in state
         powers = lockin.powers  # (d + 1, k, o, o): A^0 ... A^d
         kick = lockin.inputs.transpose(0, 2, 1)  # A^(d-1-i) b, (k, d, o)
@@ -155,9 +191,9 @@ class PeriodMap:
         z_end[:, :K] = np.diag(after[-1])
         z_end[:, K:2 * K] = np.diag(1j * after[-1])
         z_end[:, 2 * K:3 * K] = np.diag(g0 * after[-2] if d > 1 else g0)
-        z_end[:, columns] = self.gains[:, :, None] * mode[-1][:, None, :]
+        z_end[:, n:] = np.einsum("mhcqp,mwcp->mwhcq", drive, mode[-1]).reshape(K, width - n)
         force_end = np.zeros((K, width))
-        force_end[:, columns] = self.gains[:, :, None] * force[-1][None, None, :]
+        force_end[:, n:] = np.einsum("mhcqp,wcp->mwhcq", drive, force[-1]).reshape(K, width - n)
         return np.vstack([z_end.real, z_end.imag, force_end, q.real, q.imag,
                           np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
 

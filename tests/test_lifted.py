@@ -5,6 +5,7 @@ import pytest
 
 from modalctl.hil.board import HILBoard
 from modalctl.hil.closed import run_focus
+from modalctl.hil.lifted import PeriodMap
 from modalctl.hil.scenario import Perturbation, perturb
 from modalctl.loop import loop_parts
 
@@ -42,7 +43,7 @@ def test_period_map_reads_what_the_samples_read(sinc18, latency):
         if n % 3 == 2:  # rows of phasors, one per channel, as a CAN emulator sets them
             rows = scale * (rng.standard_normal((a, k)) + 1j * rng.standard_normal((a, k)))
             for board in (fast, slow):
-                board.pending, board.idle = rows, 0
+                board.write_phasors(rows)
         else:
             command = scale * (rng.standard_normal(k) + 1j * rng.standard_normal(k))
             for board in (fast, slow):
@@ -89,3 +90,22 @@ def test_no_period_map_where_the_board_is_not_linear(sinc18, kw):
     model, _, plan = sinc18
     (board, _), _ = _boards(model, plan, **kw)
     assert board._map is None and not board._lifted
+
+
+def test_commands_map_is_the_channels_map_with_the_weights_folded_in(sinc18):
+    """A period of per-mode commands by the folded map equals the per-channel map on the weights
+    times those commands (complex weights, so that both parts of the fold count)."""
+    model, _, plan = sinc18
+    (board, _), s = _boards(model, plan)
+    rng = np.random.default_rng(7)
+    k, a = s.carriers.size, s.weights.shape[0]
+    weights = s.weights * np.exp(1j * rng.uniform(-np.pi, np.pi, s.weights.shape))
+    m = PeriodMap(board.plant, board.lockin, s.carriers, s.sensors, a, s.decimation, FS, weights)
+    state = rng.standard_normal(m.states)
+    last, this = (rng.standard_normal(k) + 1j * rng.standard_normal(k) for _ in range(2))
+    turn = np.exp(1j * rng.uniform(-np.pi, np.pi, k))
+    by_commands = [x.copy() for x in m.step_commands(state, last, this, turn)]
+    by_channels = m.step(state, weights * last, weights * this, turn)
+    for mine, theirs in zip(by_commands, by_channels):
+        assert np.max(np.abs(mine - theirs)) <= 1e-12 * np.max(np.abs(theirs))
+    assert m.folded.shape[1] == m.states + 4 * k and m.matrix.shape[1] == m.states + 4 * a * k
