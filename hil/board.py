@@ -12,10 +12,11 @@ The board's own watchdog ramps its outputs to zero when no command came for ``wa
 (the host died); :meth:`ramp_down` does the same on request.
 
 When the board is linear (a modal truth without drift, rails or amplifier bandwidth), a period is
-one product (:class:`~modalctl.hil.lifted.PeriodMap`): the feed-forward's share of the readings
-is computed for the whole shot at :meth:`configure` (with the map), the noise's at :meth:`start`
-(each shot its own), and the records (``velocity``,
-``applied``, ``sensed``) are played back at the DAC rate from the commands when they are read.
+one product (:class:`~modalctl.hil.lifted.PeriodMap`): what the sensors measure of the
+feed-forward alone is computed for the whole shot at :meth:`configure` (with the map), its readings
+with this shot's noise at :meth:`start` (the lock-in is linear: one pass), and the records
+(``velocity``, ``applied``, ``sensed``) are played back at the DAC rate from the commands when
+they are read.
 A period read during a ramp to zero is played sample by sample (the periods so far replayed).
 """
 
@@ -114,8 +115,8 @@ class HILBoard:
             plant = Plant(self.truth, self.sample_rate, hold=HOLD)
             self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
             self._phasors = Oscillators(s.carriers, self.sample_rate).phasors(periods * d)  # (k, P d)
-            self._fed = open_envelopes(plant.sensors(plant.simulate(s.feedforward[:, :periods * d])), s.sensors,
-                                       self._phasors, self.lockin)
+            self._fed_sensed = plant.sensors(plant.simulate(s.feedforward[:, :periods * d]))  # (s, P d)
+            self._fed = None  # its readings, made at the first start without noise
 
     def start(self) -> None:
         s = self.schedule
@@ -145,17 +146,24 @@ class HILBoard:
         self._stale = False  # records behind the periods played lifted
         if self._lifted:  # the readings without feedback: the feed-forward's and this shot's noise's
             self._state = self._map.zero()
-            opened = self._fed if self._noise is None else self._fed + open_envelopes(
-                self._noise, s.sensors, self._phasors, self.lockin)
+            if self._noise is not None:  # the lock-in is linear: one pass reads both
+                opened = open_envelopes(self._fed_sensed + self._noise[:, :self._fed_sensed.shape[1]], s.sensors,
+                                        self._phasors, self.lockin)
+            else:
+                if self._fed is None:
+                    self._fed = open_envelopes(self._fed_sensed, s.sensors, self._phasors, self.lockin)
+                opened = self._fed
             self._open = np.ascontiguousarray(opened.T)  # one row per period
 
     def _draw_noise(self, sensors: int, total: int, d: int) -> np.ndarray:
         """The sensors' noise (s, total) for the whole shot, drawn in the order the periods play
         (a period's (s, d) block after another's), whichever way they are played."""
         full = total // d
-        blocks = self.rng.standard_normal((full, sensors, d)).transpose(1, 0, 2).reshape(sensors, full * d)
-        rest = self.rng.standard_normal((sensors, total - full * d))
-        return self.noise * np.concatenate([blocks, rest], axis=1)
+        noise = np.empty((sensors, total))
+        noise[:, :full * d].reshape(sensors, full, d)[...] = self.rng.standard_normal((full, sensors, d)).transpose(1, 0, 2)
+        noise[:, full * d:] = self.rng.standard_normal((sensors, total - full * d))
+        noise *= self.noise
+        return noise
 
     # -- the records, played back at the DAC rate when the periods were played lifted ---------
     @property
