@@ -253,7 +253,7 @@ class BlockLockIn:
         b = np.array([m[1][:, 0] for m in mats])  # (k, o)
         c = np.array([m[2][0] for m in mats])  # (k, o)
         d = np.array([m[3][0, 0] for m in mats])  # (k,)
-        self.a, self.b, self.c, self.d = a, b, c, d  # per sample, per mode (the period map reads them)
+        self.a, self.b, self.c, self.d = a, b, c, d  # per sample, per mode
         powers = [np.broadcast_to(np.eye(order), a.shape)]
         for _ in range(samples):
             powers.append(a @ powers[-1])
@@ -264,13 +264,12 @@ class BlockLockIn:
         read_inputs = np.concatenate([np.einsum("ka,kaj->kj", c, inputs[:, :, 1:]),  # C A^(d-2-j) B, j < d-1
                                       d[:, None]], axis=1)  # (k, d)
         # one product a period: the next state and the output together, rows (o states, 1 output)
-        self._from_state = np.concatenate([powers[samples], read_state[:, None, :]], axis=1).astype(complex)
-        self._from_inputs = np.concatenate([inputs, read_inputs[:, None, :]], axis=1).astype(complex)
-        self.powers, self.inputs = powers, inputs  # A^0 ... A^d (d + 1, k, o, o); A^(d-1-j) b (k, o, d)
+        self.from_state = np.concatenate([powers[samples], read_state[:, None, :]], axis=1).astype(complex)
+        self.from_inputs = np.concatenate([inputs, read_inputs[:, None, :]], axis=1).astype(complex)
         # A^d = V diag(poles) V^-1 per mode (the Butterworth's poles are distinct), for :meth:`periods`
-        self._poles, vectors = np.linalg.eig(self._from_state[:, :-1])
+        self._poles, vectors = np.linalg.eig(self.from_state[:, :-1])
         self._to_poles = np.linalg.inv(vectors).transpose(0, 2, 1)  # right-multiplies a row of states
-        self._read_poles = np.einsum("ka,kab->kb", self._from_state[:, -1], vectors)  # C A^(d-1) V (k, o)
+        self._read_poles = np.einsum("ka,kab->kb", self.from_state[:, -1], vectors)  # C A^(d-1) V (k, o)
         self.samples = int(samples)
         self.reset()
 
@@ -292,7 +291,7 @@ class BlockLockIn:
         k, n = mixed.shape
         p = n // self.samples
         pushed = np.matmul(mixed[:, :p * self.samples].reshape(k, p, self.samples),
-                           self._from_inputs.transpose(0, 2, 1))  # (k, P, o + 1)
+                           self.from_inputs.transpose(0, 2, 1))  # (k, P, o + 1)
         kicks = np.matmul(pushed[:, :, :-1], self._to_poles)  # (k, P, o), in V's coordinates
         after = np.empty_like(kicks)  # the state after each period, in V's coordinates
         for m in range(k):
@@ -303,7 +302,7 @@ class BlockLockIn:
 
     def filter(self, mixed: np.ndarray) -> np.ndarray:
         """The low-pass of already mixed signals (k, d): the output at the last sample, complex (k,)."""
-        both = (np.matmul(self._from_state, self.state[:, :, None])
-                + np.matmul(self._from_inputs, mixed[:, :, None]))[:, :, 0]  # (k, o + 1)
+        both = (np.matmul(self.from_state, self.state[:, :, None])
+                + np.matmul(self.from_inputs, mixed[:, :, None]))[:, :, 0]  # (k, o + 1)
         self.state = both[:, :-1]
         return both[:, -1]

@@ -47,8 +47,8 @@ class PeriodMap:
     plant : BlockPlant
         The truth (its recursions' ``e, g0, g1``, residues, actuator and sensor gains).
     lockin : BlockLockIn
-        The board's lock-in (its per-sample state space ``a, b, c, d`` and their powers over a
-        period), built for ``samples`` samples a period.
+        The board's lock-in (its per-period form: the state after a period and the output at its
+        last sample, from its state and from its inputs), built for ``samples`` samples a period.
     carriers : ndarray, shape (k,)
         Hz.
     sensors : ndarray, shape (k, s)
@@ -162,30 +162,24 @@ class PeriodMap:
             mode[i] += np.multiply(e[:, None], mode[i - 1], out=carried)
         mode = mode.reshape(d, K, 2, k, 2)
         width = n + 4 * h * k  # the input columns: (which, channel, carrier, part) after the state
-        mixed = np.zeros((d, k, width), complex)  # what each basis vector puts into each lock-in at each sample
-        turn = 2 * carrier.conj()[:, :, None]
+        mixed = np.zeros((k, d, width), complex)  # what each basis vector puts into each lock-in at each sample
+        turn = 2 * carrier.T.conj()[:, :, None]  # (k, d, 1)
         after = e[None, :] ** (np.arange(d) + 1)[:, None]  # (d, K): a mode's own state after each sample
-        mixed[:, :, :K] = turn * (reading[None] * (2 * (r * after).real)[:, None, :])
-        mixed[:, :, K:2 * K] = turn * (reading[None] * (-2 * (r * after).imag)[:, None, :])
-        mixed[:, :, 2 * K:3 * K] = turn * (reading[None] * (2 * (r * g0 * after / e).real)[:, None, :])
-        answer = 2 * (r[None, :, None, None, None] * mode).real
-        seen = np.einsum("lm,mhcqp,imwcp->ilwhcq", reading, drive, answer, optimize=True)
-        mixed[:, :, n:] = turn * seen.reshape(d, k, width - n)
-        # the lock-in: q_(i+1) = A q_i + b mixed_i from the basis's own lock-in state
-        powers = lockin.powers  # (d + 1, k, o, o): A^0 ... A^d
-        kick = lockin.inputs.transpose(0, 2, 1)  # A^(d-1-i) b, (k, d, o)
-        by_state = np.zeros((k, o, k * o), complex)  # A^d and A^(d-1) on the lock-in's own state
-        before = np.zeros((k, o, k * o), complex)
+        for column, share in enumerate([2 * (r * after).real, -2 * (r * after).imag, 2 * (r * g0 * after / e).real]):
+            mixed[:, :, column * K:(column + 1) * K] = turn * (reading[:, None, :] * share[None])
+        answer = 2 * (r[None, :, None, None, None] * mode).real  # each mode's velocity, (d, K, 2, k, 2)
+        # what each lock-in sees of each input column: sum over modes m and parts p, one product per carrier
+        seen_by = np.einsum("lm,mhcqp->chlqmp", reading, drive).reshape(k, h * k * 2, K * 2)
+        seen = np.matmul(seen_by, answer.transpose(3, 1, 4, 0, 2).reshape(k, K * 2, d * 2))  # (c, h l q, i w)
+        seen = seen.reshape(k, h, k, 2, d, 2).transpose(2, 4, 5, 1, 0, 3)  # (l, i, w, h, c, q)
+        mixed[:, :, n:] = turn * seen.reshape(k, d, width - n)
+        # the lock-in, from the basis's own lock-in state: its state after the period's last sample
+        # (rows :o) and its output at that sample (row o), one product of its per-period form
+        q = np.matmul(lockin.from_inputs, mixed)  # (k, o + 1, width)
         for j in range(k):
-            by_state[j, :, j * o:(j + 1) * o] = powers[d][j]
-            before[j, :, j * o:(j + 1) * o] = powers[d - 1][j]
-        q = np.matmul(kick.transpose(0, 2, 1), mixed.transpose(1, 0, 2))  # (k, o, width)
-        q[:, :, 3 * K:3 * K + k * o] += by_state
-        q[:, :, 3 * K + k * o:n] += 1j * by_state
-        q_before = np.matmul(kick[:, 1:].transpose(0, 2, 1), mixed[:-1].transpose(1, 0, 2))
-        q_before[:, :, 3 * K:3 * K + k * o] += before
-        q_before[:, :, 3 * K + k * o:n] += 1j * before
-        y = np.einsum("ko,koc->kc", lockin.c, q_before) + lockin.d[:, None] * mixed[-1]
+            q[j, :, 3 * K + j * o:3 * K + (j + 1) * o] += lockin.from_state[j]
+            q[j, :, 3 * K + (k + j) * o:3 * K + (k + j + 1) * o] += 1j * lockin.from_state[j]
+        q, y = q[:, :o], q[:, o]
         q = (q * np.exp(1j * self.steps * d)[:, None, None]).reshape(k * o, width)  # into the next period's frame
         z_end = np.zeros((K, width), complex)
         z_end[:, :K] = np.diag(after[-1])
