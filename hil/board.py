@@ -321,8 +321,13 @@ class HILBoard:
             volts *= np.clip(1 - (np.arange(1, end + 1) - first) / length, 0, 1)
         plant = Plant(self.truth, self.sample_rate, hold=HOLD)
         velocity = plant.simulate(volts)
-        self._applied[:, :end], self._velocity[:, :end] = volts, velocity
-        self._sensed[:, :end] = plant.sensors(velocity) + (0 if self._noise is None else self._noise[:, :end])
+        sensed = plant.sensors(velocity)
+        if self._noise is not None:
+            sensed += self._noise[:, :end]
+        if end == self._velocity.shape[1]:  # the whole shot: the new records are the records
+            self._applied, self._velocity, self._sensed = volts, velocity, sensed
+        else:
+            self._applied[:, :end], self._velocity[:, :end], self._sensed[:, :end] = volts, velocity, sensed
         self._stale = False
 
     def _on_carriers(self) -> np.ndarray:
