@@ -78,11 +78,16 @@ class Recursions:
     def __init__(self, poles: np.ndarray, sample_rate: float, hold: str):
         self.e, self.g0, self.g1 = hold_coefficients(poles, 1 / sample_rate, hold)
         self._kernels: dict[int, _Kernels] = {}
-        big = self.e[:, None] ** (self.SUB * np.arange(self.BLOCKS + 1))  # e^(SUB m), (k, BLOCKS + 1)
-        lag = np.arange(self.BLOCKS)[:, None] - np.arange(self.BLOCKS)[None, :]
-        self.between = np.where(lag >= 0, big[:, np.maximum(lag, 0)], 0)  # U, (k, BLOCKS, BLOCKS)
-        self.from_start = big[:, 1:]  # e^(SUB (b + 1)), (k, BLOCKS)
+        self._carries = None  # (U, e^(SUB (b + 1))) for chunks of several blocks, made when first needed
         self.reset()
+
+    def carries(self) -> tuple[np.ndarray, np.ndarray]:
+        """``U[b, c] = e^(SUB (b - c))`` (k, BLOCKS, BLOCKS) and ``e^(SUB (b + 1))`` (k, BLOCKS)."""
+        if self._carries is None:
+            big = self.e[:, None] ** (self.SUB * np.arange(self.BLOCKS + 1))  # e^(SUB m), (k, BLOCKS + 1)
+            lag = np.arange(self.BLOCKS)[:, None] - np.arange(self.BLOCKS)[None, :]
+            self._carries = np.where(lag >= 0, big[:, np.maximum(lag, 0)], 0), big[:, 1:]
+        return self._carries
 
     def reset(self) -> None:
         self.z = np.zeros(self.e.size, complex)
@@ -130,8 +135,9 @@ class Recursions:
             else:
                 local = np.matmul(windows, kernels.window)  # each block's states from rest, (k, nb, b)
                 ends = local[:, :, -1]
-            after = np.matmul(self.between[:, :nb, :nb], ends[:, :, None])[:, :, 0] \
-                + self.from_start[:, :nb] * self.z[:, None]  # the state after each block, (k, nb)
+            between, from_start = self.carries()
+            after = np.matmul(between[:, :nb, :nb], ends[:, :, None])[:, :, 0] \
+                + from_start[:, :nb] * self.z[:, None]  # the state after each block, (k, nb)
             before = np.concatenate([self.z[:, None], after[:, :-1]], axis=1)
         if real:
             windows[:, :, b + 1], windows[:, :, b + 2] = before.real, before.imag
