@@ -104,10 +104,12 @@ def main() -> None:
            f"{s['shot_real_time_factor']:.2f} ({s['samples_shot_real_time_factor']:.2f}) |" for s in summary]
     md += ["", "Medians of the 3 seeds. The loop's wall time includes the emulated board (plant at 500 kHz, lock-in, "
            "modulation) and the runtime, one Python pass per period; the shot without configure adds the activation "
-           "(this shot's noise and its share of the readings) and the records of every DAC sample (played back "
-           "from the commands), over the shot's whole duration (29 ms, ring-down included); the whole shot adds "
-           "the board's configuration before it (ros2_control's configure: its period map and the feed-forward's "
-           "share of the readings, the same for every shot of a plan). The loops' design is in none of them. Period map and samples measure the same tau (to 1e-9, checked in the run).",
+           "(this shot's noise, and the readings without feedback: the feed-forward's and the noise's, one "
+           "lock-in pass) and the records of every DAC sample (played back from the commands), over the shot's "
+           "whole duration (29 ms, ring-down included); the whole shot adds the board's configuration before it "
+           "(ros2_control's configure: its period map and what the sensors measure of the feed-forward alone, the "
+           "same for every shot of a plan). The loops' design is in none of them. Period map and samples measure "
+           "the same tau (to 1e-9, checked in the run).",
            ""]
     write_markdown("control_rate", md, path)
 

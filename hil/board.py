@@ -114,6 +114,7 @@ class HILBoard:
             periods = s.feedforward.shape[1] // d
             plant = Plant(self.truth, self.sample_rate, hold=HOLD)
             self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
+            self._unturn = self._turn.conj()
             self._phasors = Oscillators(s.carriers, self.sample_rate).phasors(periods * d)  # (k, P d)
             self._fed_sensed = plant.sensors(plant.simulate(s.feedforward[:, :periods * d]))  # (s, P d)
             self._fed = None  # its readings, made at the first start without noise
@@ -292,7 +293,7 @@ class HILBoard:
         self.current = target
         self.sample += self.schedule.decimation
         self._stale = True
-        return self._open[n] + turn.conj() * turned
+        return self._open[n] + self._unturn[n] * turned
 
     def _play_back(self) -> None:
         """Fill the records up to the current sample from the phasors played lifted: the voltages
