@@ -115,7 +115,7 @@ class HILBoard:
             plant = Plant(self.truth, self.sample_rate, hold=HOLD)
             self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
             self._unturn = self._turn.conj()
-            self._phasors = Oscillators(s.carriers, self.sample_rate).phasors(periods * d)  # (k, P d)
+            self._mixer = 2 * Oscillators(s.carriers, self.sample_rate).phasors(periods * d).conj()  # (k, P d)
             self._fed_sensed = plant.sensors(plant.simulate(s.feedforward[:, :periods * d]))  # (s, P d)
             self._fed = None  # its readings, made at the first start without noise
 
@@ -149,10 +149,10 @@ class HILBoard:
             self._state = self._map.zero()
             if self._noise is not None:  # the lock-in is linear: one pass reads both
                 opened = open_envelopes(self._fed_sensed + self._noise[:, :self._fed_sensed.shape[1]], s.sensors,
-                                        self._phasors, self.lockin)
+                                        self._mixer, self.lockin)
             else:
                 if self._fed is None:
-                    self._fed = open_envelopes(self._fed_sensed, s.sensors, self._phasors, self.lockin)
+                    self._fed = open_envelopes(self._fed_sensed, s.sensors, self._mixer, self.lockin)
                 opened = self._fed
             self._open = np.ascontiguousarray(opened.T)  # one row per period
 

@@ -192,18 +192,19 @@ class PeriodMap:
                           np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
 
 
-def open_envelopes(measured: np.ndarray, sensors: np.ndarray, phasors: np.ndarray, lockin) -> np.ndarray:
+def open_envelopes(measured: np.ndarray, sensors: np.ndarray, mixer: np.ndarray, lockin) -> np.ndarray:
     """The readings (k, P) at each period's end of what the sensors measured without feedback
     (the feed-forward's answer, the noise, or both: the lock-in is linear).
 
     Parameters
     ----------
     measured : ndarray, shape (s, N)
-        The sensors' velocities (m/s), N at least that of ``phasors``.
+        The sensors' velocities (m/s), N at least that of ``mixer``.
     sensors : ndarray, shape (k, s)
-    phasors : ndarray, shape (k, P d)
-        The carriers over the P periods read (:meth:`modalctl.lockin.Oscillators.phasors`).
+    mixer : ndarray, shape (k, P d)
+        What the lock-in multiplies each mode's signal by over the P periods read: twice the
+        conjugate of its carrier's phasors (:meth:`modalctl.lockin.Oscillators.phasors`).
     lockin : BlockLockIn
         The board's lock-in (its per-period form; its state is not touched).
     """
-    return lockin.periods(2 * (sensors @ measured[:, :phasors.shape[1]]) * phasors.conj())
+    return lockin.periods((sensors @ measured[:, :mixer.shape[1]]) * mixer)
