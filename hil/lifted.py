@@ -80,8 +80,8 @@ class PeriodMap:
         self._matrix = None
         if weights is not None:  # channel a's phasor of mode m is w = weights[a, m] times the command v:
             w = np.asarray(weights, complex)  # Re and Im of it are Re w Re v - Im w Im v, Im w Re v + Re w Im v
-            turn = np.stack([np.stack([w.real, w.imag], -1), np.stack([-w.imag, w.real], -1)], -2)  # (a, k, 2, 2)
-            self.folded = self._build(*self._parts, np.einsum("ma,acqp->mcqp", self.gains, turn)[:, None])
+            as_real = np.stack([np.stack([w.real, w.imag], -1), np.stack([-w.imag, w.real], -1)], -2)  # (a, k, q, p)
+            self.folded = self._build(*self._parts, np.einsum("ma,acqp->mcqp", self.gains, as_real)[:, None])
             self._folded_input = np.zeros(self.folded.shape[1])
             n, k2 = self.states, 2 * self.k
             self._last_command = self._folded_input[n:n + k2].view(complex)
@@ -139,10 +139,10 @@ class PeriodMap:
         equations over the period's samples: the hold's recursion of each mode, the straight-line
         phasor ramp on the carriers, the sensors' combinations, the lock-in's Butterworth.
 
-        ``drive`` (K, h, k, 2, 2) is the force on mode m of a unit input column (channel h of the
-        columns' h, carrier c, real or imaginary part q) per unit of each force pattern's part p:
-        ``G[m, a]`` for per-channel phasors, the dispatch's weights folded in for per-mode
-        commands. A phasor's force depends on (this or last, carrier, part) only, so each mode is
+        ``drive`` (K, h, k, 2, 2) says how a unit input column (one of ``h`` channels, carrier c,
+        real or imaginary part q) drives mode m through each force pattern's part p: ``G[m, a]``
+        when q is p for per-channel phasors (``h = a``), the dispatch's weights folded in for
+        per-mode commands (``h = 1``). A phasor's force depends on (this or last, carrier, part) only, so each mode is
         run once per such pattern (``4 k`` of them, one pass over the samples) rather than once per
         basis vector; the lock-in is linear and time-invariant per sample, so its state at the
         period's end is a sum over the samples with the powers of its matrix."""
