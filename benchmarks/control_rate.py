@@ -50,6 +50,7 @@ def main() -> None:
                 raise AssertionError(f"period map and samples disagree: tau {r.tau} against {by_samples.tau}")
             rows.append({"rate_hz": rate, "seed": seed, "tau": r.tau, "margin_ratio": r.margin_ratio,
                          "step_seconds": float(np.median(r.result.step_seconds)),
+                         "period_seconds": r.result.loop_seconds / r.result.periods,
                          "real_time_factor": r.real_time_factor, "shot_real_time_factor": r.shot_real_time_factor,
                          "samples_real_time_factor": by_samples.real_time_factor,
                          "samples_shot_real_time_factor": by_samples.shot_real_time_factor,
@@ -65,6 +66,7 @@ def main() -> None:
         summary.append({"rate_hz": rate, "tau_median": float(np.median([r["tau"] for r in mine])),
                         "tau_min": float(min(r["tau"] for r in mine)), "tau_max": float(max(r["tau"] for r in mine)),
                         "step_seconds": float(np.median([r["step_seconds"] for r in mine])),
+                        "period_seconds": float(np.median([r["period_seconds"] for r in mine])),
                         **{key: float(np.median([r[key] for r in mine])) for key in
                            ("real_time_factor", "shot_real_time_factor", "samples_real_time_factor",
                             "samples_shot_real_time_factor", "run_real_time_factor", "configure_seconds")},
@@ -93,17 +95,19 @@ def main() -> None:
     md = ["# Closed loop: tau against control rate and compute", "",
           "Command: `python benchmarks/control_rate.py`. sinc 18 mm at 24 mm, truth +1% / +20% damping / 40 dB, "
           f"DAC 500 kHz. Open loop tau {np.median(open_tau):.3f}.", "",
-          "| rate (kHz) | tau median (min-max, 3 seeds) | crossovers (Hz) | runtime us/period "
+          "| rate (kHz) | tau median (min-max, 3 seeds) | crossovers (Hz) | us a period: whole loop (runtime's compute) "
           "| loop wall / real time: period map (by samples) | shot without configure / real time (period map) "
           "| board's configure (ms) | whole shot wall / real time: period map (by samples) |",
           "|---|---|---|---|---|---|---|---|"]
     md += [f"| {s['rate_hz'] / 1e3:g} | {s['tau_median']:.3f} ({s['tau_min']:.3f}-{s['tau_max']:.3f}) | "
-           f"{s['crossover_hz'][0]:.0f}-{s['crossover_hz'][1]:.0f} | {1e6 * s['step_seconds']:.0f} | "
+           f"{s['crossover_hz'][0]:.0f}-{s['crossover_hz'][1]:.0f} | {1e6 * s['period_seconds']:.0f} "
+           f"({1e6 * s['step_seconds']:.0f}) | "
            f"{s['real_time_factor']:.2f} ({s['samples_real_time_factor']:.2f}) | "
            f"{s['run_real_time_factor']:.2f} | {1e3 * s['configure_seconds']:.1f} | "
            f"{s['shot_real_time_factor']:.2f} ({s['samples_shot_real_time_factor']:.2f}) |" for s in summary]
     md += ["", "Medians of the 3 seeds. The loop's wall time includes the emulated board (plant at 500 kHz, lock-in, "
-           "modulation) and the runtime, one Python pass per period; the shot without configure adds the activation "
+           "modulation) and the runtime, one Python pass per period (a period's wall time less the runtime's "
+           "compute is the board's emulation and the runtime's bookkeeping); the shot without configure adds the activation "
            "(this shot's noise, and the readings without feedback: the feed-forward's and the noise's, one "
            "lock-in pass) and the records of every DAC sample (played back from the commands), over the shot's "
            "whole duration (29 ms, ring-down included); the whole shot adds the board's configuration before it "
