@@ -227,10 +227,14 @@ class CanBoardEmulator(BoardEmulator):
         if self.board is None or not self._commands:
             return
         k = self.config.modes
-        rows = np.zeros((self.model.actuator_gains.shape[1], k), complex)
-        for node, (channels, _) in self.layout.items():
-            rows[channels] = self._commands.get(node, np.zeros(k))  # a board that missed its commands: none
-        self.board.write_phasors(self.board.schedule.weights * rows)
+        received = [self._commands.get(node) for node in self.layout]
+        if all(c is not None and np.array_equal(c, received[0]) for c in received):  # every board, the same
+            self.board.write(received[0])
+        else:  # a board that missed its commands drives nothing
+            rows = np.zeros((self.model.actuator_gains.shape[1], k), complex)
+            for node, (channels, _) in self.layout.items():
+                rows[channels] = self._commands.get(node, np.zeros(k))
+            self.board.write_phasors(self.board.schedule.weights * rows)
         self._node = self.sensing
         reset = self.faults.get("reset_after")
         if reset is not None and self.board.period >= reset:
