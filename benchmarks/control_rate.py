@@ -95,7 +95,8 @@ def main() -> None:
     md = ["# Closed loop: tau against control rate and compute", "",
           "Command: `python benchmarks/control_rate.py`. sinc 18 mm at 24 mm, truth +1% / +20% damping / 40 dB, "
           f"DAC 500 kHz. Open loop tau {np.median(open_tau):.3f}.", "",
-          "| rate (kHz) | tau median (min-max, 3 seeds) | crossovers (Hz) | us a period: whole loop (runtime's compute) "
+          "| rate (kHz) | tau median (min-max, 3 seeds) | crossovers (Hz) "
+          "| us a period: whole loop (runtime's compute) "
           "| loop wall / real time: period map (by samples) | shot without configure / real time (period map) "
           "| board's configure (ms) | whole shot wall / real time: period map (by samples) |",
           "|---|---|---|---|---|---|---|---|"]
@@ -107,7 +108,8 @@ def main() -> None:
            f"{s['shot_real_time_factor']:.2f} ({s['samples_shot_real_time_factor']:.2f}) |" for s in summary]
     md += ["", "Medians of the 3 seeds. The loop's wall time includes the emulated board (plant at 500 kHz, lock-in, "
            "modulation) and the runtime, one Python pass per period (a period's wall time less the runtime's "
-           "compute is the board's emulation and the runtime's bookkeeping); the shot without configure adds the activation "
+           "compute is the board's emulation and the runtime's bookkeeping); the shot without configure adds the "
+           "activation "
            "(this shot's noise, and the readings without feedback: the feed-forward's and the noise's, one "
            "lock-in pass) and the records of every DAC sample (played back from the commands), over the shot's "
            "whole duration (29 ms, ring-down included); the whole shot adds the board's configuration before it "

@@ -160,9 +160,8 @@ class HILBoard:
         """The sensors' noise (s, total) for the whole shot, drawn in the order the periods play
         (a period's (s, d) block after another's), whichever way they are played."""
         full = total // d
-        noise = np.empty((sensors, total))
-        noise[:, :full * d].reshape(sensors, full, d)[...] = self.rng.standard_normal((full, sensors, d)).transpose(1, 0, 2)
-        noise[:, full * d:] = self.rng.standard_normal((sensors, total - full * d))
+        blocks = self.rng.standard_normal((full, sensors, d)).transpose(1, 0, 2).reshape(sensors, full * d)
+        noise = np.concatenate([blocks, self.rng.standard_normal((sensors, total - full * d))], axis=1)
         noise *= self.noise
         return noise
 
