@@ -199,7 +199,7 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
                                                   **options)
     shot.metrics["loop"] = {
         "controller": controller, "on_board": on_board, "state": result.state.name.lower(), "fault": result.reason,
-        "periods": result.periods, "loop_seconds": result.loop_seconds,
+        "periods": result.periods, "loop_seconds": result.loop_seconds, "configure_seconds": result.configure_seconds,
         "control_rate_hz": control_rate, "limited_periods": result.limited,
         "step_seconds_median": float(np.median(result.step_seconds)) if result.step_seconds.size else None,
         "crossover_hz": parts.design.crossover_hz.tolist(), "phase_margin_deg": parts.design.phase_margin_deg.tolist(),
@@ -276,6 +276,7 @@ def _loops_on_board(the_plan, board, parts, device, log):
     if not hasattr(board, "run_loops"):
         raise DeviceError(f"{device.url}: this board cannot run loops itself")
     s = parts.schedule
+    configured = _time.perf_counter()
     board.configure(s)
     start = _time.perf_counter()
     record = board.run_loops(board_loop(the_plan, parts))
@@ -286,7 +287,7 @@ def _loops_on_board(the_plan, board, parts, device, log):
                 recorder.write(period=n, state=int(State.ACTIVE), reference=record.reference[:, n],
                                measured=record.measured[:, n], command=record.command[:, n], fraction=1.0,
                                phasor_sum=np.abs(s.weights) @ np.abs(record.command[:, n]), compute=0.0)
-    return RunResult(State.INACTIVE, None, record.command.shape[1], np.zeros(0), 0, seconds)
+    return RunResult(State.INACTIVE, None, record.command.shape[1], np.zeros(0), 0, seconds, start - configured)
 
 
 def _shot(dec, the_plan, shape, capture, times, field, margin, device, sim_seconds) -> Shot:

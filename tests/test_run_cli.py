@@ -49,6 +49,7 @@ def test_closed_loop_run_recovers_the_drifted_focus_and_logs_every_period(capsys
     closed = json.loads((tmp_path / "closed" / "metrics.json").read_text())
     assert opened["tau"] < 0.85 and closed["tau"] > 0.95
     assert closed["loop"]["state"] == "inactive" and closed["loop"]["fault"] is None
+    assert 0 < closed["loop"]["configure_seconds"] < closed["sim_seconds"]  # the board's set-up, timed apart
     records, header = read_log(tmp_path / "closed" / "log")
     assert records.size == closed["loop"]["periods"] == header["meta"]["control_rate_hz"] * 0.029
     assert (tmp_path / "closed" / "loop.png").stat().st_size > 10_000
