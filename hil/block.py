@@ -259,7 +259,7 @@ class BlockLockIn:
         b = np.array([m[1][:, 0] for m in mats])  # (k, o)
         c = np.array([m[2][0] for m in mats])  # (k, o)
         d = np.array([m[3][0, 0] for m in mats])  # (k,)
-        self.a, self.b, self.c, self.d = a, b, c, d  # per sample, per mode
+        self.modes, self.order = a.shape[0], a.shape[1]
         powers = [np.broadcast_to(np.eye(order), a.shape)]
         for _ in range(samples):
             powers.append(a @ powers[-1])
@@ -281,7 +281,7 @@ class BlockLockIn:
 
     def reset(self) -> None:
         """Filters at rest."""
-        self.state = np.zeros((self.a.shape[0], self.a.shape[1]), complex)
+        self.state = np.zeros((self.modes, self.order), complex)
 
     def process(self, signals: np.ndarray, phases: np.ndarray) -> np.ndarray:
         """Envelope (k,) complex at the last of ``samples`` samples of ``signals`` (k, d) mixed with ``phases``."""

@@ -226,11 +226,11 @@ class CanBoardEmulator(BoardEmulator):
     def _sync(self) -> None:
         if self.board is None or not self._commands:
             return
-        k = self.config.modes
         received = [self._commands.get(node) for node in self.layout]
         if all(c is not None and np.array_equal(c, received[0]) for c in received):  # every board, the same
             self.board.write(received[0])
         else:  # a board that missed its commands drives nothing
+            k = self.config.modes
             rows = np.zeros((self.model.actuator_gains.shape[1], k), complex)
             for node, (channels, _) in self.layout.items():
                 rows[channels] = self._commands.get(node, np.zeros(k))

@@ -72,7 +72,7 @@ class PeriodMap:
         rec = plant.modes
         self.e, self.g0, self.g1 = rec.e, rec.g0, rec.g1
         self.gains = plant.model.actuator_gains  # (K, a)
-        self.k, self.o, self.a, self.K = lockin.a.shape[0], lockin.a.shape[1], int(channels), self.e.size
+        self.k, self.o, self.a, self.K = lockin.modes, lockin.order, int(channels), self.e.size
         self.states = 3 * self.K + 2 * self.k * self.o
         self.steps = Oscillators(carriers, sample_rate).steps  # rad per sample
         self.samples = int(samples)
