@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RLSTracker", "PoleTracker", "sensor_weights", "feedthrough", "updated_model", "TRACKING", "UNEXCITED", "LOST", "TrackerFactory"]
+__all__ = ["RLSTracker", "PoleTracker", "sensor_weights", "feedthrough", "leak_ratio", "updated_model", "TRACKING",
+           "UNEXCITED", "LOST", "TrackerFactory"]
 
 TRACKING, UNEXCITED, LOST = "tracking", "unexcited", "lost"
 
@@ -77,15 +78,34 @@ def feedthrough(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.
     actuators : ndarray, shape (a, k)
         Actuator weights per tracked mode (unit modal force).
     """
+    terms = _paths(model, modes, sensors, actuators)
+    terms[np.arange(terms.shape[0]), modes] = 0  # the mode itself is what is tracked
+    return terms.sum(axis=1)
+
+
+def leak_ratio(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.ndarray:
+    """How much more each mode's reading sees of the other modes' answer to its drive than of its
+    own mode's (:func:`feedthrough` over the own path ``H_i(j w_i) (b_i . g_i) (w_i . C_i)``), shape (k,).
+
+    Large where the sensors sit at a node of the mode: the weights that read it (least norm,
+    ``w_i . C_i = 1``) are huge, and so is every other mode seen through them.
+    """
+    terms = _paths(model, modes, sensors, actuators)
+    own = np.abs(terms[np.arange(terms.shape[0]), modes])
+    leak = np.abs(feedthrough(model, modes, sensors, actuators))
+    return np.divide(leak, own, out=np.full(own.shape, np.inf), where=own > 0)
+
+
+def _paths(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.ndarray:
+    """Reading of mode ``modes[i]`` per unit of its drive envelope through each mode j, shape (k, all modes):
+    ``H_j(j w_i) (b_j . g_i) (w_i . C_j)``, the mode's own path at ``j = modes[i]``."""
     modes = np.asarray(modes, int)
     s = 2j * np.pi * model.frequencies[modes]  # (k,)
     w, z = model.omega, model.damping
     h = s[:, None] / (s[:, None] ** 2 + 2 * z * w * s[:, None] + w**2)  # (k, all modes): H_j(j w_i)
     drive = (model.actuator_gains @ actuators).T  # (k, all): b_j . g_i
     seen = sensors @ model.sensor_gains.T  # (k, all): w_i . C_j
-    terms = h * drive * seen
-    terms[np.arange(modes.size), modes] = 0  # the mode itself is what is tracked
-    return terms.sum(axis=1)
+    return h * drive * seen
 
 
 class RLSTracker:

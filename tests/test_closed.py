@@ -72,8 +72,10 @@ def test_feedback_holds_the_focus_while_the_resonances_ramp(sinc18):
 
 def test_loops_rest_on_modes_the_sensors_cannot_see():
     """The Rython beam's one sensor sits on a node of every second mode: those modes' readings are
-    only the others' leak, amplified. Their loops must rest (no authority), the others' act, and
-    on a perfect model the closed loop keeps the open loop's focus (before, tau fell 0.02)."""
+    only the others' leak, amplified. Their loops must rest (no authority), with sensor noise or
+    without (the leak alone rules them out: before, without noise, they chased it and diverged),
+    the others' act, and on a perfect model the closed loop keeps the open loop's focus (before,
+    tau fell 0.02 with noise; without noise the loops' error must stay at round-off)."""
     import warnings
 
     from modalctl.decompose import decompose
@@ -91,7 +93,10 @@ def test_loops_rest_on_modes_the_sensors_cannot_see():
         shot = plan(decompose(model, shape, 13), 0.025, sample_rate=500e3)
     seen = np.abs(model.sensor_gains[shot.modes, 0]) > 1e-6 * np.abs(model.sensor_gains[:, 0]).max()
     assert 0 < seen.sum() < seen.size
-    authority = loop_parts(shot, 20e3, shot.focus_peak / 100).authority.max(axis=1)
-    assert np.all(authority[~seen] == 0) and np.all(authority[seen] > 0)
+    for sigma in (shot.focus_peak / 100, 0.0):
+        authority = loop_parts(shot, 20e3, sigma).authority.max(axis=1)
+        assert np.all(authority[~seen] == 0) and np.all(authority[seen] > 0)
     taus = [run_focus(model, shot, shape, closed=closed, snr_db=40.0).tau for closed in (False, True)]
     assert taus[1] > taus[0] - 0.005
+    fields = [run_focus(model, shot, shape, closed=closed, snr_db=None).focus_field for closed in (False, True)]
+    assert np.max(np.abs(fields[1] - fields[0])) < 1e-6 * np.max(np.abs(fields[0]))
