@@ -12,7 +12,7 @@ import numpy as np
 from modalctl.control import PIControl, design_loops
 from modalctl.dispatch import dispatch
 from modalctl.lockin import lockin_bandwidths
-from modalctl.loop import LOCKIN_FRACTION, LOCKIN_IMAGE, closed_shot, loop_parts
+from modalctl.loop import AUTHORITY, LOCKIN_FRACTION, LOCKIN_IMAGE, closed_shot, loop_parts
 from modalctl.metrics import margin_ratio, tau
 from modalctl.recorder import Recorder
 from modalctl.runtime import RunResult, Runtime, log_fields
@@ -68,7 +68,7 @@ class ClosedShot:
 
 def run_focus(truth, plan, target, closed: bool = True, control_rate: float = 20e3,
               snr_db: float | None = 40.0, voltage_limit: float | None = None, slew_limit: float | None = None,
-              amplifier_clips: bool = True, authority: float = 0.5, latency: int = 0, drift=None,
+              amplifier_clips: bool = True, authority: float = AUTHORITY, latency: int = 0, drift=None,
               fail_after: int | None = None, gain_scale: float = 1.0, tracker=None, log=None,
               controller: str = "pi", seed: int = 0, lifted: bool = True) -> ClosedShot:
     """Play ``plan`` (planned on the controller's model, sampled at the plant rate) on ``truth``.

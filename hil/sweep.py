@@ -24,6 +24,7 @@ from functools import lru_cache
 import numpy as np
 
 from modalctl.decompose import decompose
+from modalctl.loop import AUTHORITY
 from modalctl.planner import plan
 from modalctl.plugin import get_shape, get_tracker
 from modalctl.scenes import load_scene
@@ -71,6 +72,8 @@ class Case:
         Hz.
     controller : str
         Controller plugin of the closed loops.
+    authority : float
+        Largest feedback command of a mode, as a fraction of its planned drive at that moment.
     seed : int
     """
 
@@ -90,6 +93,7 @@ class Case:
     control_rate: float = 20e3
     sample_rate: float = 500e3
     controller: str = "pi"
+    authority: float = AUTHORITY
     seed: int = 0
 
     def __post_init__(self):
@@ -131,7 +135,7 @@ def run_case(case: Case) -> dict:
         added = float(np.max(added_damping(truth, finger)[shot.modes] / truth.damping[shot.modes]))
         truth = FingerPlant(truth, finger, case.sample_rate)
     options = dict(control_rate=case.control_rate, snr_db=case.snr_db, latency=case.latency, seed=case.seed,
-                   controller=case.controller)
+                   controller=case.controller, authority=case.authority)
     first = None
     learning = {**options, "seed": case.seed + LEARNING_SEED}  # the first shot's noise is not the second's
     if case.method == "tracked":

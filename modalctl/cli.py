@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .decompose import decompose
 from .device import DeviceError
+from .loop import AUTHORITY
 from .planner import PlanError
 from .model import ModalModel, ModelError
 from .plugin import PluginError, get_controller, get_shape, plugin_table, shape_generators
@@ -195,8 +196,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="loop rate, a divisor of the sample rate (20kHz)")
     loop.add_argument("--slew-limit", type=_within(_quantity("V/s", "slew-limit"), "slew-limit", 0),
                       help="largest output slope, e.g. 2e6V/s")
-    loop.add_argument("--authority", type=_within(float, "authority", 0, low_open=False), default=0.5,
-                      help="largest feedback per mode, as a fraction of its planned drive (0.5)")
+    loop.add_argument("--authority", type=_within(float, "authority", 0, low_open=False), default=AUTHORITY,
+                      help=f"largest feedback per mode, as a fraction of its planned drive ({AUTHORITY:g})")
     loop.add_argument("--latency", type=_within(int, "latency", 0, low_open=False), default=0,
                       help="extra periods the board takes to use a command (0)")
     loop.add_argument("--controller", default="pi", help="per-mode controller plugin: pi (default) or lqg")

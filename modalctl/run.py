@@ -13,6 +13,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .decompose import Decomposition, decompose
+from .loop import AUTHORITY
 from .device import Capture, Device, DeviceError, scan_indices
 from .metrics import margin_ratio, nrmse, tau, tau_norm
 from .modal import project, reconstruct
@@ -150,7 +151,7 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
 def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time: float, *, modes="auto",
                     tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
                     slew_limit: float | None = None, sample_rate: float = 1e6, control_rate: float = 20e3,
-                    authority: float = 0.5, latency: int = 0, drift=None, log=None, progress: bool = False,
+                    authority: float = AUTHORITY, latency: int = 0, drift=None, log=None, progress: bool = False,
                     controller: str = "pi", watchdog: int = 1, on_board: bool = False, learn: bool = False,
                     **plan_options) -> Shot:
     """Plan the shape's focus and play it on ``device`` with per-mode feedback (its phasor mode).

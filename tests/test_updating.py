@@ -87,8 +87,9 @@ def test_closed_loop_learns_the_truth_and_focuses_better(capsys, tmp_path):
     model = load_scene("thesis-al-cc", 351)
     error = np.array(learned["frequencies_hz"]) / (1.01 * model.frequencies) - 1
     stated = np.array(learned["frequency_error_hz"]) / model.frequencies
-    seen = stated < 1e-3
-    assert seen.sum() >= 6 and np.all(np.abs(error[seen]) < 5e-4) and np.all(np.abs(error[seen]) < 5 * stated[seen])
+    seen, well = stated < 1e-3, stated < 2e-4  # mode 9, barely driven, states 0.09-0.11% and errs 0.27-0.34%
+    assert np.all(np.abs(error[seen]) < 5 * stated[seen])  # each as close as it says
+    assert well.sum() >= 6 and np.all(np.abs(error[well]) < 5e-4)
     assert abs(learned["common_shift"] - 0.01) < 3 * learned["common_shift_error"]
     assert m["tau"] > learned["tau"] and m["tau"] > 0.98
     assert (tmp_path / "log-learning.json").exists() and (tmp_path / "log.json").exists()
