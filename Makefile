@@ -29,7 +29,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 BENCHMARKS := modes_needed decompose_speed plant_speed margin_case thesis_table focus_time \
-	identify_accuracy identify_limits identify_cycle tracking closed_loop closed_maps stability control_rate \
+	identify_accuracy identify_limits identify_cycle tracking closed_loop closed_maps authority stability control_rate \
 	control_step protocol_speed link_rates
 
 bench: $(STAMP)
