@@ -71,8 +71,8 @@ def test_watchdog_ramps_to_zero_within_one_period_and_keeps_the_log(sinc18, tmp_
 
 def test_divergent_gain_is_caught_and_stopped(sinc18):
     """Gains 30 times the design (gain margins are about 7 dB) and the authority to diverge: the
-    envelope check stops the shot. (With the default authority, half the planned drive, such a loop
-    is held to a bounded oscillation instead.)"""
+    envelope check stops the shot. (With the default authority, twice the planned drive, such a loop
+    is held to a bounded oscillation instead: on this case tau 0.92, peak 6.8 V against 3.3 V.)"""
     model, shape, shot = sinc18
     run = run_focus(perturb(model, Perturbation(drift=0.01)), shot, shape, gain_scale=30.0, authority=20.0)
     assert run.result.state == State.ERROR and run.result.reason.startswith("divergence")
