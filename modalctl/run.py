@@ -13,8 +13,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .decompose import Decomposition, decompose
-from .loop import AUTHORITY
 from .device import Capture, Device, DeviceError, scan_indices
+from .loop import AUTHORITY
 from .metrics import margin_ratio, nrmse, tau, tau_norm
 from .modal import project, reconstruct
 from .model import ModalModel

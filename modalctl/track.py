@@ -91,8 +91,8 @@ def leak_ratio(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.n
     ``w_i . C_i = 1``) are huge, and so is every other mode seen through them.
     """
     terms = _paths(model, modes, sensors, actuators)
-    own = np.abs(terms[np.arange(terms.shape[0]), modes])
-    leak = np.abs(feedthrough(model, modes, sensors, actuators))
+    own = terms[np.arange(terms.shape[0]), modes]
+    leak, own = np.abs(terms.sum(axis=1) - own), np.abs(own)  # the leak: feedthrough's sum
     return np.divide(leak, own, out=np.full(own.shape, np.inf), where=own > 0)
 
 
