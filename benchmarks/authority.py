@@ -44,7 +44,8 @@ def cases():
     """(experiment, truth, authority or None for open loop, Case)."""
     for name, (scene, shape, params, tf, points, modes) in EXPERIMENTS.items():
         for truth, (drift, damping, finger) in TRUTHS.items():
-            base = Case(scene, shape, params, tf, "open", drift, damping, finger, modes=modes, points=points)
+            base = Case(scene=scene, shape=shape, params=params, focus_time=tf, method="open", drift=drift,
+                        damping_error=damping, finger=finger, modes=modes, points=points)
             yield name, truth, None, base
             for a in AUTHORITIES:
                 yield name, truth, a, Case(**{**base.__dict__, "method": "closed", "authority": a})
