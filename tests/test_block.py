@@ -1,6 +1,7 @@
 """The board's per-period propagators against the sample-by-sample ones they replace."""
 
 import numpy as np
+import pytest
 
 from modalctl.hil.block import BlockLockIn, BlockPlant
 from modalctl.lockin import LockIn, Oscillators
@@ -27,17 +28,19 @@ def test_block_plant_is_the_plant_period_by_period_and_through_a_retune():
     assert np.max(np.abs(b - p)) < 1e-9 * np.max(np.abs(p))
 
 
-def test_block_lockin_is_the_lockin_at_each_period_end():
+@pytest.mark.parametrize("fs, d, bands", [(FS, D, (400.0, 900.0, 2000.0)),
+                                         (1e6, 50, (80.0, 120.0, 400.0))])  # sections' numerators below 1e-14
+def test_block_lockin_is_the_lockin_at_each_period_end(fs, d, bands):
     f = np.array([963.0, 2253.0, 8166.0])
-    bands = np.array([400.0, 900.0, 2000.0])
-    t = np.arange(30 * D) / FS
+    bands = np.array(bands)
+    t = np.arange(30 * d) / fs
     rng = np.random.default_rng(1)
     signals = np.cos(2 * np.pi * f[:, None] * 1.003 * t) + 0.1 * rng.standard_normal((3, t.size))
-    osc = Oscillators(f, FS)
+    osc = Oscillators(f, fs)
     phases = osc.advance(t.size)
-    reference = LockIn(bands, FS, D, closing=True).process(signals, phases)  # (3, 30)
-    block = BlockLockIn(bands, FS, D)
-    ours = np.column_stack([block.process(signals[:, i * D:(i + 1) * D], phases[:, i * D:(i + 1) * D])
+    reference = LockIn(bands, fs, d, closing=True).process(signals, phases)  # (3, 30)
+    block = BlockLockIn(bands, fs, d)
+    ours = np.column_stack([block.process(signals[:, i * d:(i + 1) * d], phases[:, i * d:(i + 1) * d])
                             for i in range(30)])
     assert np.max(np.abs(ours - reference)) < 1e-9 * np.max(np.abs(reference))
     # every period at once (the board's readings without feedback), its own state untouched
