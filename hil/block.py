@@ -214,12 +214,13 @@ class BlockPlant:
 
 
 def _biquad(section: np.ndarray):
-    """State space ``(A, B, C, D)`` of one second-order section ``[b0 b1 b2 a0 a1 a2]`` in the
-    transposed direct form that ``sosfilt`` runs. (scipy's ``tf2ss`` drops numerator coefficients
-    below 1e-14 as zeros: a narrow corner's, 4e-15 at 80 Hz and 1 MHz, and the filter with them.)"""
+    """State space ``(A, B, C, D)`` of one second-order section ``[b0 b1 b2 a0 a1 a2]``, in the
+    controllable canonical form of scipy's ``tf2ss``, whose normalization would drop numerator
+    coefficients below 1e-14 as zeros (a narrow corner's: 4e-15 at 80 Hz and 1 MHz) and the
+    filter's gain and delay with them."""
     b0, b1, b2, a1, a2 = np.asarray(section[[0, 1, 2, 4, 5]], float) / section[3]
-    return (np.array([[-a1, 1.0], [-a2, 0.0]]), np.array([[b1 - a1 * b0], [b2 - a2 * b0]]),
-            np.array([[1.0, 0.0]]), np.array([[b0]]))
+    return (np.array([[-a1, -a2], [1.0, 0.0]]), np.array([[1.0], [0.0]]),
+            np.array([[b1 - a1 * b0, b2 - a2 * b0]]), np.array([[b0]]))
 
 
 def _cascade(sos: np.ndarray):
