@@ -38,7 +38,7 @@ LOCKIN_FRACTION, LOCKIN_IMAGE = 1.0, 0.5
 # of its design and its phase within 30 degrees: inside the 6 dB and 50 degree margins. Beyond it
 # the sensors sit near a node of the mode (thesis-rython-pp's mid-span sensor and its even
 # modes: ratios of 1e14) and, without noise to rule them out, the loops chased the others' leak on
-# a perfect model and diverged (the Rython beam's focus 13-46% off the open loop's); with the limit
+# a perfect model and diverged (the Rython beam's focus 40% off the open loop's); with the limit
 # it plays the open loop's shot to 1e-8. plate-glass rests 3 of 17 loops (ratios 0.56-1.07) at no
 # cost: tau within 0.001 of the loops' without the limit under 1-2% drift or a finger.
 LEAK_LIMIT = 0.5
