@@ -125,12 +125,11 @@ def report(data: dict, path) -> None:
 
 
 if __name__ == "__main__":
-    import json
     import sys
 
     if "--report-only" in sys.argv:  # redraw from the last run's JSON
-        from common import RESULTS
+        from common import read_json
 
-        report(json.loads((RESULTS / "authority.json").read_text()), RESULTS / "authority.json")
+        report(*read_json("authority"))
     else:
         main()

@@ -16,7 +16,6 @@ cases run through the local process pool (`modalctl.executor`).
 
 from __future__ import annotations
 
-import json
 import time
 
 import matplotlib
@@ -166,12 +165,12 @@ if __name__ == "__main__":
     import sys
 
     if "--report-only" in sys.argv:  # redraw from the last run's JSON
-        from common import RESULTS
+        from common import read_json
 
-        data = json.loads((RESULTS / "closed_loop.json").read_text())
+        data, path = read_json("closed_loop")
         if "--timescales" in sys.argv:  # add the table of time scales to the last run's results
             data["timescales"] = timescales()
-            write_json("closed_loop", data)
-        report(data, RESULTS / "closed_loop.json")
+            path = write_json("closed_loop", data)
+        report(data, path)
     else:
         main()

@@ -41,6 +41,12 @@ def write_json(name: str, data: dict) -> Path:
     return path
 
 
+def read_json(name: str) -> tuple[dict, Path]:
+    """The last run's ``results/<name>.json`` and its path (to redraw a report without running)."""
+    path = RESULTS / f"{name}.json"
+    return json.loads(path.read_text()), path
+
+
 def write_markdown(name: str, lines: list[str], json_path: Path | None = None) -> Path:
     """Write ``results/<name>.md`` from ``lines``, print it, and say where the results are."""
     RESULTS.mkdir(exist_ok=True)
