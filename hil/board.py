@@ -116,7 +116,8 @@ class HILBoard:
             self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
             self._unturn = self._turn.conj()
             self._mixer = 2 * Oscillators(s.carriers, self.sample_rate).phasors(periods * d).conj()  # (k, P d)
-            self._fed_sensed = plant.sensors(plant.simulate(s.feedforward[:, :periods * d]))  # (s, P d)
+            self._fed_velocity = plant.simulate(s.feedforward[:, :periods * d])  # (K, P d)
+            self._fed_sensed = plant.sensors(self._fed_velocity)  # (s, P d)
             self._fed = None  # its readings, made at the first start without noise
 
     def start(self) -> None:
@@ -147,6 +148,8 @@ class HILBoard:
         self._stale = False  # records behind the periods played lifted
         if self._lifted:  # the readings without feedback: the feed-forward's and this shot's noise's
             self._state = self._map.zero()
+            # each period's input to the map (per-mode commands' map, per-channel map): the records' source
+            self._inputs = {True: np.zeros((total // s.decimation, self._map.folded.shape[1])), False: None}
             if self._noise is not None:  # the lock-in is linear: one pass reads both
                 opened = open_envelopes(self._fed_sensed + self._noise[:, :self._fed_sensed.shape[1]], s.sensors,
                                         self._mixer, self.lockin)
@@ -285,9 +288,12 @@ class HILBoard:
         if n == 0 and np.any(target):
             self._state = self._map.at_rest(target)
         if commands is not None and self._commands is not None:  # the smaller product
-            self._state, turned = self._map.step_commands(self._state, self._commands, commands, turn)
+            self._state, turned = self._map.step_commands(self._state, self._commands, commands, turn,
+                                                          self._inputs[True][n])
         else:
-            self._state, turned = self._map.step(self._state, self.current, target, turn)
+            if self._inputs[False] is None:
+                self._inputs[False] = np.zeros((self._inputs[True].shape[0], self._map.matrix.shape[1]))
+            self._state, turned = self._map.step(self._state, self.current, target, turn, self._inputs[False][n])
         self._played.append(target)
         self.current = target
         self.sample += self.schedule.decimation
@@ -297,7 +303,10 @@ class HILBoard:
     def _play_back(self) -> None:
         """Fill the records up to the current sample from the phasors played lifted: the voltages
         at the DAC rate (feed-forward plus the ramps between each period's phasors on the
-        carriers), the truth's answer (:class:`modalctl.propagate.Plant`), the sensors and noise."""
+        carriers), the truth's answer, the sensors and noise. The answer is the feed-forward's
+        (made at :meth:`configure`) plus what the period map says of the periods' inputs
+        (:meth:`~modalctl.hil.lifted.PeriodMap.velocities`) when every sample so far was in a period
+        it played; otherwise the truth runs again on the voltages (:class:`modalctl.propagate.Plant`)."""
         if not self._stale:
             return
         s, end = self.schedule, self.sample
@@ -316,12 +325,17 @@ class HILBoard:
             osc = Oscillators(s.carriers, self.sample_rate)
             osc.skip(periods * d)
             volts[:, periods * d:] += (self.current @ osc.phasors(end - periods * d)).real
-        if self.ramp is not None:  # a ramp to zero after the last period read
+        ramped = self.ramp is not None and self.ramp[0] < end
+        if ramped:  # a ramp to zero after the last period read
             first, length = self.ramp
             volts *= np.clip(1 - (np.arange(1, end + 1) - first) / length, 0, 1)
-        plant = Plant(self.truth, self.sample_rate, hold=HOLD)
-        velocity = plant.simulate(volts)
-        sensed = plant.sensors(velocity)
+        if end == periods * d and not ramped:
+            velocity = self._fed_velocity[:, :end] + self._map.velocities(self._inputs[True][:periods])
+            if self._inputs[False] is not None:
+                velocity += self._map.velocities(self._inputs[False][:periods], commands=False)
+        else:
+            velocity = Plant(self.truth, self.sample_rate, hold=HOLD).simulate(volts)
+        sensed = self.truth.sensor_gains.T @ velocity
         if self._noise is not None:
             sensed += self._noise[:, :end]
         if end == self._velocity.shape[1]:  # the whole shot: the new records are the records

@@ -81,7 +81,8 @@ class PeriodMap:
         if weights is not None:  # channel a's phasor of mode m is w = weights[a, m] times the command v:
             w = np.asarray(weights, complex)  # Re and Im of it are Re w Re v - Im w Im v, Im w Re v + Re w Im v
             as_real = np.stack([np.stack([w.real, w.imag], -1), np.stack([-w.imag, w.real], -1)], -2)  # (a, k, q, p)
-            self.folded = self._build(*self._parts, np.einsum("ma,acqp->mcqp", self.gains, as_real)[:, None])
+            self.folded, self._folded_samples = self._build(
+                *self._parts, np.einsum("ma,acqp->mcqp", self.gains, as_real)[:, None])
             self._folded_input = np.zeros(self.folded.shape[1])
             n, k2 = self.states, 2 * self.k
             self._last_command = self._folded_input[n:n + k2].view(complex)
@@ -91,14 +92,18 @@ class PeriodMap:
     def matrix(self) -> np.ndarray:
         """The map for any per-channel phasors (built when first needed: the per-mode commands'
         :attr:`folded` map is the one a shot usually plays)."""
+        return self._channels()[0]
+
+    def _channels(self) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """The per-channel map and its velocities at the samples (see :meth:`_build`), built once."""
         if self._matrix is None:
             unit = np.eye(2)[None, None, None] * np.ones((1, 1, self.k, 1, 1))  # (1, 1, k, 2, 2)
-            self._matrix = self._build(*self._parts, self.gains[:, :, None, None, None] * unit)
+            self._matrix, self._samples = self._build(*self._parts, self.gains[:, :, None, None, None] * unit)
             self._input = np.zeros(self._matrix.shape[1])
             ak, n = self.a * self.k, self.states
             self._last = self._input[n:n + 2 * ak].view(complex).reshape(self.a, self.k)
             self._this = self._input[n + 2 * ak:].view(complex).reshape(self.a, self.k)
-        return self._matrix
+        return self._matrix, self._samples
 
     def zero(self) -> np.ndarray:
         """The state at rest (real, ``states``)."""
@@ -113,31 +118,60 @@ class PeriodMap:
         x[:self.K], x[self.K:2 * self.K], x[2 * self.K:3 * self.K] = z.real, z.imag, force
         return x
 
-    def step(self, state: np.ndarray, last: np.ndarray, this: np.ndarray, turn: np.ndarray):
+    def step(self, state: np.ndarray, last: np.ndarray, this: np.ndarray, turn: np.ndarray,
+             keep: np.ndarray | None = None):
         """One period: ``state`` (real), the phasors of the last and this period (a, k) and each
         carrier's turn at the period's start (k,); returns the next state and the lock-in outputs at
-        the period's end (k,), complex, still turned."""
+        the period's end (k,), complex, still turned. ``keep``: a row (width) that receives the
+        period's input vector, for :meth:`velocities`."""
         n, matrix = self.states, self.matrix
         self._input[:n] = state
         np.multiply(last, turn, out=self._last)
         np.multiply(this, turn, out=self._this)
+        if keep is not None:
+            keep[:] = self._input
         out = matrix @ self._input
         return out[:n], out[n:].view(complex)
 
-    def step_commands(self, state: np.ndarray, last: np.ndarray, this: np.ndarray, turn: np.ndarray):
+    def step_commands(self, state: np.ndarray, last: np.ndarray, this: np.ndarray, turn: np.ndarray,
+                      keep: np.ndarray | None = None):
         """As :meth:`step` for phasors that are the weights times per-mode commands: ``last`` and
         ``this`` are the commands (k,) of the last period and of this one."""
         n = self.states
         self._folded_input[:n] = state
         np.multiply(last, turn, out=self._last_command)
         np.multiply(this, turn, out=self._this_command)
+        if keep is not None:
+            keep[:] = self._folded_input
         out = self.folded @ self._folded_input
         return out[:n], out[n:].view(complex)
 
-    def _build(self, residues, reading, lockin, drive) -> np.ndarray:
+    def velocities(self, inputs: np.ndarray, commands: bool = True) -> np.ndarray:
+        """The truth's modal velocities at every sample of periods played by the map from the inputs
+        it multiplied, shape (K, P d) (m/s sqrt(kg), the share of the commands and of the state the
+        periods started from).
+
+        Parameters
+        ----------
+        inputs : ndarray, shape (P, width)
+            Each period's input vector (the state and the turned phasors, as :meth:`step_commands`
+            or :meth:`step` set them; a row of zeros for a period played by the other map).
+        commands : bool
+            The rows are the per-mode commands' map's (:attr:`folded`), else the per-channel map's.
+        """
+        from_state, from_phasors = self._folded_samples if commands else self._channels()[1]
+        K, d, n, periods = self.K, self.samples, self.states, inputs.shape[0]
+        state = inputs[:, :3 * self.K].reshape(periods, 3, K).transpose(2, 1, 0)  # (K, 3, P)
+        velocity = np.matmul(from_state, state)  # (K, d, P): each mode from its own state
+        velocity += (from_phasors @ inputs[:, n:].T).reshape(K, d, periods)
+        return velocity.transpose(0, 2, 1).reshape(K, periods * d)
+
+    def _build(self, residues, reading, lockin, drive) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """One period's response to every basis vector of (state, last, this), from the board's
         equations over the period's samples: the hold's recursion of each mode, the straight-line
         phasor ramp on the carriers, the sensors' combinations, the lock-in's Butterworth.
+        Returns the map and the truth's velocities at each of the period's samples: from each
+        mode's own state (K, d, 3) and from the phasor columns (K d, width - states).
 
         ``drive`` (K, h, k, 2, 2) says how a unit input column (one of ``h`` channels, carrier c,
         real or imaginary part q) drives mode m through each force pattern's part p: ``G[m, a]``
@@ -165,9 +199,15 @@ class PeriodMap:
         mixed = np.zeros((k, d, width), complex)  # what each basis vector puts into each lock-in at each sample
         turn = 2 * carrier.T.conj()[:, :, None]  # (k, d, 1)
         after = e[None, :] ** (np.arange(d) + 1)[:, None]  # (d, K): a mode's own state after each sample
-        for column, share in enumerate([2 * (r * after).real, -2 * (r * after).imag, 2 * (r * g0 * after / e).real]):
+        shares = [2 * (r * after).real, -2 * (r * after).imag, 2 * (r * g0 * after / e).real]  # its velocity
+        for column, share in enumerate(shares):
             mixed[:, :, column * K:(column + 1) * K] = turn * (reading[:, None, :] * share[None])
         answer = 2 * (r[None, :, None, None, None] * mode).real  # each mode's velocity, (d, K, 2, k, 2)
+        from_state = np.stack(shares, axis=-1).transpose(1, 0, 2)  # (K, d, 3)
+        # from_phasors[m, i, (w, h, c, q)] = sum_p drive[m, h, c, q, p] answer[i, m, w, c, p]: one product per (m, c)
+        per_part = np.matmul(answer.transpose(1, 3, 0, 2, 4).reshape(K, k, 2 * d, 2),
+                             drive.transpose(0, 2, 4, 1, 3).reshape(K, k, 2, 2 * h))  # (m, c, (i w), (h q))
+        from_phasors = per_part.reshape(K, k, d, 2, h, 2).transpose(0, 2, 3, 4, 1, 5).reshape(K * d, width - n)
         # what each lock-in sees of each input column: sum over modes m and parts p, one product per carrier
         seen_by = np.einsum("lm,mhcqp->chlqmp", reading, drive).reshape(k, h * k * 2, K * 2)
         seen = np.matmul(seen_by, answer.transpose(3, 1, 4, 0, 2).reshape(k, K * 2, d * 2))  # (c, h l q, i w)
@@ -188,8 +228,9 @@ class PeriodMap:
         z_end[:, n:] = np.einsum("mhcqp,mwcp->mwhcq", drive, mode[-1]).reshape(K, width - n)
         force_end = np.zeros((K, width))
         force_end[:, n:] = np.einsum("mhcqp,wcp->mwhcq", drive, force[-1]).reshape(K, width - n)
-        return np.vstack([z_end.real, z_end.imag, force_end, q.real, q.imag,
-                          np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
+        matrix = np.vstack([z_end.real, z_end.imag, force_end, q.real, q.imag,
+                            np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
+        return matrix, (from_state, from_phasors)
 
 
 def open_envelopes(measured: np.ndarray, sensors: np.ndarray, mixer: np.ndarray, lockin) -> np.ndarray:
