@@ -2,8 +2,9 @@
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
-from modalctl.hil.block import BlockLockIn, BlockPlant
+from modalctl.hil.block import BlockLockIn, BlockPlant, first_order
 from modalctl.lockin import LockIn, Oscillators
 from modalctl.propagate import Plant
 from modalctl.scenes import load_scene
@@ -48,6 +49,18 @@ def test_block_lockin_is_the_lockin_at_each_period_end(fs, d, bands):
     whole = block.periods(2 * signals * np.exp(-1j * phases))
     assert np.max(np.abs(whole - reference)) < 1e-9 * np.max(np.abs(reference))
     assert not np.any(block.state)
+
+
+@pytest.mark.parametrize("periods", [1, 2, 3, 290, 1025])
+def test_first_order_is_lfilter_row_by_row(periods):
+    """Complex poles from 0.01 to 0.9999 in magnitude (a lock-in's per-period poles lie between),
+    rows of any length: each row as scipy's one-pole filter runs it."""
+    rng = np.random.default_rng(3)
+    poles = np.array([0.01, 0.5, 0.97, 0.9999])[:, None] * np.exp(1j * rng.uniform(-3, 3, (4, 3)))  # (k, o)
+    kicks = rng.standard_normal((4, 3, periods)) + 1j * rng.standard_normal((4, 3, periods))
+    ours = first_order(poles, kicks)
+    theirs = np.array([[lfilter([1.0], [1.0, -poles[m, j]], kicks[m, j]) for j in range(3)] for m in range(4)])
+    assert np.max(np.abs(ours - theirs)) < 1e-12 * np.max(np.abs(theirs))
 
 
 def test_block_plant_is_the_plant_for_chunks_of_any_length():
