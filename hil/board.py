@@ -12,11 +12,11 @@ The board's own watchdog ramps its outputs to zero when no command came for ``wa
 (the host died); :meth:`ramp_down` does the same on request.
 
 When the board is linear (a modal truth without drift, rails or amplifier bandwidth), a period is
-one product (:class:`~modalctl.hil.lifted.PeriodMap`): what the sensors measure of the
-feed-forward alone is computed for the whole shot at :meth:`configure` (with the map), its readings
-with this shot's noise at :meth:`start` (the lock-in is linear: one pass), and the records
-(``velocity``, ``applied``, ``sensed``) are played back at the DAC rate from the commands when
-they are read.
+one product (:class:`~modalctl.hil.lifted.PeriodMap`, built at :meth:`configure`): at
+:meth:`start` the truth answers the feed-forward for the whole shot, and the lock-in reads that
+answer with this shot's noise in one pass (it is linear); the periods then add what the commands
+do, and the records (``velocity``, ``applied``, ``sensed``) are played back at the DAC rate from
+the commands when they are read.
 A period read during a ramp to zero is played sample by sample (the periods so far replayed).
 """
 
@@ -110,15 +110,13 @@ class HILBoard:
             s, d = schedule, schedule.decimation
             self._map = PeriodMap(self.plant, self.lockin, s.carriers, s.sensors, s.feedforward.shape[0], d,
                                   self.sample_rate, s.weights)
-            # what the feed-forward alone reads, and each period's carrier turns: the same every shot
+            # each period's carrier turns and the lock-in's mixer, and the truth that answers the
+            # feed-forward at each start (the shot's physics is played then, not here)
             periods = s.feedforward.shape[1] // d
-            plant = Plant(self.truth, self.sample_rate, hold=HOLD)
             self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
             self._unturn = self._turn.conj()
             self._mixer = 2 * Oscillators(s.carriers, self.sample_rate).phasors(periods * d).conj()  # (k, P d)
-            self._fed_velocity = plant.simulate(s.feedforward[:, :periods * d])  # (K, P d)
-            self._fed_sensed = plant.sensors(self._fed_velocity)  # (s, P d)
-            self._fed = None  # its readings, made at the first start without noise
+            self._fed_plant = Plant(self.truth, self.sample_rate, hold=HOLD)
 
     def start(self) -> None:
         s = self.schedule
@@ -148,15 +146,14 @@ class HILBoard:
         self._stale = False  # records behind the periods played lifted
         if self._lifted:  # the readings without feedback: the feed-forward's and this shot's noise's
             self._state = self._map.zero()
+            periods = total // s.decimation
             # each period's input to the map (per-mode commands' map, per-channel map): the records' source
-            self._inputs = {True: np.zeros((total // s.decimation, self._map.folded.shape[1])), False: None}
-            if self._noise is not None:  # the lock-in is linear: one pass reads both
-                opened = open_envelopes(self._fed_sensed + self._noise[:, :self._fed_sensed.shape[1]], s.sensors,
-                                        self._mixer, self.lockin)
-            else:
-                if self._fed is None:
-                    self._fed = open_envelopes(self._fed_sensed, s.sensors, self._mixer, self.lockin)
-                opened = self._fed
+            self._inputs = {True: np.zeros((periods, self._map.folded.shape[1])), False: None}
+            self._fed_velocity = self._fed_plant.simulate(s.feedforward[:, :periods * s.decimation])  # (K, P d)
+            sensed = self._fed_plant.sensors(self._fed_velocity)
+            if self._noise is not None:
+                sensed += self._noise[:, :sensed.shape[1]]
+            opened = open_envelopes(sensed, s.sensors, self._mixer, self.lockin)  # the lock-in is linear
             self._open = np.ascontiguousarray(opened.T)  # one row per period
 
     def _draw_noise(self, sensors: int, total: int, d: int) -> np.ndarray:
@@ -330,7 +327,8 @@ class HILBoard:
             first, length = self.ramp
             volts *= np.clip(1 - (np.arange(1, end + 1) - first) / length, 0, 1)
         if end == periods * d and not ramped:
-            velocity = self._fed_velocity[:, :end] + self._map.velocities(self._inputs[True][:periods])
+            velocity = self._map.velocities(self._inputs[True][:periods])
+            velocity += self._fed_velocity[:, :end]
             if self._inputs[False] is not None:
                 velocity += self._map.velocities(self._inputs[False][:periods], commands=False)
         else:

@@ -56,8 +56,10 @@ class ClosedShot:
     @property
     def run_real_time_factor(self) -> float:
         """The shot's wall time without the board's configuration (ros2_control's configure, before
-        the shot: the period map and the feed-forward's readings), over its duration: activate,
-        the loop, the ring-down and the records of every DAC sample."""
+        the shot: the emulator's period map and lock-in, made from the plan's carriers and rates, not
+        from anything the shot plays), over its duration: activate (the truth's answer to the
+        feed-forward, this shot's noise and their readings), the loop, the ring-down and the records
+        of every DAC sample."""
         return (self.shot_seconds - self.result.configure_seconds) / self.duration
 
     @property

@@ -160,18 +160,18 @@ class PeriodMap:
             The rows are the per-mode commands' map's (:attr:`folded`), else the per-channel map's.
         """
         from_state, from_phasors = self._folded_samples if commands else self._channels()[1]
-        K, d, n, periods = self.K, self.samples, self.states, inputs.shape[0]
-        state = inputs[:, :3 * self.K].reshape(periods, 3, K).transpose(2, 1, 0)  # (K, 3, P)
-        velocity = np.matmul(from_state, state)  # (K, d, P): each mode from its own state
-        velocity += (from_phasors @ inputs[:, n:].T).reshape(K, d, periods)
-        return velocity.transpose(0, 2, 1).reshape(K, periods * d)
+        K, periods = self.K, inputs.shape[0]
+        state = inputs[:, :3 * K].reshape(periods, 3, K).transpose(2, 0, 1)  # (K, P, 3)
+        velocity = np.matmul(state, from_state)  # (K, P, d): each mode from its own state
+        velocity += np.matmul(inputs[:, self.states:], from_phasors)  # (P, width - states) by (K, width - states, d)
+        return velocity.reshape(K, periods * self.samples)
 
     def _build(self, residues, reading, lockin, drive) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
         """One period's response to every basis vector of (state, last, this), from the board's
         equations over the period's samples: the hold's recursion of each mode, the straight-line
         phasor ramp on the carriers, the sensors' combinations, the lock-in's Butterworth.
         Returns the map and the truth's velocities at each of the period's samples: from each
-        mode's own state (K, d, 3) and from the phasor columns (K d, width - states).
+        mode's own state (K, 3, d) and from the phasor columns (K, width - states, d).
 
         ``drive`` (K, h, k, 2, 2) says how a unit input column (one of ``h`` channels, carrier c,
         real or imaginary part q) drives mode m through each force pattern's part p: ``G[m, a]``
@@ -203,11 +203,11 @@ class PeriodMap:
         for column, share in enumerate(shares):
             mixed[:, :, column * K:(column + 1) * K] = turn * (reading[:, None, :] * share[None])
         answer = 2 * (r[None, :, None, None, None] * mode).real  # each mode's velocity, (d, K, 2, k, 2)
-        from_state = np.stack(shares, axis=-1).transpose(1, 0, 2)  # (K, d, 3)
+        from_state = np.stack(shares, axis=0).transpose(2, 0, 1).copy()  # (K, 3, d)
         # from_phasors[m, i, (w, h, c, q)] = sum_p drive[m, h, c, q, p] answer[i, m, w, c, p]: one product per (m, c)
         per_part = np.matmul(answer.transpose(1, 3, 0, 2, 4).reshape(K, k, 2 * d, 2),
                              drive.transpose(0, 2, 4, 1, 3).reshape(K, k, 2, 2 * h))  # (m, c, (i w), (h q))
-        from_phasors = per_part.reshape(K, k, d, 2, h, 2).transpose(0, 2, 3, 4, 1, 5).reshape(K * d, width - n)
+        from_phasors = per_part.reshape(K, k, d, 2, h, 2).transpose(0, 3, 4, 1, 5, 2).reshape(K, width - n, d)
         # what each lock-in sees of each input column: sum over modes m and parts p, one product per carrier
         seen_by = np.einsum("lm,mhcqp->chlqmp", reading, drive).reshape(k, h * k * 2, K * 2)
         seen = np.matmul(seen_by, answer.transpose(3, 1, 4, 0, 2).reshape(k, K * 2, d * 2))  # (c, h l q, i w)
