@@ -68,11 +68,11 @@ def runtime(model, log=None):
     rng = np.random.default_rng(0)
     reference = 1e-4 * (1 + 0.1 * rng.standard_normal((k, STEPS + 1))) + 0j
     readings = list(reference.T[:1000] * (1 + 0.01 * rng.standard_normal((1000, k))))
-    ff = np.full((a, STEPS + 1), 50.0)
+    t = np.arange((STEPS + 1) * 25) / (25 * RATE)  # a 50 V feed-forward at 20 kHz on every channel
+    ff = np.broadcast_to(50.0 * np.sin(2 * np.pi * 2e4 * t), (a, t.size))
     schedule = Schedule(RATE, 25, model.frequencies, bands, np.zeros((k, 4)), reference, reference, reference,
-                        ff, ff * 2 * np.pi * 2e4, np.zeros((a, 1)), weights)
-    supervisor = Supervisor(Limits(100.0, 5e7), model.frequencies, RATE, ff, ff * 2 * np.pi * 2e4,
-                            np.full(k, 1e-3), weights)
+                        ff, weights)
+    supervisor = Supervisor(Limits(100.0, 5e7), schedule, np.full(k, 1e-3))
     recorder = None if log is None else Recorder(log, log_fields(k, a))
     rt = Runtime(StubBoard(readings), schedule, PIControl(design, RATE), supervisor,
                  np.zeros(k), np.full((k, STEPS + 1), 1.0), recorder)

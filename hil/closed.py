@@ -143,12 +143,11 @@ def step_runtime(model, mode: int, truth=None, control_rate: float = 20e3, sampl
     weights = dispatch(model, modes)
     a = weights.shape[0]
     reference = np.where(np.arange(periods) >= step_at, size, 0.0)[None, :] + 0j
-    zeros = np.zeros((a, periods))
     decimation = int(round(sample_rate / control_rate))
     schedule = Schedule(control_rate, decimation, model.frequencies[modes], bands, sensors, reference, reference,
-                        reference, zeros, zeros, np.zeros((a, periods * decimation)), weights)
+                        reference, np.zeros((a, periods * decimation)), weights)
     design = design_loops(model.frequencies[modes], model.damping[modes], bands, control_rate)
-    supervisor = Supervisor(Limits(np.inf), schedule.carriers, control_rate, zeros, zeros, np.full(1, size), weights)
+    supervisor = Supervisor(Limits(np.inf), schedule, np.full(1, size))
     recorder = None if log is None else Recorder(log, log_fields(1, a))
     sigma = model.omega[mode] * model.damping[mode]
     authority = np.full((1, periods), 100 * 2 * sigma * size)

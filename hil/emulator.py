@@ -187,9 +187,9 @@ class BoardEmulator:
         self.capture = None
         k, decimation = c.modes, int(round(c.sample_rate / c.control_rate))
         periods = self.feedforward.shape[1] // decimation
-        dummy, flat = np.zeros((k, periods), complex), np.zeros((1, periods))
+        dummy = np.zeros((k, periods), complex)
         schedule = Schedule(float(c.control_rate), decimation, c.carriers.astype(float), c.bandwidths.astype(float),
-                            c.sensors.astype(float).reshape(k, -1), dummy, dummy, dummy, flat, flat,
+                            c.sensors.astype(float).reshape(k, -1), dummy, dummy, dummy,
                             self.feedforward, c.weights.astype(float).reshape(-1, k))
         self.sim.configure(float(c.sample_rate))  # the simulator's own truth: finger, drift, amplifier, noise
         self.board = self.sim.phasor_board(float(c.level), float(c.control_rate), latency=self.latency)

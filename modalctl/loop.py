@@ -149,9 +149,8 @@ def closed_shot(plan, board, parts: LoopParts, closed: bool = True, voltage_limi
     controller = parts.controller
     if gain_scale != 1.0:
         controller.scale(gain_scale)
-    supervisor = Supervisor(Limits(voltage_limit or np.inf, slew_limit, watchdog), s.carriers, s.control_rate,
-                            s.feedforward_peak, s.feedforward_slope,
-                            np.abs(s.reference).max(axis=1) + 5 * parts.noise, plan.weights, lead=1 + latency)
+    supervisor = Supervisor(Limits(voltage_limit or np.inf, slew_limit, watchdog), s,
+                            np.abs(s.reference).max(axis=1) + 5 * parts.noise, lead=1 + latency)
     recorder = None if log is None else loop_log(plan, s, log, closed=closed, voltage_limit_v=voltage_limit,
                                                  slew_limit_v_per_s=slew_limit)
     authority = parts.authority if closed else np.zeros_like(parts.authority)

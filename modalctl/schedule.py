@@ -5,9 +5,9 @@ knows, before the shot, what those envelopes read if the controller's model is r
 whole model (every mode, not only the kept ones) driven by the plan's feed-forward, through the
 same sensors and the same lock-in. So the reference carries the lock-in's delay and the other
 modes' leakage, and a perfect model gives zero error. The schedule also holds the feed-forward's
-own envelopes (how much authority each loop gets), and each channel's feed-forward peak and
-slope per period (the supervisor's headroom). All computed once, before the shot, so that the
-loop does no simulation.
+own envelopes (how much authority each loop gets) and the feed-forward voltages the board plays
+(the supervisor's headroom). All computed once, before the shot, so that the loop does no
+simulation.
 """
 
 from __future__ import annotations
@@ -47,8 +47,6 @@ class Schedule:
     own : ndarray, shape (k, n)
         Envelope of each mode's own modal velocity in the model: ``reference - own`` is what the
         other modes add to the reading (a tracker removes it).
-    feedforward_peak, feedforward_slope : ndarray, shape (a, n)
-        Largest feed-forward voltage (V) and slope (V/s) of each channel over each period and the next.
     feedforward : ndarray, shape (a, n * decimation)
         The feed-forward voltages the board plays (V).
     weights : ndarray, shape (a, k)
@@ -63,8 +61,6 @@ class Schedule:
     reference: np.ndarray
     drive: np.ndarray
     own: np.ndarray
-    feedforward_peak: np.ndarray
-    feedforward_slope: np.ndarray
     feedforward: np.ndarray
     weights: np.ndarray
 
@@ -105,16 +101,8 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     reference = lockin(sensors @ expected.sensors(velocity))
     planned = lockin(drive)
     own = lockin(velocity[plan.modes])
-    per_period = volts.reshape(volts.shape[0], n, decimation)
-    peak = np.abs(per_period).max(axis=2)
-    slope = np.abs(np.diff(volts, axis=1, append=volts[:, -1:])).reshape(per_period.shape).max(axis=2) * fs
     return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),
-                    reference, planned, own, _with_next(peak), _with_next(slope), volts, np.asarray(plan.weights))
-
-
-def _with_next(x: np.ndarray) -> np.ndarray:
-    """Each period's value or the next one's, whichever is larger (columns are periods)."""
-    return np.maximum(x, np.concatenate([x[:, 1:], x[:, -1:]], axis=1))
+                    reference, planned, own, volts, np.asarray(plan.weights))
 
 
 def envelope_noise(sigma: float, sensors: np.ndarray, bandwidths: np.ndarray, sample_rate: float,

@@ -2,20 +2,24 @@
 
 Each period the feedback arrives as per-channel, per-mode phasors ``P`` (a, k): the board adds
 ``Re(P_ck exp(j phase_k))`` to the feed-forward of channel c, moving each phasor in a straight
-line from the old value to the new one over the period. With ``F_c`` the largest feed-forward
-voltage of the channel over the period and ``S_c`` its largest slope, the channel can at most reach
+line from the old value to the new one over the period, sample by sample. The supervisor scales
+the requested phasors by one factor ``s`` in [0, 1] for all channels (so that the dispatch's
+balance between actuators is kept), the largest for which every DAC sample of that period stays
+within the voltage limit and every step between samples within the slew limit, and for which the
+new phasors could still be held through the next period, or dropped to zero over it, within both:
+so scaling to zero is always allowed, whatever the host does next. The feed-forward is known
+before the shot and the carriers' phases are the board's, so each sample's voltage is
+``b + s g`` with ``b`` and ``g`` known: the largest ``s`` is a minimum over the samples, exact.
+A cheaper bound comes first: with ``F_c`` the largest feed-forward voltage of the channel over
+the period and the next and ``S_c`` its largest slope, the channel can at most reach
 
     ``F_c + sum_k max(|P_old|, |P_new|)_ck``  volts  and
-    ``S_c + sum_k (w_k max(|P_old|, |P_new|)_ck + |P_new - P_old|_ck / T)``  volts per second,
+    ``S_c + sum_k (w_k + 2 / T) max(|P_old|, |P_new|)_ck``  volts per second,
 
-bounds that hold whatever the phases. The supervisor scales the requested phasors down (one
-factor for all channels, so that the dispatch's balance between actuators is kept) until both
-hold, and until the new phasors could still be dropped to zero within the next period without
-breaking either limit there (``F_c + sum |P_new|`` and ``S_c + sum (w_k + 1/T) |P_new|`` within
-bounds): so scaling to zero is always allowed, and the limits hold for every sample, whatever
-the feed-forward does next. The watchdog counts periods without a measurement; the divergence
-check compares each mode's measured envelope with the largest one the plan expects. Either trips
-the run: the board ramps its outputs to zero within one period.
+whatever the phases; when both fit (the feedback far from the limits) the samples are not needed.
+The watchdog counts periods without a measurement; the divergence check compares each mode's
+measured envelope with the largest one the plan expects. Either trips the run: the board ramps
+its outputs to zero within one period.
 """
 
 from __future__ import annotations
@@ -25,6 +29,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["Limits", "Supervisor"]
+
+ROUNDING = 1e-9  # relative: how far inside its limits the supervisor keeps the samples
 
 
 @dataclass(frozen=True)
@@ -66,45 +72,53 @@ class Supervisor:
     Parameters
     ----------
     limits : Limits
-    carriers : ndarray, shape (k,)
-        Carrier frequencies (Hz).
-    control_rate : float
-        Hz.
-    feedforward_peak, feedforward_slope : ndarray, shape (a, n)
-        Largest feed-forward voltage (V) and slope (V/s) of each channel in each period (and the next).
+    schedule : Schedule
+        The shot: its carriers (Hz), control rate, DAC samples per period, feed-forward voltages
+        (a, n d) and dispatch weights (a, k): volts per unit modal command of each mode on each
+        channel (the phasors are ``weights * command``).
     envelope_bound : ndarray, shape (k,)
         Largest envelope each mode should read (same units as the measurements).
-    weights : ndarray, shape (a, k)
-        Dispatch: volts per unit modal command of each mode on each channel (the phasors are
-        ``weights * command``, so ``sum_k |P_ck| = |weights| @ |command|``).
     lead : int
         Periods from the one just measured to the one a command is played in (1, plus the
         board's latency).
     """
 
-    def __init__(self, limits: Limits, carriers, control_rate: float, feedforward_peak, feedforward_slope,
-                 envelope_bound, weights, lead: int = 1):
+    def __init__(self, limits: Limits, schedule, envelope_bound, lead: int = 1):
         self.limits = limits
-        self.omega = 2 * np.pi * np.asarray(carriers, float)
-        self.period = 1 / control_rate
-        self.ff_peak = np.asarray(feedforward_peak, float)
-        self.ff_slope = np.asarray(feedforward_slope, float)
+        d, ff = schedule.decimation, np.asarray(schedule.feedforward, float)
+        self.samples, self.sample_rate = d, d * schedule.control_rate
+        self.omega = 2 * np.pi * np.asarray(schedule.carriers, float)
+        self.period = 1 / schedule.control_rate
         self.bound = limits.divergence * np.asarray(envelope_bound, float)
-        self.gains = np.abs(np.asarray(weights))
-        if np.any(self.ff_peak > limits.voltage * (1 + 1e-9)):
-            worst = float(self.ff_peak.max())
-            raise ValueError(f"the feed-forward alone reaches {worst:.1f} V, above the {limits.voltage:g} V limit")
+        self.weights = np.asarray(schedule.weights)
+        self.gains = np.abs(self.weights)
+        if np.abs(ff).max(initial=0.0) > limits.voltage * (1 + 1e-9):
+            raise ValueError(f"the feed-forward alone reaches {np.abs(ff).max():.1f} V, above the "
+                             f"{limits.voltage:g} V limit")
         self.lead = int(lead)
         self.unlimited = np.isinf(limits.voltage) and limits.slew is None
-        # per period and channel, what the feed-forward leaves for the feedback: volts, then twice volts/s
-        slope_room = np.inf if limits.slew is None else limits.slew - self.ff_slope
-        room = np.broadcast_arrays(limits.voltage - self.ff_peak, slope_room, slope_room)
-        self.room = np.ascontiguousarray(np.stack(room, axis=2).transpose(1, 0, 2))  # (n, a, 3)
-        self.fast = self.omega + 1 / self.period
-        # a cheaper bound first: with u = max(|old|, |new|), |new - old| <= 2 u, so both slopes are at
-        # most sum (w + 2/T) u; when that fits, the exact test is not needed
+        # the quick bound's room, per period and channel: volts, then volts/s, over the period and the next
+        per_period = ff[:, :ff.shape[1] // d * d].reshape(ff.shape[0], -1, d)
+        peak = np.abs(per_period).max(axis=2, initial=0.0)
+        slope = np.abs(np.diff(ff, axis=1, append=ff[:, -1:]))[:, :per_period.shape[1] * d]
+        slope = slope.reshape(per_period.shape).max(axis=2, initial=0.0) * self.sample_rate
+        slope_room = np.inf if limits.slew is None else limits.slew - _with_next(slope)
+        room = np.broadcast_arrays(limits.voltage - _with_next(peak), slope_room)
+        self.room = np.ascontiguousarray(np.stack(room, axis=2).transpose(1, 0, 2))  # (n, a, 2)
+        # with u = max(|old|, |new|), |new - old| <= 2 u: both slopes are at most sum (w + 2/T) u
         self.quick = np.column_stack([np.ones(self.omega.size), self.omega + 2 / self.period])
-        self.quick_room = self.room[:, :, :2]
+        # the exact test's window: the sample before the period the commands play in, that period
+        # and the next; the feed-forward with zeros before and after the shot; the carriers' phases
+        # at the window's samples from its first; how much of the old and of the new phasors each
+        # sample plays when the next period holds them (row 0) or drops them to zero (row 1)
+        self._ff = np.pad(ff, ((0, 0), (1, 2 * d)))
+        window = np.arange(-1, 2 * d)
+        self._steps = self.omega / self.sample_rate
+        self._carriers = np.exp(1j * self._steps[:, None] * (window + 1))  # (k, 2 d + 1)
+        ramp = np.arange(1, d + 1) / d
+        self._new = np.array([np.concatenate([[0.0], ramp, np.ones(d)]),
+                              np.concatenate([[0.0], ramp, 1 - ramp])])  # (2, 2 d + 1)
+        self._old = np.concatenate([[1.0], 1 - ramp, np.zeros(d)])
         self._size_old = np.zeros(self.omega.size)
         self.missed = 0
         self.scaled = 0  # periods in which the feedback was held back by a limit
@@ -131,30 +145,49 @@ class Supervisor:
         module's notes)."""
         if self.unlimited:
             return 1.0
-        n = min(period + self.lead, self.room.shape[0] - 1)
+        played = period + self.lead
         size_new = np.abs(new)
         bound = self.gains @ (np.maximum(self._size_old, size_new)[:, None] * self.quick)
-        if not np.count_nonzero(bound > self.quick_room[n]):
+        if not np.count_nonzero(bound > self.room[min(played, self.room.shape[0] - 1)]):
             self._size_old = size_new
             return 1.0
-        room = self.room[n]
-        s = 1.0 if self._fits(1.0, old, new, size_new, room) else self._largest(old, new, size_new, room)
+        s = self._largest(old, new, played)
+        if s < 1.0:
+            self.scaled += 1
         self._size_old = s * size_new
         return s
 
-    def _fits(self, s: float, old, new, size_new, room) -> bool:
-        """Do the commands ``s * new`` keep every channel within ``room`` (a, 3)?"""
-        size = np.maximum(self._size_old, s * size_new)
-        columns = np.empty((size.size, 3))
-        columns[:, 0] = size  # volts
-        columns[:, 1] = self.omega * size + np.abs(s * new - old) / self.period  # slope while moving
-        columns[:, 2] = s * self.fast * size_new  # slope of a stop in the next period
-        return not np.count_nonzero(self.gains @ columns > room)
+    def _largest(self, old: np.ndarray, new: np.ndarray, played: int) -> float:
+        """The largest ``s`` in [0, 1] for which every sample of period ``played``, and of the next
+        with the new phasors held or dropped to zero, is within the limits: each sample's voltage
+        is ``b + s g``, so each limit ``|b + s g| <= L`` (``|b| <= L`` at ``s = 0``) asks
+        ``s <= (L - sign(g) b) / |g|``. The limits are taken ``ROUNDING`` inside, so that the
+        board's own arithmetic cannot carry a sample across them."""
+        d = self.samples
+        start = played * d  # the window's first sample, in the padded feed-forward
+        turn = np.exp(1j * np.mod(self._steps * start - self._steps, 2 * np.pi))[:, None]  # phase at sample start - 1
+        carriers = turn * self._carriers  # (k, 2 d + 1)
+        was = ((self.weights * old) @ carriers).real  # (a, 2 d + 1): the old phasors on the carriers
+        comes = ((self.weights * new) @ carriers).real
+        b = self._ff[:, start:start + 2 * d + 1] + self._old * was  # (a, 2 d + 1)
+        b, g = np.broadcast_arrays(b[:, None], self._new * comes[:, None])  # (a, 2, 2 d + 1): held, dropped
+        largest = _largest_factor(b[..., 1:], g[..., 1:], self.limits.voltage * (1 - ROUNDING))
+        if self.limits.slew is not None:
+            step = self.limits.slew * (1 - ROUNDING) / self.sample_rate
+            largest = min(largest, _largest_factor(np.diff(b, axis=-1), np.diff(g, axis=-1), step))
+        return largest
 
-    def _largest(self, old, new, size_new, room) -> float:
-        self.scaled += 1
-        low, high = 0.0, 1.0
-        for _ in range(30):  # bisection: the bounds are convex in s, and s = 0 fits
-            mid = 0.5 * (low + high)
-            low, high = (mid, high) if self._fits(mid, old, new, size_new, room) else (low, mid)
-        return low
+
+def _largest_factor(b: np.ndarray, g: np.ndarray, limit: float) -> float:
+    """The largest ``s`` in [0, 1] with ``|b + s g| <= limit`` everywhere (0 where even ``b`` is not)."""
+    size = np.abs(g)
+    room = limit - np.sign(g) * b
+    moving = size > 0
+    if not moving.any():
+        return 1.0
+    return float(np.clip((room[moving] / size[moving]).min(), 0.0, 1.0))
+
+
+def _with_next(x: np.ndarray) -> np.ndarray:
+    """Each period's value or the next one's, whichever is larger (columns are periods)."""
+    return np.maximum(x, np.concatenate([x[:, 1:], x[:, -1:]], axis=1))

@@ -8,7 +8,9 @@ from modalctl.hil.scenario import Perturbation, perturb
 from modalctl.control import settling_time
 from modalctl.recorder import Recorder, read_log
 from modalctl.runtime import LifecycleError, State
-from modalctl.supervisor import Limits
+from modalctl.hil.board import HILBoard
+from modalctl.loop import loop_parts
+from modalctl.supervisor import Limits, Supervisor
 
 FS, RATE = 500e3, 20e3
 D = int(FS / RATE)
@@ -93,6 +95,45 @@ def test_supervisor_keeps_voltage_and_slew_limits(sinc18):
     assert np.abs(applied).max() <= volts * (1 + 1e-9)
     assert np.abs(np.diff(applied, axis=1)).max() * shot.sample_rate <= slew * (1 + 1e-9)
     assert run.result.limited > 0  # the limits did bite
+
+
+def _played(model, schedule, commands):
+    """The voltages (a, N) a board on ``model`` (by samples: its own modulation) plays when
+    ``commands[n]`` (k,) is written after its period n, one period after the last command."""
+    board = HILBoard(model, FS, lifted=False)
+    board.configure(schedule)
+    board.start()
+    for command in commands:
+        board.read()
+        board.write(command)
+    board.read()
+    return board.applied[:, :(len(commands) + 1) * schedule.decimation]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_supervisor_factor_is_the_largest_the_samples_allow(sinc18, seed):
+    """Random commands against tight limits, the last ones scaled by the supervisor too: the board
+    keeps both limits on every sample of the period the scaled new commands play in and of the
+    next, whether they are held there or dropped to zero; 0.1% more breaks one of them."""
+    model, _, plan = sinc18
+    s = loop_parts(plan, RATE, 1e-9, 2.0, 0, "pi").schedule
+    ff = s.feedforward
+    limits = Limits(1.05 * np.abs(ff).max(), 1.05 * np.abs(np.diff(ff, axis=1)).max() * FS)
+    supervisor = Supervisor(limits, s, np.ones(s.carriers.size))
+    rng = np.random.default_rng(seed)
+    k, m = s.carriers.size, 480  # the new commands play in period m (near the focus), the old in m - 1
+    size = 3 * np.abs(s.drive[:, m]).max()
+    old, new = (size * (rng.standard_normal(k) + 1j * rng.standard_normal(k)) for _ in range(2))
+    old *= supervisor._largest(np.zeros(k), old, m - 1)
+    factor = supervisor._largest(old, new, m)
+    assert 0 < factor < 1
+
+    def worst(scale, then):  # largest voltage and slope over periods m and m + 1, as limits' fractions
+        volts = _played(model, s, [np.zeros(k)] * (m - 2) + [old, scale * new, then * scale * new])[:, m * D - 1:]
+        return max(np.abs(volts).max() / limits.voltage, np.abs(np.diff(volts, axis=1)).max() * FS / limits.slew)
+
+    assert max(worst(factor, 1.0), worst(factor, 0.0)) <= 1 + 1e-9
+    assert max(worst(1.001 * factor, 1.0), worst(1.001 * factor, 0.0)) > 1 + 1e-6
 
 
 def test_log_reader_skips_a_half_written_record(tmp_path):
