@@ -114,7 +114,8 @@ class Supervisor:
         self._ff = np.pad(ff, ((0, 0), (1, 2 * d)))
         window = np.arange(-1, 2 * d)
         self._steps = self.omega / self.sample_rate
-        self._carriers = np.exp(1j * self._steps[:, None] * (window + 1))  # (k, 2 d + 1)
+        carriers = np.exp(1j * self._steps[:, None] * (window + 1))  # (k, 2 d + 1)
+        self._carriers = np.vstack([carriers.real, carriers.imag])  # Re(y c) = [Re y, -Im y] @ this
         ramp = np.arange(1, d + 1) / d
         self._new = np.array([np.concatenate([[0.0], ramp, np.ones(d)]),
                               np.concatenate([[0.0], ramp, 1 - ramp])])  # (2, 2 d + 1)
@@ -163,29 +164,29 @@ class Supervisor:
         is ``b + s g``, so each limit ``|b + s g| <= L`` (``|b| <= L`` at ``s = 0``) asks
         ``s <= (L - sign(g) b) / |g|``. The limits are taken ``ROUNDING`` inside, so that the
         board's own arithmetic cannot carry a sample across them."""
-        d = self.samples
+        d, a = self.samples, self.weights.shape[0]
         start = played * d  # the window's first sample, in the padded feed-forward
-        turn = np.exp(1j * np.mod(self._steps * start - self._steps, 2 * np.pi))[:, None]  # phase at sample start - 1
-        carriers = turn * self._carriers  # (k, 2 d + 1)
-        was = ((self.weights * old) @ carriers).real  # (a, 2 d + 1): the old phasors on the carriers
-        comes = ((self.weights * new) @ carriers).real
-        b = self._ff[:, start:start + 2 * d + 1] + self._old * was  # (a, 2 d + 1)
-        b, g = np.broadcast_arrays(b[:, None], self._new * comes[:, None])  # (a, 2, 2 d + 1): held, dropped
-        largest = _largest_factor(b[..., 1:], g[..., 1:], self.limits.voltage * (1 - ROUNDING))
+        turn = np.exp(1j * np.mod(self._steps * (start - 1), 2 * np.pi))  # each carrier's phase there
+        phasors = self.weights * (np.stack([old, new]) * turn)[:, None, :]  # (2, a, k): old, new
+        on = np.concatenate([phasors.real, -phasors.imag], axis=2).reshape(2 * a, -1) @ self._carriers
+        b = self._ff[:, start:start + 2 * d + 1] + self._old * on[:a]  # (a, 2 d + 1)
+        held = self._new[0] * on[a:]  # the new phasors' share at s = 1, held through the next period
+        largest = _largest_factor(b[:, 1:], held[:, 1:], self.limits.voltage * (1 - ROUNDING))  # dropped: between
         if self.limits.slew is not None:
             step = self.limits.slew * (1 - ROUNDING) / self.sample_rate
-            largest = min(largest, _largest_factor(np.diff(b, axis=-1), np.diff(g, axis=-1), step))
+            steps_b = b[:, 1:] - b[:, :-1]
+            dropped = self._new[1, d:] * on[a:, d:]  # from the period's last sample on
+            largest = min(largest, _largest_factor(steps_b, held[:, 1:] - held[:, :-1], step),
+                          _largest_factor(steps_b[:, d:], dropped[:, 1:] - dropped[:, :-1], step))
         return largest
 
 
 def _largest_factor(b: np.ndarray, g: np.ndarray, limit: float) -> float:
-    """The largest ``s`` in [0, 1] with ``|b + s g| <= limit`` everywhere (0 where even ``b`` is not)."""
-    size = np.abs(g)
-    room = limit - np.sign(g) * b
-    moving = size > 0
-    if not moving.any():
-        return 1.0
-    return float(np.clip((room[moving] / size[moving]).min(), 0.0, 1.0))
+    """The largest ``s`` in [0, 1] with ``|b + s g| <= limit`` everywhere (0 where even ``b`` is
+    not): ``(limit sign(g) - b) / g``, infinite where ``g`` is zero and ``b`` within the limit."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = (np.copysign(limit, g) - b) / g
+    return float(min(max(np.fmin.reduce(ratio, axis=None), 0.0), 1.0))
 
 
 def _with_next(x: np.ndarray) -> np.ndarray:
