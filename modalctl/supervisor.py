@@ -92,11 +92,21 @@ class Supervisor:
         self.bound = limits.divergence * np.asarray(envelope_bound, float)
         self.weights = np.asarray(schedule.weights)
         self.gains = np.abs(self.weights)
+        self.lead = int(lead)
+        self.unlimited = np.isinf(limits.voltage) and limits.slew is None
+        if not self.unlimited:
+            self._prepare(ff)
+        self._size_old = np.zeros(self.omega.size)
+        self.missed = 0
+        self.scaled = 0  # periods in which the feedback was held back by a limit
+
+    def _prepare(self, ff: np.ndarray) -> None:
+        """What the limits need of the feed-forward ``ff`` (a, n d): the quick bound's room per
+        period, and the exact test's window (made before the shot, not in the loop)."""
+        limits, d = self.limits, self.samples
         if np.abs(ff).max(initial=0.0) > limits.voltage * (1 + 1e-9):
             raise ValueError(f"the feed-forward alone reaches {np.abs(ff).max():.1f} V, above the "
                              f"{limits.voltage:g} V limit")
-        self.lead = int(lead)
-        self.unlimited = np.isinf(limits.voltage) and limits.slew is None
         # the quick bound's room, per period and channel: volts, then volts/s, over the period and the next
         per_period = ff[:, :ff.shape[1] // d * d].reshape(ff.shape[0], -1, d)
         peak = np.abs(per_period).max(axis=2, initial=0.0)
@@ -120,9 +130,6 @@ class Supervisor:
         self._new = np.array([np.concatenate([[0.0], ramp, np.ones(d)]),
                               np.concatenate([[0.0], ramp, 1 - ramp])])  # (2, 2 d + 1)
         self._old = np.concatenate([[1.0], 1 - ramp, np.zeros(d)])
-        self._size_old = np.zeros(self.omega.size)
-        self.missed = 0
-        self.scaled = 0  # periods in which the feedback was held back by a limit
 
     def watch(self, reading) -> str | None:
         """The watchdog: a reason to stop when ``limits.watchdog`` periods passed without a reading."""
