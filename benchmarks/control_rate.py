@@ -100,9 +100,9 @@ def main() -> None:
         ax.minorticks_off()
         ax.set_xticks(x, [f"{v:.3g}" for v in x])
         for s, xi, yi in zip(summary, x, y):
-            ax.annotate(f"x{s['real_time_factor']:.2f} RT", (xi, yi), textcoords="offset points", xytext=(4, -12),
-                        fontsize=7)
-    left.set_title("tau against the loop rate (annotated: loop wall time / real time)")
+            ax.annotate(f"loop x{s['real_time_factor']:.2f}\nshot x{s['run_real_time_factor']:.2f}", (xi, yi),
+                        textcoords="offset points", xytext=(4, -22), fontsize=7)
+    left.set_title("tau against the loop rate (annotated: wall time / real time)", fontsize=10)
     right.set_title("tau against the runtime's compute load")
     left.legend(fontsize=8)
     save_figure(fig, "control_rate")
