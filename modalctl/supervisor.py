@@ -118,10 +118,11 @@ class Supervisor:
         # with u = max(|old|, |new|), |new - old| <= 2 u: both slopes are at most sum (w + 2/T) u
         self.quick = np.column_stack([np.ones(self.omega.size), self.omega + 2 / self.period])
         # the exact test's window: the sample before the period the commands play in, that period
-        # and the next; the feed-forward with zeros before and after the shot; the carriers' phases
+        # and the next; the feed-forward with zeros before and after the shot (commands written in
+        # its last period play up to lead periods after it); the carriers' phases
         # at the window's samples from its first; how much of the old and of the new phasors each
         # sample plays when the next period holds them (row 0) or drops them to zero (row 1)
-        self._ff = np.pad(ff, ((0, 0), (1, 2 * d)))
+        self._ff = np.pad(ff, ((0, 0), (1, (2 + self.lead) * d)))
         window = np.arange(-1, 2 * d)
         self._steps = self.omega / self.sample_rate
         carriers = np.exp(1j * self._steps[:, None] * (window + 1))  # (k, 2 d + 1)
@@ -178,7 +179,8 @@ class Supervisor:
         on = np.concatenate([phasors.real, -phasors.imag], axis=2).reshape(2 * a, -1) @ self._carriers
         b = self._ff[:, start:start + 2 * d + 1] + self._old * on[:a]  # (a, 2 d + 1)
         held = self._new[0] * on[a:]  # the new phasors' share at s = 1, held through the next period
-        largest = _largest_factor(b[:, 1:], held[:, 1:], self.limits.voltage * (1 - ROUNDING))  # dropped: between
+        # (dropped to zero instead, each voltage lies between the held one's and the feed-forward's)
+        largest = _largest_factor(b[:, 1:], held[:, 1:], self.limits.voltage * (1 - ROUNDING))
         if self.limits.slew is not None:
             step = self.limits.slew * (1 - ROUNDING) / self.sample_rate
             steps_b = b[:, 1:] - b[:, :-1]

@@ -136,6 +136,23 @@ def test_supervisor_factor_is_the_largest_the_samples_allow(sinc18, seed):
     assert max(worst(1.001 * factor, 1.0), worst(1.001 * factor, 0.0)) > 1 + 1e-6
 
 
+def test_supervisor_checks_commands_played_after_the_last_period(sinc18):
+    """A slow board (three periods of lead) plays the last period's commands after the shot's
+    feed-forward has ended: the factor there keeps the carriers' sum alone within the voltage
+    limit, and reaches it."""
+    model, _, plan = sinc18
+    s = loop_parts(plan, RATE, 1e-9, 2.0, 2, "pi").schedule
+    limit = 1.05 * np.abs(s.feedforward).max()
+    supervisor = Supervisor(Limits(limit), s, np.ones(s.carriers.size), lead=3)
+    new = np.full(s.carriers.size, 40 * limit / np.abs(s.weights).sum()) + 0j
+    played = s.periods + 2
+    factor = supervisor._largest(np.zeros_like(new), new, played)
+    i = np.arange(2 * D)[:, None]  # the period played (the phasors ramping in from zero) and the next, held
+    share = np.minimum((i + 1) / D, 1.0)
+    volts = share * np.real(np.exp(2j * np.pi * s.carriers * (played * D + i) / FS) @ (s.weights * factor * new).T)
+    assert 0 < factor < 1 and abs(np.abs(volts).max() / limit - 1) < 1e-6
+
+
 def test_log_reader_skips_a_half_written_record(tmp_path):
     with Recorder(tmp_path / "x", {"a": ("<f8", (3,), "m"), "n": ("<i8", (), "1")}) as rec:
         rec.write(a=[1, 2, 3], n=7)
