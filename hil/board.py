@@ -301,7 +301,7 @@ class HILBoard:
         """Fill the records up to the current sample from the phasors played lifted: the voltages
         at the DAC rate (feed-forward plus the ramps between each period's phasors on the
         carriers), the truth's answer, the sensors and noise. The answer is the feed-forward's
-        (made at :meth:`configure`) plus what the period map says of the periods' inputs
+        (made at :meth:`start`) plus what the period map says of the periods' inputs
         (:meth:`~modalctl.hil.lifted.PeriodMap.velocities`) when every sample so far was in a period
         it played; otherwise the truth runs again on the voltages (:class:`modalctl.propagate.Plant`)."""
         if not self._stale:
