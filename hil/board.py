@@ -29,10 +29,10 @@ import numpy as np
 from modalctl.lockin import Oscillators
 from modalctl.model import ModalModel
 from modalctl.propagate import Plant
-from modalctl.schedule import HOLD, Schedule
+from modalctl.schedule import HOLD, Schedule, ramp_in
 
 from .block import BlockLockIn, BlockPlant
-from .lifted import PeriodMap, open_envelopes, ramp_in
+from .lifted import PeriodMap, open_envelopes
 
 __all__ = ["HILBoard"]
 
@@ -148,7 +148,8 @@ class HILBoard:
             self._state = self._map.zero()
             periods = total // s.decimation
             # each period's input to the map (per-mode commands' map, per-channel map): the records' source
-            self._inputs = {True: np.zeros((periods, self._map.folded.shape[1])), False: None}
+            self._command_inputs = np.zeros((periods, self._map.folded.shape[1]))
+            self._channel_inputs: np.ndarray | None = None  # made when a period first plays per-channel phasors
             self._fed_velocity = self._fed_plant.simulate(s.feedforward[:, :periods * s.decimation])  # (K, P d)
             sensed = self._fed_plant.sensors(self._fed_velocity)
             if self._noise is not None:
@@ -286,11 +287,11 @@ class HILBoard:
             self._state = self._map.at_rest(target)
         if commands is not None and self._commands is not None:  # the smaller product
             self._state, turned = self._map.step_commands(self._state, self._commands, commands, turn,
-                                                          self._inputs[True][n])
+                                                          self._command_inputs[n])
         else:
-            if self._inputs[False] is None:
-                self._inputs[False] = np.zeros((self._inputs[True].shape[0], self._map.matrix.shape[1]))
-            self._state, turned = self._map.step(self._state, self.current, target, turn, self._inputs[False][n])
+            if self._channel_inputs is None:
+                self._channel_inputs = np.zeros((self._command_inputs.shape[0], self._map.matrix.shape[1]))
+            self._state, turned = self._map.step(self._state, self.current, target, turn, self._channel_inputs[n])
         self._played.append(target)
         self.current = target
         self.sample += self.schedule.decimation
@@ -327,10 +328,10 @@ class HILBoard:
             first, length = self.ramp
             volts *= np.clip(1 - (np.arange(1, end + 1) - first) / length, 0, 1)
         if end == periods * d and not ramped:
-            velocity = self._map.velocities(self._inputs[True][:periods])
+            velocity = self._map.velocities(self._command_inputs[:periods])
             velocity += self._fed_velocity[:, :end]
-            if self._inputs[False] is not None:
-                velocity += self._map.velocities(self._inputs[False][:periods], commands=False)
+            if self._channel_inputs is not None:
+                velocity += self._map.velocities(self._channel_inputs[:periods], commands=False)
         else:
             velocity = Plant(self.truth, self.sample_rate, hold=HOLD).simulate(volts)
         sensed = self.truth.sensor_gains.T @ velocity

@@ -28,15 +28,9 @@ from __future__ import annotations
 import numpy as np
 
 from modalctl.lockin import Oscillators
+from modalctl.schedule import ramp_in
 
-
-__all__ = ["PeriodMap", "open_envelopes", "ramp_in"]
-
-
-def ramp_in(samples: int) -> np.ndarray:
-    """How far each phasor has moved from its last value to its new one at each of a period's
-    samples, shape (samples,): a straight line, reached at the period's last sample."""
-    return np.arange(1, samples + 1) / samples
+__all__ = ["PeriodMap", "open_envelopes"]
 
 
 class PeriodMap:

@@ -19,9 +19,15 @@ import numpy as np
 from .lockin import LockIn, Oscillators
 from .propagate import Plant
 
-__all__ = ["Schedule", "schedule", "envelope_noise", "HOLD"]
+__all__ = ["Schedule", "schedule", "envelope_noise", "HOLD", "ramp_in"]
 
 HOLD = "zoh"  # the board's DAC holds each sample, as the planner assumes
+
+
+def ramp_in(samples: int) -> np.ndarray:
+    """How far a board moves each phasor from its last value to its new one at each of a period's
+    samples, shape (samples,): a straight line, reached at the period's last sample."""
+    return np.arange(1, samples + 1) / samples
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .schedule import ramp_in
+
 __all__ = ["Limits", "Supervisor"]
 
 ROUNDING = 1e-9  # relative: how far inside its limits the supervisor keeps the samples
@@ -127,7 +129,7 @@ class Supervisor:
         self._steps = self.omega / self.sample_rate
         carriers = np.exp(1j * self._steps[:, None] * (window + 1))  # (k, 2 d + 1)
         self._carriers = np.vstack([carriers.real, carriers.imag])  # Re(y c) = [Re y, -Im y] @ this
-        ramp = np.arange(1, d + 1) / d
+        ramp = ramp_in(d)  # the board's straight line from the old phasors to the new
         self._new = np.array([np.concatenate([[0.0], ramp, np.ones(d)]),
                               np.concatenate([[0.0], ramp, 1 - ramp])])  # (2, 2 d + 1)
         self._old = np.concatenate([[1.0], 1 - ramp, np.zeros(d)])
