@@ -110,13 +110,13 @@ class HILBoard:
             s, d = schedule, schedule.decimation
             self._map = PeriodMap(self.plant, self.lockin, s.carriers, s.sensors, s.feedforward.shape[0], d,
                                   self.sample_rate, s.weights)
-            # each period's carrier turns and the lock-in's mixer, and the truth that answers the
-            # feed-forward at each start (the shot's physics is played then, not here)
+            # each period's carrier turns and the lock-in's mixer, and the truth run over a whole
+            # shot's voltages at once (the feed-forward's at each start, the shot is played then)
             periods = s.feedforward.shape[1] // d
             self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
             self._unturn = self._turn.conj()
             self._mixer = 2 * Oscillators(s.carriers, self.sample_rate).phasors(periods * d).conj()  # (k, P d)
-            self._fed_plant = Plant(self.truth, self.sample_rate, hold=HOLD)
+            self._shot_plant = Plant(self.truth, self.sample_rate, hold=HOLD)
 
     def start(self) -> None:
         s = self.schedule
@@ -150,8 +150,8 @@ class HILBoard:
             # each period's input to the map (per-mode commands' map, per-channel map): the records' source
             self._command_inputs = np.zeros((periods, self._map.folded.shape[1]))
             self._channel_inputs: np.ndarray | None = None  # made when a period first plays per-channel phasors
-            self._fed_velocity = self._fed_plant.simulate(s.feedforward[:, :periods * s.decimation])  # (K, P d)
-            sensed = self._fed_plant.sensors(self._fed_velocity)
+            self._fed_velocity = self._shot_plant.simulate(s.feedforward[:, :periods * s.decimation])  # (K, P d)
+            sensed = self._shot_plant.sensors(self._fed_velocity)
             if self._noise is not None:
                 sensed += self._noise[:, :sensed.shape[1]]
             opened = open_envelopes(sensed, s.sensors, self._mixer, self.lockin)  # the lock-in is linear
@@ -333,8 +333,8 @@ class HILBoard:
             if self._channel_inputs is not None:
                 velocity += self._map.velocities(self._channel_inputs[:periods], commands=False)
         else:
-            velocity = Plant(self.truth, self.sample_rate, hold=HOLD).simulate(volts)
-        sensed = self.truth.sensor_gains.T @ velocity
+            velocity = self._shot_plant.simulate(volts)
+        sensed = self._shot_plant.sensors(velocity)
         if self._noise is not None:
             sensed += self._noise[:, :end]
         if end == self._velocity.shape[1]:  # the whole shot: the new records are the records
