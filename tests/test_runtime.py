@@ -153,15 +153,50 @@ def test_supervisor_checks_commands_played_after_the_last_period(sinc18):
     assert 0 < factor < 1 and abs(np.abs(volts).max() / limit - 1) < 1e-6
 
 
-def test_log_reader_skips_a_half_written_record(tmp_path):
-    with Recorder(tmp_path / "x", {"a": ("<f8", (3,), "m"), "n": ("<i8", (), "1")}) as rec:
-        rec.write(a=[1, 2, 3], n=7)
-        rec.write(a=[4, 5, 6], n=8)
-    with open(tmp_path / "x.bin", "ab") as f:
-        f.write(b"\x01\x02\x03")  # a crash in the middle of a record
+# A run that dies: three records written, a fourth half-written, then killed without closing its log.
+KILLED = """
+import os, signal, sys
+from modalctl.recorder import Recorder
+rec = Recorder(sys.argv[1], {"a": ("<f8", (3,), "m"), "n": ("<i8", (), "1")}, capacity=2)
+for n in range(3):
+    rec.write(a=[n, n + 1, n + 2], n=7 + n)
+rec._columns["n"][3] = 99  # the next record's first field, not yet counted
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+def test_a_killed_run_keeps_every_whole_record(tmp_path):
+    import signal
+    import subprocess
+    import sys
+
+    child = subprocess.run([sys.executable, "-c", KILLED, str(tmp_path / "x")])
+    assert child.returncode == -signal.SIGKILL
     records, header = read_log(tmp_path / "x")
-    assert records["n"].tolist() == [7, 8] and records["a"][1].tolist() == [4, 5, 6]
+    assert records["n"].tolist() == [7, 8, 9] and records["a"][2].tolist() == [2, 3, 4]
     assert header["fields"][0]["unit"] == "m"
+
+
+def test_log_grows_and_is_cut_to_its_records(tmp_path):
+    with Recorder(tmp_path / "x", {"a": ("<c16", (2,), "m/s"), "s": ("<i1", (), "1")}, capacity=1) as rec:
+        for n in range(5):
+            rec.write(a=[n, 1j * n], s=n)
+        rec.write(s=9)  # a field not given is zero
+    records, header = read_log(tmp_path / "x")
+    assert records["s"].tolist() == [0, 1, 2, 3, 4, 9] and records["a"][4].tolist() == [4, 4j]
+    assert not records["a"][5].any()
+    assert (tmp_path / "x.bin").stat().st_size == header["count_bytes"] + 6 * header["record_bytes"]
+    with pytest.raises(ValueError, match="closed"):
+        rec.write(s=1)
+
+
+def test_log_reader_reads_the_first_version(tmp_path):
+    """Logs of version 1 (records back to back, no count; a half-written last one left out)."""
+    dtype = np.dtype([("n", "<i8")])
+    (tmp_path / "x.json").write_text('{"version": 1, "fields": [{"name": "n", "dtype": "<i8", "shape": []}]}')
+    (tmp_path / "x.bin").write_bytes(np.array([(7,), (8,)], dtype).tobytes() + b"\x01\x02")
+    records, _ = read_log(tmp_path / "x")
+    assert records["n"].tolist() == [7, 8]
 
 
 def test_limits_reject_nonsense():
