@@ -20,12 +20,14 @@ from .loop import AUTHORITY
 from .planner import PlanError
 from .model import ModalModel, ModelError
 from .plugin import PluginError, get_controller, get_shape, plugin_table, shape_generators
+from .realtime import keep_memory
 from .reduction import ReductionError
 from .scenes import SCENES, UnknownScene, load_scene
 from .shape import ParamError, parse_params
 from .units import UnitError, parse_point, parse_quantity
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
+REAL_TIME = {"run", "sweep", "emulate"}  # the commands that play shots (see modalctl.realtime)
 
 
 def _parse_param(text: str) -> tuple[str, str]:
@@ -626,6 +628,8 @@ def main(argv=None) -> int:
 
     warnings.formatwarning = _say_warning
     args = build_parser().parse_args(_negatives_attached(list(sys.argv[1:] if argv is None else argv)))
+    if args.command in REAL_TIME:  # shots reuse their memory instead of faulting on fresh pages each time
+        keep_memory()
     handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run,
                 "identify": _identify, "sweep": _sweep, "emulate": _emulate}
     try:
