@@ -433,6 +433,8 @@ def _report(args, model, shape, device, shot, perturbation, out) -> int:
               + (f" ({lp['fault']})" if lp["fault"] else "") + f", {lp['periods']} periods, "
               f"{where}, crossovers "
               f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
+        print(f"the shot took {lp['real_time_factor']:.2f}x its played time (set-up, loop, log, records; "
+              f"design {lp['design_seconds']:.2f} s and the field's scan {lp['scan_seconds']:.2f} s besides)")
     if "learning_shot" in m:
         ls = m["learning_shot"]
         print(f"learning shot: tau {ls['tau']:.4f}, margin ratio {ls['margin_ratio']:.3f}; its record moved the "

@@ -196,8 +196,8 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         learned, model = _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, options)
         dec, the_plan = _plan_for(model, shape, focus_time, modes, tau_min, margin, voltage_limit, sample_rate,
                                   plan_options)
-    shot, result, parts, design_seconds = _closed(dec, the_plan, shape, device, caps, margin, log, on_board,
-                                                  **options)
+    shot, result, parts, (design_seconds, shot_seconds) = _closed(dec, the_plan, shape, device, caps, margin, log,
+                                                                  on_board, **options)
     shot.metrics["loop"] = {
         "controller": controller, "on_board": on_board, "state": result.state.name.lower(), "fault": result.reason,
         "periods": result.periods, "loop_seconds": result.loop_seconds, "configure_seconds": result.configure_seconds,
@@ -205,9 +205,11 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
         "step_seconds_median": float(np.median(result.step_seconds)) if result.step_seconds.size else None,
         "crossover_hz": parts.design.crossover_hz.tolist(), "phase_margin_deg": parts.design.phase_margin_deg.tolist(),
         "gain_margin_db": parts.design.gain_margin_db.tolist(),
-        "design_seconds": design_seconds,
-        # the shot on the device (loop, play-out, scan) over the time it plays; the design is once per plan
-        "real_time_factor": (shot.metrics["sim_seconds"] - design_seconds) / the_plan.duration}
+        "design_seconds": design_seconds, "shot_seconds": shot_seconds,
+        # the shot on the device over the time it plays: its set-up, activation, loop and log, play-out and
+        # records; the design is once per plan, and the field's scan after the shot a measurement of it
+        "real_time_factor": shot_seconds / the_plan.duration,
+        "scan_seconds": shot.metrics["sim_seconds"] - design_seconds - shot_seconds}
     if learned is not None:
         shot.metrics["learning_shot"] = learned
     return shot
@@ -216,7 +218,8 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
 def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, *, control_rate,
             authority, latency, drift, controller, voltage_limit, slew_limit, progress, watchdog):
     """Play ``the_plan`` closed loop on the device's phasor board and measure it; returns
-    ``(shot, run result, loop parts, design seconds)``."""
+    ``(shot, run result, loop parts, (design seconds, shot seconds))``: the shot from its
+    configuration to its records (the scan of the field and the metrics after it excluded)."""
     from .loop import closed_shot, loop_parts
 
     focus_time = the_plan.focus_time
@@ -232,15 +235,16 @@ def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, *, 
     board.play_out()
     times = np.union1d(the_plan.check_times(), [focus_time])
     try:
+        capture = Capture(the_plan.times, board.sensed, board.applied)  # the shot's records
+        played = _time.perf_counter()
         field = board.scan(times, scan_indices(caps, dec.model.grid.points, device.url))
-        capture = Capture(the_plan.times, board.sensed, board.applied)
     except DeviceError as exc:
         if result.reason is None:
             raise
         raise DeviceError(f"the supervisor stopped the shot ({result.reason}); every period up to it is in "
                           f"{log}.json/.bin; the field could not be measured afterwards: {exc}") from None
     shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, _time.perf_counter() - start)
-    return shot, result, parts, designed - start
+    return shot, result, parts, (designed - start, played - designed)
 
 
 def _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, options):
