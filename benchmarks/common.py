@@ -24,14 +24,15 @@ def median_seconds(func, repeats: int) -> float:
 
 
 def machine() -> dict:
-    """What the numbers were measured on."""
+    """What the numbers were measured on (the load average when they were written: the benchmark's
+    own process counts about one; more says something else shared the machine's cores)."""
     import casadi
     import control
     import scipy
 
     return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
             "control": control.__version__, "casadi": casadi.__version__, "machine": platform.machine(),
-            "cpus": os.cpu_count()}
+            "cpus": os.cpu_count(), "load_average_1_5_15_min": list(os.getloadavg())}
 
 
 def write_json(name: str, data: dict) -> Path:
@@ -68,6 +69,18 @@ def save_figure(fig, name: str, dpi: int = 120) -> Path:
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
+
+
+def state_space(model):
+    """The model as python-control's modal state space (the peers' form): states (eta, eta'),
+    inputs the actuators' voltages, outputs every mode's velocity eta'."""
+    import control
+
+    k = model.n_modes
+    a = np.block([[np.zeros((k, k)), np.eye(k)], [-np.diag(model.omega**2), -np.diag(2 * model.damping * model.omega)]])
+    b = np.vstack([np.zeros_like(model.actuator_gains), model.actuator_gains])
+    c = np.hstack([np.zeros((k, k)), np.eye(k)])
+    return control.ss(a, b, c, np.zeros((k, b.shape[1])))
 
 
 def target(model, shape: str, **params):

@@ -15,20 +15,11 @@ import control
 import numpy as np
 from scipy import signal
 
-from common import RESULTS, median_seconds, target, write_json
+from common import RESULTS, median_seconds, state_space, target, write_json
 from modalctl.decompose import decompose
 from modalctl.hil.plant import Plant
 from modalctl.planner import plan
 from modalctl.scenes import load_scene
-
-
-def state_space(model) -> control.StateSpace:
-    """Modal state space: states (eta, eta'), outputs eta' of every mode."""
-    k = model.n_modes
-    a = np.block([[np.zeros((k, k)), np.eye(k)], [-np.diag(model.omega**2), -np.diag(2 * model.damping * model.omega)]])
-    b = np.vstack([np.zeros_like(model.actuator_gains), model.actuator_gains])
-    c = np.hstack([np.zeros((k, k)), np.eye(k)])
-    return control.ss(a, b, c, np.zeros((k, b.shape[1])))
 
 
 def main() -> None:
