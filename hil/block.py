@@ -293,7 +293,7 @@ class BlockLockIn:
         # one product a period: the next state and the output together, rows (o states, 1 output)
         self.from_state = np.concatenate([powers[samples], read_state[:, None, :]], axis=1).astype(complex)
         self.from_inputs = np.concatenate([inputs, read_inputs[:, None, :]], axis=1).astype(complex)
-        # A^d = V diag(poles) V^-1 per mode (the Butterworth's poles are distinct), for :meth:`periods`
+        # A^d = V diag(poles) V^-1 per mode (the Butterworth's poles are distinct), for :meth:`demodulate`
         self._poles, vectors = np.linalg.eig(self.from_state[:, :-1])
         self._to_poles = np.linalg.inv(vectors).transpose(0, 2, 1)  # right-multiplies a row of states
         self._read_poles = np.einsum("ka,kab->kb", self.from_state[:, -1], vectors)  # C A^(d-1) V (k, o)
@@ -308,17 +308,25 @@ class BlockLockIn:
         """Envelope (k,) complex at the last of ``samples`` samples of ``signals`` (k, d) mixed with ``phases``."""
         return self.filter(2 * signals * np.exp(-1j * phases))
 
-    def periods(self, mixed: np.ndarray) -> np.ndarray:
-        """The outputs (k, P) at the last sample of each period of already mixed signals
-        (k, P d), from rest; the filters' own state is left as it is (a pure function).
+    def demodulate(self, signals: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        """The outputs (k, P) at the last sample of each period of the real ``signals`` (k, P d)
+        mixed with twice the conjugate of carriers of ``steps`` (k,) rad a sample starting at
+        phase 0, from rest; the filters' own state is left as it is (a pure function).
 
-        Every period's inputs go in at once (one batched product); the state then runs from period
-        to period in the eigenvectors of each mode's ``A^d`` (the Butterworth's poles are distinct),
-        one first-order recursion per pole, all at once (:func:`first_order`)."""
-        k, n = mixed.shape
-        p = n // self.samples
-        pushed = np.matmul(mixed[:, :p * self.samples].reshape(k, p, self.samples),
-                           self.from_inputs.transpose(0, 2, 1))  # (k, P, o + 1)
+        Period p's carriers are its start's phasor times one period's table, so its pushes on the
+        filters are the signals times one real matrix (the mixing folded into the per-period input
+        map), turned back by that phasor: one batched real product for every period at once. The
+        state then runs from period to period in the eigenvectors of each mode's ``A^d`` (the
+        Butterworth's poles are distinct), one first-order recursion per pole, all at once
+        (:func:`first_order`)."""
+        k, n = signals.shape
+        d = self.samples
+        p = n // d
+        weights = 2 * np.exp(-1j * steps[:, None] * np.arange(d))[:, :, None] * self.from_inputs.transpose(0, 2, 1)
+        parts = np.matmul(signals[:, :p * d].reshape(k, p, d), np.concatenate([weights.real, weights.imag], axis=2))
+        o = self.order
+        starts = np.exp(-1j * np.mod(steps[:, None] * d * np.arange(p), 2 * np.pi))  # (k, P)
+        pushed = (parts[:, :, :o + 1] + 1j * parts[:, :, o + 1:]) * starts[:, :, None]  # (k, P, o + 1)
         kicks = np.matmul(pushed[:, :, :-1], self._to_poles)  # (k, P, o), in V's coordinates
         # the state after each period
         after = first_order(self._poles, kicks.transpose(0, 2, 1)).transpose(0, 2, 1)  # in V's coordinates

@@ -32,7 +32,7 @@ from modalctl.propagate import Plant
 from modalctl.schedule import HOLD, Schedule, ramp_in
 
 from .block import BlockLockIn, BlockPlant
-from .lifted import PeriodMap, open_envelopes
+from .lifted import PeriodMap
 
 __all__ = ["HILBoard"]
 
@@ -110,12 +110,11 @@ class HILBoard:
             s, d = schedule, schedule.decimation
             self._map = PeriodMap(self.plant, self.lockin, s.carriers, s.sensors, s.feedforward.shape[0], d,
                                   self.sample_rate, s.weights)
-            # each period's carrier turns and the lock-in's mixer, and the truth run over a whole
-            # shot's voltages at once (the feed-forward's at each start, the shot is played then)
+            # each period's carrier turns, and the truth run over a whole shot's voltages at once
+            # (the feed-forward's at each start, the shot is played then)
             periods = s.feedforward.shape[1] // d
             self._turn = np.exp(1j * np.mod(self._map.steps * d * np.arange(periods)[:, None], 2 * np.pi))
             self._unturn = self._turn.conj()
-            self._mixer = 2 * Oscillators(s.carriers, self.sample_rate).phasors(periods * d).conj()  # (k, P d)
             self._shot_plant = Plant(self.truth, self.sample_rate, hold=HOLD)
 
     def start(self) -> None:
@@ -154,7 +153,7 @@ class HILBoard:
             sensed = self._shot_plant.sensors(self._fed_velocity)
             if self._noise is not None:
                 sensed += self._noise[:, :sensed.shape[1]]
-            opened = open_envelopes(sensed, s.sensors, self._mixer, self.lockin)  # the lock-in is linear
+            opened = self.lockin.demodulate(s.sensors @ sensed, self._map.steps)  # one pass: the lock-in is linear
             self._open = np.ascontiguousarray(opened.T)  # one row per period
 
     def _draw_noise(self, sensors: int, total: int, d: int) -> np.ndarray:

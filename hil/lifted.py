@@ -3,10 +3,10 @@
 Without drift of the truth, amplifier rails or a ramp to zero, the board of
 :mod:`modalctl.hil.board` and its structure are linear. The feed-forward and the sensor noise are
 known before the shot, so their share of every reading is computed once, for the whole shot
-(:func:`open_envelopes`); what the loops add depends on the commands only. Seen from each
-carrier's own frame at the start of a period (the commands turned forward by the carrier's phase
-there, ``rho_n = exp(j w n d / fs)``; the lock-in's state turned the same way), one period of
-that share is the same linear map every period:
+(:meth:`~modalctl.hil.block.BlockLockIn.demodulate`); what the loops add depends on the commands
+only. Seen from each carrier's own frame at the start of a period (the commands turned forward by
+the carrier's phase there, ``rho_n = exp(j w n d / fs)``; the lock-in's state turned the same way),
+one period of that share is the same linear map every period:
 
     [x_(n+1); y_n] = M [x_n; u_n; b_n]
 
@@ -30,7 +30,7 @@ import numpy as np
 from modalctl.lockin import Oscillators
 from modalctl.schedule import ramp_in
 
-__all__ = ["PeriodMap", "open_envelopes"]
+__all__ = ["PeriodMap"]
 
 
 class PeriodMap:
@@ -225,21 +225,3 @@ class PeriodMap:
         matrix = np.vstack([z_end.real, z_end.imag, force_end, q.real, q.imag,
                             np.stack([y.real, y.imag], axis=1).reshape(2 * k, -1)])
         return matrix, (from_state, from_phasors)
-
-
-def open_envelopes(measured: np.ndarray, sensors: np.ndarray, mixer: np.ndarray, lockin) -> np.ndarray:
-    """The readings (k, P) at each period's end of what the sensors measured without feedback
-    (the feed-forward's answer, the noise, or both: the lock-in is linear).
-
-    Parameters
-    ----------
-    measured : ndarray, shape (s, N)
-        The sensors' velocities (m/s), N at least that of ``mixer``.
-    sensors : ndarray, shape (k, s)
-    mixer : ndarray, shape (k, P d)
-        What the lock-in multiplies each mode's signal by over the P periods read: twice the
-        conjugate of its carrier's phasors (:meth:`modalctl.lockin.Oscillators.phasors`).
-    lockin : BlockLockIn
-        The board's lock-in (its per-period form; its state is not touched).
-    """
-    return lockin.periods((sensors @ measured[:, :mixer.shape[1]]) * mixer)

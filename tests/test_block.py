@@ -46,7 +46,7 @@ def test_block_lockin_is_the_lockin_at_each_period_end(fs, d, bands):
     assert np.max(np.abs(ours - reference)) < 1e-9 * np.max(np.abs(reference))
     # every period at once (the board's readings without feedback), its own state untouched
     block.reset()
-    whole = block.periods(2 * signals * np.exp(-1j * phases))
+    whole = block.demodulate(signals, osc.steps)
     assert np.max(np.abs(whole - reference)) < 1e-9 * np.max(np.abs(reference))
     assert not np.any(block.state)
 
