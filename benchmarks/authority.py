@@ -20,7 +20,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from common import save_figure, write_json, write_markdown  # noqa: E402
+from common import main_or_report, save_figure, write_json, write_markdown  # noqa: E402
 from modalctl.executor import LocalExecutor  # noqa: E402
 from modalctl.hil.sweep import Case, run_case  # noqa: E402
 from modalctl.loop import AUTHORITY  # noqa: E402
@@ -125,11 +125,4 @@ def report(data: dict, path) -> None:
 
 
 if __name__ == "__main__":
-    import sys
-
-    if "--report-only" in sys.argv:  # redraw from the last run's JSON
-        from common import read_json
-
-        report(*read_json("authority"))
-    else:
-        main()
+    main_or_report("authority", main, report)

@@ -48,6 +48,17 @@ def read_json(name: str) -> tuple[dict, Path]:
     return json.loads(path.read_text()), path
 
 
+def main_or_report(name: str, main, report) -> None:
+    """A benchmark's entry point: ``main()``, or with ``--report-only`` its ``report(data, path)``
+    redrawn from the last run's ``results/<name>.json``."""
+    import sys
+
+    if "--report-only" in sys.argv:
+        report(*read_json(name))
+    else:
+        main()
+
+
 def write_markdown(name: str, lines: list[str], json_path: Path | None = None) -> Path:
     """Write ``results/<name>.md`` from ``lines``, print it, and say where the results are."""
     RESULTS.mkdir(exist_ok=True)

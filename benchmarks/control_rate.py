@@ -31,7 +31,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from modalctl.realtime import keep_memory  # noqa: E402
-from common import median_seconds, read_json, save_figure, state_space, target, write_json, write_markdown  # noqa: E402
+from common import (main_or_report, median_seconds, read_json, save_figure, state_space, target,  # noqa: E402
+                    write_json, write_markdown)
 from modalctl.decompose import decompose  # noqa: E402
 from modalctl.hil.closed import run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
@@ -223,9 +224,4 @@ def report(data: dict, path) -> None:
 
 
 if __name__ == "__main__":
-    import sys
-
-    if "--report-only" in sys.argv:  # redraw from the last run's JSON
-        report(*read_json("control_rate"))
-    else:
-        main()
+    main_or_report("control_rate", main, report)
