@@ -3,7 +3,7 @@
     python benchmarks/authority.py   # writes benchmarks/results/authority.{json,md,png} (--report-only: redraw)
 
 A loop's command is capped at ``authority`` times its mode's planned drive at that moment
-(:data:`modalctl.loop.AUTHORITY`). Too little and a detuned mode, which answers its carrier
+(:data:`modalctl.loops.shot.AUTHORITY`). Too little and a detuned mode, which answers its carrier
 several times less, cannot be brought back; too much and noise or a misread mode gets more
 voltage. Five structures and shapes, each on a perfect truth (sensor noise only), with the
 resonances 1, 2 and 3% off (damping +20%), and with a 1 N s/m finger at the focus; SNR 40 dB,
@@ -19,11 +19,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
 from common import main_or_report, save_figure, write_json, write_markdown  # noqa: E402
-from modalctl.executor import LocalExecutor  # noqa: E402
-from modalctl.hil.sweep import Case, run_case  # noqa: E402
-from modalctl.loop import AUTHORITY  # noqa: E402
+
+from modalctl.experiments.executor import LocalExecutor  # noqa: E402
+from modalctl.experiments.sweep import Case, run_case  # noqa: E402
+from modalctl.loops.shot import AUTHORITY  # noqa: E402
 
 AUTHORITIES = (0.25, 0.5, 1.0, 2.0, 4.0)
 EXPERIMENTS = {  # label: (scene, shape, params, focus time, points, modes)

@@ -5,13 +5,13 @@
 Truth: every resonance +1%, damping +20%, sensor noise 40 dB below the focus peak. Each
 experiment (the thesis's shapes, centres, mode counts and T_F; kappa = 1 as the thesis ran it,
 the margin case with the optimizer's plan for 0.5) is planned on the model and played on the HIL
-at 500 kHz four ways (:mod:`modalctl.hil.sweep`): feed-forward alone; with the per-mode PI loops
+at 500 kHz four ways (:mod:`modalctl.experiments.sweep`): feed-forward alone; with the per-mode PI loops
 at 20 kHz; with tracking (a first closed-loop shot teaches the pole tracker, the plan is remade on
 what it learned, the second shot is reported); and learned (a first closed-loop shot's record
-updates the model, :mod:`modalctl.updating`, the plan is remade on it, the second shot is reported). tau and the margin ratio are measured
+updates the model, :mod:`modalctl.identify.updating`, the plan is remade on it, the second shot is reported). tau and the margin ratio are measured
 on the truth's whole field. Beside them, the same plan open loop on a perfect truth (no drift,
 damping error or noise): what the kept modes allow, the ceiling the loops work towards. The
-cases run through the local process pool (`modalctl.executor`).
+cases run through the local process pool (`modalctl.experiments.executor`).
 """
 
 from __future__ import annotations
@@ -23,11 +23,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
 from common import save_figure, write_json, write_markdown  # noqa: E402
-from modalctl.executor import LocalExecutor  # noqa: E402
-from modalctl.hil.sweep import Case, run_case  # noqa: E402
 from thesis_table import experiments  # noqa: E402
+
+from modalctl.experiments.executor import LocalExecutor  # noqa: E402
+from modalctl.experiments.sweep import Case, run_case  # noqa: E402
 
 METHODS = ("open", "closed", "tracked", "learned")
 KINDS = ("perfect", *METHODS, "lqg")  # perfect: open loop on the model itself; lqg: closed with the lqg plugin
@@ -82,10 +82,11 @@ def timescales() -> dict:
     import warnings
 
     from common import target
-    from modalctl.decompose import decompose
-    from modalctl.loop import loop_parts
-    from modalctl.planner import plan
-    from modalctl.scenes import load_scene
+
+    from modalctl.loops.shot import loop_parts
+    from modalctl.model.scenes import load_scene
+    from modalctl.plan.decompose import decompose
+    from modalctl.plan.planner import plan
 
     found: dict = {}
     for name, scene, shape, params, centres, modes, tf, _ in experiments():

@@ -5,7 +5,7 @@
 The thesis's sinc 18 mm at 24 mm (T_F 25 ms, automatic modes, kappa = 1), damping +20% and
 40 dB of sensor noise throughout; every resonance drifts by 0-3% and a finger (a viscous damper
 at the focus point, which couples the modes) presses with 0-1 N s/m. Three methods
-(:mod:`modalctl.hil.sweep`): open loop, closed loop, closed loop with tracking. The same code as
+(:mod:`modalctl.experiments.sweep`): open loop, closed loop, closed loop with tracking. The same code as
 ``modalctl sweep --vary drift=0,1%,2%,3% --vary finger=0,0.1,0.3,1 --damping-error 20%``.
 """
 
@@ -15,8 +15,9 @@ import itertools
 import time
 
 from common import RESULTS, write_json, write_markdown
-from modalctl.executor import LocalExecutor
-from modalctl.hil.sweep import METHODS, Case, run_case
+
+from modalctl.experiments.executor import LocalExecutor
+from modalctl.experiments.sweep import METHODS, Case, run_case
 from modalctl.report import plot_sweep_maps, sweep_table
 
 DRIFT = (0.0, 0.01, 0.02, 0.03)

@@ -96,8 +96,8 @@ def state_space(model):
 
 def target(model, shape: str, **params):
     """A shape generator's field on the model's grid; ``params`` as text with units."""
-    from modalctl.plugin import get_shape
-    from modalctl.shape import parse_params
+    from modalctl.model.shape import parse_params
+    from modalctl.plugin.manager import get_shape
 
     generator = get_shape(shape)
     return generator.generate(model.grid, **parse_params(generator, params))

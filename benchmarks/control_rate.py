@@ -10,7 +10,7 @@ time factors (wall time over played time; below 1 is faster than real time) of t
 emulated board, of the shot (the truth's answer at every DAC sample, the lock-in, the loop and its
 log on disk, the records) and of the whole shot (the emulator's set-up before it too), first with
 the C allocator as it comes, then with memory kept as ``modalctl run`` keeps it
-(:mod:`modalctl.realtime`). The peer, beside each shot in the same run: python-control's
+(:mod:`modalctl.loops.realtime`). The peer, beside each shot in the same run: python-control's
 ``forced_response`` of the truth alone on the shot's voltages (which also checks the board's records
 of the truth's answer). Each shot by the board's period map (:mod:`modalctl.hil.lifted`, the
 default) and sample by sample; both must measure the same tau (checked here to 1e-9). Each timing is
@@ -29,15 +29,23 @@ matplotlib.use("Agg")
 import control  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from common import (  # noqa: E402
+    main_or_report,
+    median_seconds,
+    read_json,
+    save_figure,
+    state_space,
+    target,
+    write_json,
+    write_markdown,
+)
 
-from modalctl.realtime import keep_memory  # noqa: E402
-from common import (main_or_report, median_seconds, read_json, save_figure, state_space, target,  # noqa: E402
-                    write_json, write_markdown)
-from modalctl.decompose import decompose  # noqa: E402
-from modalctl.hil.closed import run_focus  # noqa: E402
+from modalctl.experiments.focus import run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
-from modalctl.planner import plan  # noqa: E402
-from modalctl.scenes import load_scene  # noqa: E402
+from modalctl.loops.realtime import keep_memory  # noqa: E402
+from modalctl.model.scenes import load_scene  # noqa: E402
+from modalctl.plan.decompose import decompose  # noqa: E402
+from modalctl.plan.planner import plan  # noqa: E402
 
 RATES = (2e3, 5e3, 500e3 / 64, 10e3, 20e3, 50e3)
 SEEDS = (0, 1, 2)
@@ -52,7 +60,7 @@ def timed(truth, shot, shape, lifted: bool, logs: Path, discrete=None) -> tuple[
     """Every (rate, seed)'s shot played ``REPEATS`` times, the rounds interleaved over the rates and seeds (a burst of
     load on this shared machine then hits them all alike), each with its log of every period in ``logs`` (as
     ``modalctl run`` keeps it); every play must measure the same tau. Returns, for each (rate, seed), its first
-    play and the median of each timing (the real-time factors of :class:`~modalctl.hil.closed.ClosedShot`, the
+    play and the median of each timing (the real-time factors of :class:`~modalctl.experiments.focus.ClosedShot`, the
     set-up's seconds); and for each rate, with ``discrete`` (the truth's zero-order-hold state space), the
     median real-time factor of python-control simulating the truth alone on the voltages of its seed-0 shot,
     timed in each round beside the plays."""
@@ -180,7 +188,7 @@ def report(data: dict, path) -> None:
     middle.set_yticks([0.1, 0.2, 0.5, 1, 2, 5, 10], ["0.1", "0.2", "0.5", "1", "2", "5", "10"])
     middle.legend(fontsize=7, loc="upper left")
     save_figure(fig, "control_rate")
-    memory = "kept (modalctl.realtime.keep_memory)" if kept else "as it came (not glibc: keep_memory does nothing)"
+    memory = "kept (modalctl.loops.realtime.keep_memory)" if kept else "as it came (not glibc: keep_memory does nothing)"
     md = ["# Closed loop: tau against control rate and compute", "",
           "Command: `python benchmarks/control_rate.py`. sinc 18 mm at 24 mm, truth +1% / +20% damping / 40 dB, "
           f"DAC 500 kHz, shot 29 ms (ring-down included). Open loop tau {np.median(open_tau):.3f}. Medians of the "

@@ -2,7 +2,7 @@
 
     python benchmarks/control_step.py   # writes benchmarks/results/control_step.{json,md}
 
-One period = :meth:`modalctl.runtime.Runtime.update` minus the board: watchdog and divergence
+One period = :meth:`modalctl.loops.runtime.Runtime.update` minus the board: watchdog and divergence
 checks, the envelope errors, the 21 PI loops with anti-windup, the supervisor's voltage and slew
 limits and the dispatch of the mode commands to per-actuator phasors (8 x 21). The board is a
 stub that answers at once (its time is not counted; the HIL board's is the plant's). Peer in the
@@ -20,16 +20,17 @@ from pathlib import Path
 
 import control
 import numpy as np
-
 from common import write_json, write_markdown
-from modalctl.control import PIControl, design_loops
-from modalctl.dispatch import dispatch
-from modalctl.lockin import lockin_bandwidths
-from modalctl.recorder import Recorder
-from modalctl.runtime import Runtime, log_fields
-from modalctl.scenes import load_scene
-from modalctl.schedule import Schedule
-from modalctl.supervisor import Limits, Supervisor
+
+from modalctl.loops.design import design_loops
+from modalctl.loops.lockin import lockin_bandwidths
+from modalctl.loops.pi import PIControl
+from modalctl.loops.recorder import Recorder
+from modalctl.loops.runtime import Runtime, log_fields
+from modalctl.loops.schedule import Schedule
+from modalctl.loops.supervisor import Limits, Supervisor
+from modalctl.model.scenes import load_scene
+from modalctl.plan.dispatch import dispatch
 
 STEPS = 10_000
 RATE = 20e3

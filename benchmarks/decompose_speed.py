@@ -10,14 +10,13 @@ Medians over repeats; ratios are measured in this run on this machine.
 from __future__ import annotations
 
 import numpy as np
-
 from common import median_seconds, write_json
 
-from modalctl.metrics import tau
-from modalctl.modal import project, reconstruct
-from modalctl.plugin import get_shape
-from modalctl.shape import parse_params
-from modalctl.structures import Beam, Plate
+from modalctl.model.metrics import tau
+from modalctl.model.projection import project, reconstruct
+from modalctl.model.shape import parse_params
+from modalctl.model.structures import Beam, Plate
+from modalctl.plugin.manager import get_shape
 
 REPEATS, BATCH = 31, 256
 

@@ -15,14 +15,14 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from common import save_figure, target, write_json  # noqa: E402
 
-from common import target, save_figure, write_json  # noqa: E402
-from modalctl.decompose import decompose  # noqa: E402
-from modalctl.device import open_device  # noqa: E402
 from modalctl.hil.scenario import Perturbation  # noqa: E402
-from modalctl.planner import min_focus_time  # noqa: E402
+from modalctl.io.device import open_device  # noqa: E402
+from modalctl.model.scenes import load_scene  # noqa: E402
+from modalctl.plan.decompose import decompose  # noqa: E402
+from modalctl.plan.planner import min_focus_time  # noqa: E402
 from modalctl.run import run_open_loop  # noqa: E402
-from modalctl.scenes import load_scene  # noqa: E402
 
 FOCUS_TIMES = [0.002, 0.003, 0.005, 0.0075, 0.01, 0.015, 0.025, 0.04]
 LIMIT = 10.0  # V, for the min-focus-time search

@@ -22,15 +22,15 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
 from common import RESULTS, save_figure, write_json  # noqa: E402
-from modalctl.acquire import measure_frf  # noqa: E402
-from modalctl.frf import Sweep  # noqa: E402
-from modalctl.hil.device import SimDevice  # noqa: E402
+
 from modalctl.hil.scenario import Perturbation  # noqa: E402
-from modalctl.identify import peak_picking, sdof_fit  # noqa: E402
-from modalctl.scenes import load_scene  # noqa: E402
-from modalctl.survey import identify_device  # noqa: E402
+from modalctl.hil.sim_device import SimDevice  # noqa: E402
+from modalctl.identify.acquire import measure_frf  # noqa: E402
+from modalctl.identify.estimators import peak_picking, sdof_fit  # noqa: E402
+from modalctl.identify.frf import Sweep  # noqa: E402
+from modalctl.identify.survey import identify_device  # noqa: E402
+from modalctl.model.scenes import load_scene  # noqa: E402
 
 SNRS = (20, 40, 60)
 STEP = 10  # every 10th point of the 1051-point scene grid: 1 mm

@@ -14,15 +14,15 @@ import time
 import warnings
 
 import numpy as np
-
 from common import RESULTS, target, write_json
-from modalctl.frf import Sweep
-from modalctl.hil.device import SimDevice
-from modalctl.hil.scenario import Perturbation
-from modalctl.run import run_open_loop
-from modalctl.scenes import load_scene
 from thesis_table import experiments
-from modalctl.survey import identify_device
+
+from modalctl.hil.scenario import Perturbation
+from modalctl.hil.sim_device import SimDevice
+from modalctl.identify.frf import Sweep
+from modalctl.identify.survey import identify_device
+from modalctl.model.scenes import load_scene
+from modalctl.run import run_open_loop
 
 
 def main() -> None:

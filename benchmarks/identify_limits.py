@@ -18,10 +18,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
 from common import save_figure, write_json  # noqa: E402
-from modalctl.frf import FRF, mobility  # noqa: E402
-from modalctl.identify import peak_picking, sdof_fit  # noqa: E402
+
+from modalctl.identify.estimators import peak_picking, sdof_fit  # noqa: E402
+from modalctl.identify.frf import FRF, mobility  # noqa: E402
 
 ZETA, F1 = 0.01, 1000.0
 X = np.linspace(0, 0.1, 41)

@@ -19,13 +19,14 @@ import warnings
 from pathlib import Path
 
 from common import write_json, write_markdown
+
 from modalctl.cli import main as modalctl
 from modalctl.hil.can_board import CanBoardEmulator
 from modalctl.hil.scenario import Perturbation
 from modalctl.hil.serial_board import SerialBoardEmulator
-from modalctl.scenes import load_scene
-from modalctl.transports.can import can_budget
-from modalctl.transports.serial import link_budget
+from modalctl.io.transports.can import can_budget
+from modalctl.io.transports.serial import link_budget
+from modalctl.model.scenes import load_scene
 
 FS = 500e3
 MODES = 7

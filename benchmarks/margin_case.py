@@ -6,7 +6,7 @@ Thesis-al-cc, sinc 18 mm at 24 mm, 9 modes, T_F = 25 ms, margin 50%. Four plans:
 thesis's first try), the thesis's hand-tuned kappa {2: 7, 3: 3, 5: 5, 6: 3}, the casadi optimizer
 (envelope rates and braking, margin on the planned modal field as in the thesis), and the same
 with the margin held on the whole 21-mode model (the voltages then corrected near the focus,
-``modalctl.refine``). Each is played on the HIL with a perfect model: planned ratio, whole-model
+``modalctl.plan.refine``). Each is played on the HIL with a perfect model: planned ratio, whole-model
 ratio, measured ratio, peak voltage, tau, solver time.
 Also: plan time for 16 modes (10 mm sinc), median of repeats.
 """
@@ -17,16 +17,16 @@ import re
 import warnings
 
 import numpy as np
-
 from common import RESULTS, median_seconds, target, write_json
-from modalctl.decompose import decompose
-from modalctl.device import open_device
-from modalctl.metrics import margin_ratio
-from modalctl.planner import PlanError, plan
-from modalctl.propagate import Plant
+
+from modalctl.io.device import open_device
+from modalctl.model.metrics import margin_ratio
+from modalctl.model.propagate import Plant
+from modalctl.model.scenes import load_scene, thesis_tables
+from modalctl.plan.decompose import decompose
+from modalctl.plan.planner import PlanError, plan
 from modalctl.report import plot_spacetime
 from modalctl.run import run_open_loop
-from modalctl.scenes import load_scene, thesis_tables
 
 
 def steady_floor(model, shape, modes: int, focus_time: float, window: float = 100e-6):

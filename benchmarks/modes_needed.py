@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from modalctl.modal import project
-from modalctl.plugin import get_shape
-from modalctl.reduction import ReductionError, fit, smallest_set, twenty_percent_rule
+from modalctl.model.projection import project
+from modalctl.model.scenes import load_scene, thesis_tables
+from modalctl.model.shape import parse_params
+from modalctl.plan.reduction import ReductionError, fit, smallest_set, twenty_percent_rule
+from modalctl.plugin.manager import get_shape
 from modalctl.report import plot_modes_needed
-from modalctl.scenes import load_scene, thesis_tables
-from modalctl.shape import parse_params
 
 RESULTS = Path(__file__).resolve().parent / "results"
 TAU = 0.95

@@ -13,13 +13,13 @@ import warnings
 
 import control
 import numpy as np
+from common import RESULTS, median_seconds, state_space, target, write_json
 from scipy import signal
 
-from common import RESULTS, median_seconds, state_space, target, write_json
-from modalctl.decompose import decompose
 from modalctl.hil.plant import Plant
-from modalctl.planner import plan
-from modalctl.scenes import load_scene
+from modalctl.model.scenes import load_scene
+from modalctl.plan.decompose import decompose
+from modalctl.plan.planner import plan
 
 
 def main() -> None:

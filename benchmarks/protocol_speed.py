@@ -15,9 +15,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from common import median_seconds, write_json, write_markdown
-from modalctl import protocol as p
+
+from modalctl.io import protocol as p
 
 K, A = 21, 8
 
@@ -72,9 +72,9 @@ def round_trips(n: int = 400) -> dict:
     from modalctl.hil.can_board import CanBoardEmulator
     from modalctl.hil.scenario import Perturbation
     from modalctl.hil.serial_board import SerialBoardEmulator
-    from modalctl.scenes import load_scene
-    from modalctl.transports.can import CanDevice
-    from modalctl.transports.serial import SerialDevice
+    from modalctl.io.transports.can import CanDevice
+    from modalctl.io.transports.serial import SerialDevice
+    from modalctl.model.scenes import load_scene
 
     model = load_scene("thesis-al-cc", 105)
     out = {}

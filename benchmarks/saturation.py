@@ -5,7 +5,7 @@
 The thesis's sinc 18 mm at 24 mm (T_F 25 ms) on a truth with every resonance +1% or +3%, damping
 +20% and 40 dB of sensor noise, DAC 500 kHz, PI loops at 10 kHz. The amplifiers clip at the rails,
 set at a multiple of the feed-forward's own peak (the plan must fit; the loops get what is left),
-and the supervisor keeps the feedback within them: :class:`modalctl.supervisor.Supervisor` from
+and the supervisor keeps the feedback within them: :class:`modalctl.loops.supervisor.Supervisor` from
 each DAC sample's voltage (exact), beside the bound it used before (the feed-forward's peak over
 the period and the next, plus the sum of the phasors' magnitudes: true whatever the carriers'
 phases, so it holds the loops back where the phases would have left room). Open loop and the
@@ -19,15 +19,15 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
-import modalctl.loop  # noqa: E402
 from common import save_figure, target, write_json, write_markdown  # noqa: E402
-from modalctl.decompose import decompose  # noqa: E402
-from modalctl.hil.closed import run_focus  # noqa: E402
+
+import modalctl.loops.shot  # noqa: E402
+from modalctl.experiments.focus import run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
-from modalctl.planner import plan  # noqa: E402
-from modalctl.scenes import load_scene  # noqa: E402
-from modalctl.supervisor import Supervisor  # noqa: E402
+from modalctl.loops.supervisor import Supervisor  # noqa: E402
+from modalctl.model.scenes import load_scene  # noqa: E402
+from modalctl.plan.decompose import decompose  # noqa: E402
+from modalctl.plan.planner import plan  # noqa: E402
 
 RAILS = (1.02, 1.05, 1.1, 1.2, 1.5)  # times the feed-forward's peak
 DRIFTS = (0.01, 0.03)
@@ -51,11 +51,11 @@ class PhaseFreeSupervisor(Supervisor):
 
 def shot_row(truth, shot, shape, rail: float | None, method: str, seed: int) -> dict:
     """One shot: ``method`` is open, exact (the supervisor) or bound (the phase-free bound)."""
-    modalctl.loop.Supervisor = PhaseFreeSupervisor if method == "bound" else Supervisor
+    modalctl.loops.shot.Supervisor = PhaseFreeSupervisor if method == "bound" else Supervisor
     try:
         r = run_focus(truth, shot, shape, closed=method != "open", control_rate=RATE, voltage_limit=rail, seed=seed)
     finally:
-        modalctl.loop.Supervisor = Supervisor
+        modalctl.loops.shot.Supervisor = Supervisor
     return {"tau": r.tau, "margin_ratio": r.margin_ratio, "peak_voltage": r.peak_voltage, "clipped": int(r.clipped),
             "limited_periods": int(r.result.limited)}
 

@@ -6,7 +6,7 @@ One loop (thesis-al-cc mode 5, 5.7 kHz, designed for one period of latency at 20
 step in its reference while the mode sits ``detuning`` off its carrier and the board adds extra
 periods of delay. Predicted: the closed-loop poles of the design's model (python-control, the
 mode's envelope turning at the detuning, the lock-in's low-pass, the delay as a Pade
-approximant; :func:`modalctl.control.loop_poles`) on a fine grid, the boundary where the largest
+approximant; :func:`modalctl.loops.design.loop_poles`) on a fine grid, the boundary where the largest
 real part crosses zero. Observed: the same loop on the HIL board (the whole structure, every
 mode) for 40 ms after the step: unstable when the supervisor stops it or the error grows.
 """
@@ -20,14 +20,14 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
 from common import save_figure, write_json, write_markdown  # noqa: E402
-from modalctl.control import loop_poles  # noqa: E402
-from modalctl.executor import LocalExecutor  # noqa: E402
-from modalctl.hil.closed import step_runtime  # noqa: E402
-from modalctl.recorder import read_log  # noqa: E402
-from modalctl.runtime import State  # noqa: E402
-from modalctl.scenes import load_scene  # noqa: E402
+
+from modalctl.experiments.executor import LocalExecutor  # noqa: E402
+from modalctl.experiments.focus import step_runtime  # noqa: E402
+from modalctl.loops.design import loop_poles  # noqa: E402
+from modalctl.loops.recorder import read_log  # noqa: E402
+from modalctl.loops.runtime import State  # noqa: E402
+from modalctl.model.scenes import load_scene  # noqa: E402
 
 MODE, RATE = 4, 20e3
 DETUNING_HZ = np.linspace(-1500, 1500, 13)

@@ -20,13 +20,13 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+from common import RESULTS, target, write_json
 from tqdm import tqdm
 
-from common import RESULTS, target, write_json
-from modalctl.device import open_device
 from modalctl.hil.scenario import Perturbation
+from modalctl.io.device import open_device
+from modalctl.model.scenes import load_scene, thesis_tables
 from modalctl.run import run_open_loop
-from modalctl.scenes import load_scene, thesis_tables
 
 SCENE = {"al_cc_beam": "thesis-al-cc", "rython_pp_beam": "thesis-rython-pp", "al_ff_beam": "thesis-al-ff"}
 REALISTIC = Perturbation(drift_spread=0.005, damping_error=0.2, snr_db=40, amplifier_bandwidth=500e3, seed=0)

@@ -19,11 +19,11 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from common import RESULTS, save_figure, target, write_json  # noqa: E402
 from scipy.ndimage import median_filter  # noqa: E402
 
-from common import RESULTS, save_figure, target, write_json  # noqa: E402
-from modalctl.hil.tracking import ramp, run_tracking, step  # noqa: E402
-from modalctl.scenes import load_scene  # noqa: E402
+from modalctl.experiments.tracking import ramp, run_tracking, step  # noqa: E402
+from modalctl.model.scenes import load_scene  # noqa: E402
 
 CHANGE = 0.1  # s
 DURATION = 0.25  # s
@@ -89,8 +89,8 @@ def focus_shot(truth, tracker: str) -> dict:
     the error of each planned mode's estimate at the focus."""
     import warnings
 
-    from modalctl.decompose import decompose
-    from modalctl.planner import plan
+    from modalctl.plan.decompose import decompose
+    from modalctl.plan.planner import plan
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -109,12 +109,12 @@ def shot_to_shot(truth) -> list[dict]:
     drifted truth with the stale model, the updated one, and the truth itself (the ceiling)."""
     import warnings
 
-    from modalctl.decompose import decompose
-    from modalctl.hil.device import SimDevice
     from modalctl.hil.scenario import Perturbation
-    from modalctl.planner import plan
+    from modalctl.hil.sim_device import SimDevice
+    from modalctl.identify.trackers import updated_model
+    from modalctl.plan.decompose import decompose
+    from modalctl.plan.planner import plan
     from modalctl.run import run_open_loop
-    from modalctl.track import updated_model
 
     shape = target(truth, "sinc", width="18mm", center="24mm")
     rows = []
@@ -179,7 +179,7 @@ def write_markdown(everything: dict, adapt: list) -> None:
               "## Shot to shot: the tracker hands its estimates to the planner", "",
               "Sinc 18 mm at 24 mm, T_F 25 ms, open loop on a drifted truth (40 dB): one shot planned with the "
               "stale model is tracked with `pole` from its own drive; the next is planned with "
-              "`modalctl.track.updated_model`.", "",
+              "`modalctl.identify.trackers.updated_model`.", "",
               "| truth | tau, stale model | tau, after one tracked shot | tau, true model |", "|---|---|---|---|"]
     lines += [f"| {r['truth']} | {r['tau_stale_model']:.3f} | {r['tau_after_one_tracked_shot']:.3f} | "
               f"{r['tau_true_model']:.3f} |" for r in adapt]

@@ -14,20 +14,21 @@ import re
 import sys
 from pathlib import Path
 
-from .decompose import decompose
-from .device import DeviceError
-from .loop import AUTHORITY
-from .planner import PlanError
-from .model import ModalModel, ModelError
-from .plugin import PluginError, get_controller, get_shape, plugin_table, shape_generators
-from .realtime import keep_memory
-from .reduction import ReductionError
-from .scenes import SCENES, UnknownScene, load_scene
-from .shape import ParamError, parse_params
+from modalctl.io.device import DeviceError
+from modalctl.loops.realtime import keep_memory
+from modalctl.loops.shot import AUTHORITY
+from modalctl.model.modes import ModalModel, ModelError
+from modalctl.model.scenes import SCENES, UnknownScene, load_scene
+from modalctl.model.shape import ParamError, parse_params
+from modalctl.plan.decompose import decompose
+from modalctl.plan.planner import PlanError
+from modalctl.plan.reduction import ReductionError
+from modalctl.plugin.manager import PluginError, get_controller, get_shape, plugin_table, shape_generators
+
 from .units import UnitError, parse_point, parse_quantity
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
-REAL_TIME = {"run", "sweep", "emulate"}  # the commands that play shots (see modalctl.realtime)
+REAL_TIME = {"run", "sweep", "emulate"}  # the commands that play shots (see modalctl.loops.realtime)
 
 
 def _parse_param(text: str) -> tuple[str, str]:
@@ -112,7 +113,7 @@ def _perturbation(args, model: ModalModel, shape=None):
     """The Perturbation the truth options ask for; a finger rests on the target's peak unless placed."""
     import numpy as np
 
-    from .hil.scenario import Perturbation
+    from modalctl.hil.scenario import Perturbation
 
     at = args.finger_at
     if at is not None and not args.finger:
@@ -343,11 +344,12 @@ def _decompose(args) -> int:
 def _run(args) -> int:
     import warnings
 
-    from .dispatch import DecouplingWarning
+    from modalctl.plan.dispatch import DecouplingWarning
 
     warnings.simplefilter("ignore", DecouplingWarning)  # printed below from the metrics
 
-    from .device import open_device
+    from modalctl.io.device import open_device
+
     from .run import run_closed_loop, run_open_loop
 
     if args.learn and args.loop == "open":
@@ -387,7 +389,7 @@ def _report(args, model, shape, device, shot, perturbation, out) -> int:
     metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,
                "params": dict(args.param), "truth": perturbation.describe(), "out": str(out)}
     centre = int(np.argmax(np.abs(shot.focus_field) * shape.target_mask))
-    from .device import scan_indices
+    from modalctl.io.device import scan_indices
 
     index = scan_indices(device.capabilities, model.grid.points[[centre]], device.url)
     focus_velocity = device.scan(shot.capture.times, points=centre if index is None else index)[0]
@@ -477,8 +479,8 @@ def _sweep(args) -> int:
     import itertools
     from dataclasses import replace
 
-    from .executor import executor_for
-    from .hil.sweep import METHODS, Case, run_case
+    from modalctl.experiments.executor import executor_for
+    from modalctl.experiments.sweep import METHODS, Case, run_case
 
     if not 1 <= len(args.vary) <= 2:
         raise ParamError("give one or two --vary NAME=V1,V2,... (e.g. --vary drift=0,1%,2%)")
@@ -520,7 +522,7 @@ def _sweep(args) -> int:
 def _emulate(args) -> int:
     import time
 
-    from .hil.serial_board import SerialBoardEmulator
+    from modalctl.hil.serial_board import SerialBoardEmulator
 
     model = load_scene(args.scene, args.points)
     perturbation = _perturbation(args, model)
@@ -539,10 +541,10 @@ def _emulate(args) -> int:
 def _identify(args) -> int:
     import numpy as np
 
-    from .device import open_device
-    from .frf import Sweep, read_uff58
-    from .hil.scenario import Perturbation
-    from .survey import beam_wavelength, identify_device, identify_frf
+    from modalctl.hil.scenario import Perturbation
+    from modalctl.identify.frf import Sweep, read_uff58
+    from modalctl.identify.survey import beam_wavelength, identify_device, identify_frf
+    from modalctl.io.device import open_device
 
     scene = load_scene(args.scene) if args.scene else None
     if args.frf is None and args.transport.startswith("sim") and scene is None:

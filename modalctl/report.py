@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .decompose import Decomposition  # noqa: E402
+from modalctl.plan.decompose import Decomposition  # noqa: E402
 
 __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
            "plot_spectrogram", "plot_learning", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table"]
@@ -231,7 +231,7 @@ def plot_spectrogram(shot, velocity: np.ndarray, sample_rate: float, where: floa
 def plot_loop(log, path) -> Path:
     """A closed-loop run from its log: each mode's envelope, planned (reference) and measured, and
     the feedback command against the time; the fault, if any, marked."""
-    from .recorder import read_log
+    from modalctl.loops.recorder import read_log
 
     records, header = read_log(log)
     meta = header["meta"]

@@ -1,7 +1,7 @@
 """A focusing shot end to end, open or closed loop (after a learning shot if asked): decompose, plan,
 play on a device, measure.
 
-The device is any :class:`modalctl.device.Device` (``sim://`` or a board); this module opens no
+The device is any :class:`modalctl.io.device.Device` (``sim://`` or a board); this module opens no
 port itself and draws nothing (pictures are in :mod:`modalctl.report`).
 """
 
@@ -12,14 +12,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .decompose import Decomposition, decompose
-from .device import Capture, Device, DeviceError, scan_indices
-from .loop import AUTHORITY
-from .metrics import margin_ratio, nrmse, tau, tau_norm
-from .modal import project, reconstruct
-from .model import ModalModel
-from .planner import Plan, PlanError, plan
-from .shape import Shape
+from modalctl.io.device import Capture, Device, DeviceError, scan_indices
+from modalctl.loops.shot import AUTHORITY
+from modalctl.model.metrics import margin_ratio, nrmse, tau, tau_norm
+from modalctl.model.modes import ModalModel
+from modalctl.model.projection import project, reconstruct
+from modalctl.model.shape import Shape
+from modalctl.plan.decompose import Decomposition, decompose
+from modalctl.plan.planner import Plan, PlanError, plan
 
 __all__ = ["Shot", "run_open_loop", "run_closed_loop", "THESIS_MARGIN"]
 
@@ -131,7 +131,7 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
     voltage_limit : float, optional
         Largest voltage (V); the device's rails also apply.
     plan_options
-        Passed to :func:`modalctl.planner.plan` (``kappa``, ``brake``, ``after``...).
+        Passed to :func:`modalctl.plan.planner.plan` (``kappa``, ``brake``, ``after``...).
     """
     caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
                                                   voltage_limit, sample_rate, {**plan_options, "progress": progress})
@@ -175,12 +175,12 @@ def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time:
     watchdog : int
         Periods without a measurement before the shot is stopped.
     on_board : bool
-        Load the loops into the board (:mod:`modalctl.onboard`: parametric references, PI) and let
+        Load the loops into the board (:mod:`modalctl.loops.onboard`: parametric references, PI) and let
         it close them itself: no exchange per period, so no link budget; the board's rails are the
         only voltage limit.
     learn : bool
         Play a first closed-loop shot, update the model's resonances and damping from its record
-        (:func:`modalctl.updating.update`), plan again on the updated model and report the second
+        (:func:`modalctl.identify.updating.update`), plan again on the updated model and report the second
         shot; the first's tau, margin and what was learned are in ``metrics["learning_shot"]``.
     """
     if not hasattr(device, "phasor_board"):
@@ -220,7 +220,7 @@ def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, *, 
     """Play ``the_plan`` closed loop on the device's phasor board and measure it; returns
     ``(shot, run result, loop parts, (design seconds, shot seconds))``: the shot from its
     configuration to its records (the scan of the field and the metrics after it excluded)."""
-    from .loop import closed_shot, loop_parts
+    from modalctl.loops.shot import closed_shot, loop_parts
 
     focus_time = the_plan.focus_time
     board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
@@ -250,8 +250,8 @@ def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, *, 
 def _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, options):
     """A closed-loop shot whose record updates the model; ``(what it measured and learned, the
     updated model)``."""
-    from .schedule import HOLD
-    from .updating import update
+    from modalctl.identify.updating import update
+    from modalctl.loops.schedule import HOLD
 
     learning_log = None if log is None else type(log)(f"{log}-learning")
     shot, result, _, _ = _closed(dec, the_plan, shape, device, caps, margin, learning_log, on_board, **options)
@@ -273,10 +273,10 @@ def _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, op
 
 def _loops_on_board(the_plan, board, parts, device, log):
     """Load the shot's loops into the board, let it run them, and keep its log (as the runtime's);
-    returns a :class:`~modalctl.runtime.RunResult`."""
-    from .loop import loop_log
-    from .onboard import board_loop
-    from .runtime import RunResult, State
+    returns a :class:`~modalctl.loops.runtime.RunResult`."""
+    from modalctl.loops.onboard import board_loop
+    from modalctl.loops.runtime import RunResult, State
+    from modalctl.loops.shot import loop_log
 
     if not hasattr(board, "run_loops"):
         raise DeviceError(f"{device.url}: this board cannot run loops itself")

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from modalctl.structures import Beam
+from modalctl.model.structures import Beam
 
 
 @pytest.fixture
@@ -21,11 +21,11 @@ def sinc18():
     25 ms sampled at 500 kHz: ``(model, shape, plan)``."""
     import warnings
 
-    from modalctl.decompose import decompose
-    from modalctl.planner import plan
-    from modalctl.plugin import get_shape
-    from modalctl.scenes import load_scene
-    from modalctl.shape import parse_params
+    from modalctl.model.scenes import load_scene
+    from modalctl.model.shape import parse_params
+    from modalctl.plan.decompose import decompose
+    from modalctl.plan.planner import plan
+    from modalctl.plugin.manager import get_shape
 
     model = load_scene("thesis-al-cc", 211)
     sinc = get_shape("sinc")

@@ -5,9 +5,9 @@ import pytest
 from scipy.signal import lfilter
 
 from modalctl.hil.block import BlockLockIn, BlockPlant, first_order
-from modalctl.lockin import LockIn, Oscillators
-from modalctl.propagate import Plant
-from modalctl.scenes import load_scene
+from modalctl.loops.lockin import LockIn, Oscillators
+from modalctl.model.propagate import Plant
+from modalctl.model.scenes import load_scene
 
 FS, D = 500e3, 25
 

@@ -6,12 +6,12 @@ import time
 import pytest
 
 from modalctl.cli import main
-from modalctl.device import DeviceError, open_device
 from modalctl.hil.can_board import CanBoardEmulator
 from modalctl.hil.scenario import Perturbation
-from modalctl.recorder import read_log
-from modalctl.scenes import load_scene
-from modalctl.transports.can import can_budget
+from modalctl.io.device import DeviceError, open_device
+from modalctl.io.transports.can import can_budget
+from modalctl.loops.recorder import read_log
+from modalctl.model.scenes import load_scene
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--quiet", "--no-plots"]
@@ -95,7 +95,7 @@ def test_boards_follow_canopen_nmt_and_beat(model):
     heartbeat (0x700 + n) at once and periodically, and a stopped board hears nothing but NMT."""
     import can
 
-    from modalctl import protocol as p
+    from modalctl.io import protocol as p
 
     with CanBoardEmulator(model, PERTURBATION, channel="nmt", heartbeat=0.2):
         bus = can.Bus(interface="virtual", channel="nmt", fd=True)

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from modalctl.control import design_loops
-from modalctl.hil.closed import run_focus
+from modalctl.experiments.focus import run_focus
 from modalctl.hil.scenario import Perturbation, perturb
+from modalctl.loops.design import design_loops
 
 
 def test_loop_design_keeps_its_phase_margin():
@@ -38,9 +38,9 @@ def test_feedback_nearly_leaves_a_perfect_model_alone(sinc18):
 def test_kalman_lq_controller_is_stable_by_design_and_recovers_the_focus(sinc18):
     """The lqg plugin: python-control's dlqr and dlqe on each mode's envelope model with the lock-in and
     the latency; nominally stable, and on the 1% drift case as good as the PI loops within 0.02."""
-    from modalctl.control import LoopPlant
-    from modalctl.lockin import lockin_bandwidths
-    from modalctl.plugin import get_controller
+    from modalctl.loops.controller import LoopPlant
+    from modalctl.loops.lockin import lockin_bandwidths
+    from modalctl.plugin.manager import get_controller
 
     model, shape, shot = sinc18
     modes = shot.modes
@@ -60,7 +60,7 @@ def test_kalman_lq_controller_is_stable_by_design_and_recovers_the_focus(sinc18)
 
 def test_feedback_holds_the_focus_while_the_resonances_ramp(sinc18):
     """The truth drifts during the shot, 0 to 2% by the focus (a ramp of 0.8 per second): the loops follow."""
-    from modalctl.hil.tracking import ramp
+    from modalctl.experiments.tracking import ramp
 
     model, shape, shot = sinc18
     drifting = ramp(0.0, 0.8)
@@ -78,12 +78,12 @@ def test_loops_rest_on_modes_the_sensors_cannot_see():
     tau fell 0.02 with noise; without noise the loops' error must stay at round-off)."""
     import warnings
 
-    from modalctl.decompose import decompose
-    from modalctl.loop import loop_parts
-    from modalctl.planner import plan
-    from modalctl.plugin import get_shape
-    from modalctl.scenes import load_scene
-    from modalctl.shape import parse_params
+    from modalctl.loops.shot import loop_parts
+    from modalctl.model.scenes import load_scene
+    from modalctl.model.shape import parse_params
+    from modalctl.plan.decompose import decompose
+    from modalctl.plan.planner import plan
+    from modalctl.plugin.manager import get_shape
 
     model = load_scene("thesis-rython-pp")
     sinc = get_shape("sinc")

@@ -4,8 +4,8 @@ import numpy as np
 from scipy.signal import lsim
 
 from modalctl.hil.finger import Finger, FingerPlant, added_damping
-from modalctl.propagate import Plant
-from modalctl.scenes import load_scene
+from modalctl.model.propagate import Plant
+from modalctl.model.scenes import load_scene
 
 FS = 200e3
 

@@ -5,14 +5,14 @@ import warnings
 import numpy as np
 import pytest
 
-from modalctl.frf import FRF, Sweep, SpatialAliasingWarning, check_spatial_step, read_uff58
-from modalctl.hil.device import SimDevice
 from modalctl.hil.scenario import Perturbation
-from modalctl.identify import peak_picking, sdof_fit
-from modalctl.model import ModelError
-from modalctl.plugin import identifiers
-from modalctl.scenes import load_scene
-from modalctl.survey import beam_wavelength, identify_device
+from modalctl.hil.sim_device import SimDevice
+from modalctl.identify.estimators import peak_picking, sdof_fit
+from modalctl.identify.frf import FRF, SpatialAliasingWarning, Sweep, check_spatial_step, read_uff58
+from modalctl.identify.survey import beam_wavelength, identify_device
+from modalctl.model.modes import ModelError
+from modalctl.model.scenes import load_scene
+from modalctl.plugin.manager import identifiers
 
 X = np.linspace(0, 0.1, 41)
 
@@ -95,7 +95,7 @@ def test_h1_matches_the_analytic_mobility():
     """HIL shot -> H1 against the model's mobility computed independently, times the first-order
     hold's sinc^2 (the DAC's linear interpolation between samples). What is left (0.1% of the
     peak) is the response to the hold's spectral images near fs - f, aliased back by sampling."""
-    from modalctl.acquire import measure_frf
+    from modalctl.identify.acquire import measure_frf
 
     model = load_scene("thesis-al-cc", 211)
     device = SimDevice(model, Perturbation(), hold="foh")
@@ -145,9 +145,9 @@ def test_survey_identifies_the_hil_beam(survey):
 
 def test_focus_with_the_identified_model(survey):
     """The closed cycle: the HIL beam focused with its identified model does as well as with the truth."""
-    from modalctl.plugin import get_shape
+    from modalctl.model.shape import parse_params
+    from modalctl.plugin.manager import get_shape
     from modalctl.run import run_open_loop
-    from modalctl.shape import parse_params
 
     truth, points, result = survey
     with warnings.catch_warnings():  # the scan's 2.5 mm step draws only the first 18 of the scene's 21 modes
@@ -187,7 +187,7 @@ def test_uff58_round_trip(tmp_path):
     assert np.allclose(back.values, frf.values, rtol=1e-6, atol=1e-9 * np.abs(frf.values).max())
     modes = sdof_fit(back)
     assert np.allclose(modes.frequencies, [1000, 2500], rtol=1e-5)
-    from modalctl.survey import identify_frf
+    from modalctl.identify.survey import identify_frf
 
     model = identify_frf(back, mass_per_length=1.9).model
     assert model.n_modes == 2 and all(mac(model.shapes[k], s[2]) > 0.999 for k, s in enumerate(TWO_MODES))
@@ -200,7 +200,7 @@ def test_identify_cli_on_the_hil_and_bad_input(tmp_path):
     code = main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--step", "2mm", "--out", str(out),
                  "--quiet", "--no-plots", "--json"])
     assert code == 0
-    from modalctl.model import ModalModel
+    from modalctl.model.modes import ModalModel
 
     model = ModalModel.load(out)
     assert model.n_modes == 5 and model.actuator_gains.shape == (5, 8)

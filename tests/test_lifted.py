@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
-from modalctl.hil.board import HILBoard
-from modalctl.hil.closed import run_focus
+from modalctl.experiments.focus import run_focus
 from modalctl.hil.lifted import PeriodMap
+from modalctl.hil.phasor_board import HILBoard
 from modalctl.hil.scenario import Perturbation, perturb
-from modalctl.loop import loop_parts
+from modalctl.loops.shot import loop_parts
 
 FS = 500e3
 

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from modalctl.metrics import focus_contrast, nrmse, tau, tau_norm
+from modalctl.model.metrics import focus_contrast, nrmse, tau, tau_norm
 
 
 def test_tau_is_one_on_identical_fields(rng):

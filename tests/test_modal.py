@@ -3,8 +3,16 @@
 import numpy as np
 import pytest
 
-from modalctl.modal import crosstalk, gram, mass_normalize, orthonormalize, orthonormalize_model, project, reconstruct
-from modalctl.model import ModelError
+from modalctl.model.modes import ModelError
+from modalctl.model.projection import (
+    crosstalk,
+    gram,
+    mass_normalize,
+    orthonormalize,
+    orthonormalize_model,
+    project,
+    reconstruct,
+)
 
 
 def test_exact_recovery_of_known_coefficients(al_beam, rng):

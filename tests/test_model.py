@@ -6,7 +6,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from modalctl.model import Grid, ModalModel, ModelError, read_shapes_csv, read_uff55
+from modalctl.model.files import read_shapes_csv, read_uff55
+from modalctl.model.modes import Grid, ModalModel, ModelError
 
 
 @pytest.fixture

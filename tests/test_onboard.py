@@ -6,19 +6,19 @@ import warnings
 import numpy as np
 import pytest
 
-from modalctl import protocol as p
 from modalctl.cli import main
-from modalctl.decompose import decompose
 from modalctl.hil.can_board import CanBoardEmulator
 from modalctl.hil.scenario import Perturbation
 from modalctl.hil.serial_board import SerialBoardEmulator
-from modalctl.loop import loop_parts
-from modalctl.onboard import board_loop, from_program, to_program
-from modalctl.planner import plan
-from modalctl.plugin import get_shape
-from modalctl.recorder import read_log
-from modalctl.scenes import load_scene
-from modalctl.shape import parse_params
+from modalctl.io import protocol as p
+from modalctl.loops.onboard import board_loop, from_program, to_program
+from modalctl.loops.recorder import read_log
+from modalctl.loops.shot import loop_parts
+from modalctl.model.scenes import load_scene
+from modalctl.model.shape import parse_params
+from modalctl.plan.decompose import decompose
+from modalctl.plan.planner import plan
+from modalctl.plugin.manager import get_shape
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--quiet", "--no-plots",

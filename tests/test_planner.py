@@ -6,15 +6,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from modalctl.decompose import decompose
-from modalctl.device import open_device
-from modalctl.dispatch import DecouplingWarning, decoupling, dispatch, mobility
-from modalctl.metrics import margin_ratio
-from modalctl.planner import MarginWarning, PlanError, gap_bounds, min_focus_time, plan
-from modalctl.plugin import get_shape
+from modalctl.io.device import open_device
+from modalctl.model.metrics import margin_ratio
+from modalctl.model.scenes import load_scene
+from modalctl.model.shape import parse_params
+from modalctl.plan.decompose import decompose
+from modalctl.plan.dispatch import DecouplingWarning, decoupling, dispatch, mobility
+from modalctl.plan.planner import MarginWarning, PlanError, gap_bounds, min_focus_time, plan
+from modalctl.plugin.manager import get_shape
 from modalctl.run import run_open_loop
-from modalctl.scenes import load_scene
-from modalctl.shape import parse_params
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from scipy.integrate import solve_ivp
 from scipy.signal import cont2discrete, dlsim
 
 from modalctl.hil.plant import Plant, truncation
-from modalctl.scenes import load_scene
+from modalctl.model.scenes import load_scene
 
 
 @pytest.fixture(scope="module")
@@ -109,8 +109,8 @@ def test_retune_keeps_displacement_and_velocity_continuous():
     from scipy.integrate import solve_ivp
     from scipy.interpolate import interp1d
 
-    from modalctl.propagate import Plant as CorePlant
-    from modalctl.scenes import load_scene
+    from modalctl.model.propagate import Plant as CorePlant
+    from modalctl.model.scenes import load_scene
 
     m = load_scene("thesis-al-cc", 101).select([0, 1, 2])
     fs = 200e3

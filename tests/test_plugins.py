@@ -6,10 +6,17 @@ from pathlib import Path
 import pluggy
 import pytest
 
-from modalctl import hookspecs
-from modalctl.hookspecs import hookimpl
-from modalctl.plugin import ENTRY_POINT_GROUP, PluginError, get_shape, plugin_manager, plugin_table, shape_generators
-from modalctl.shape import Param, Shape
+from modalctl.model.shape import Param, Shape
+from modalctl.plugin import spec as hookspecs
+from modalctl.plugin.manager import (
+    ENTRY_POINT_GROUP,
+    PluginError,
+    get_shape,
+    plugin_manager,
+    plugin_table,
+    shape_generators,
+)
+from modalctl.plugin.spec import hookimpl
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "plugins.md"
 

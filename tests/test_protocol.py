@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from modalctl import protocol as p
+from modalctl.io import protocol as p
 
 EXAMPLES = [
     p.Hello(seq=1),

@@ -1,18 +1,18 @@
-"""The process's memory kept for real-time loops (:mod:`modalctl.realtime`)."""
+"""The process's memory kept for real-time loops (:mod:`modalctl.loops.realtime`)."""
 
 import subprocess
 import sys
 
 import pytest
 
-from modalctl import realtime
+from modalctl.loops import realtime
 
 # Minor page faults (pages first written) of making eight 2 MB arrays after the last eight were
 # freed, before and after keep_memory; run in a child so that this process's allocator is untouched.
 CHILD = """
 import resource
 import numpy as np
-from modalctl.realtime import keep_memory
+from modalctl.loops.realtime import keep_memory
 
 def faults():
     before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from modalctl.modal import reconstruct
-from modalctl.reduction import ReductionError, fit, smallest_set, twenty_percent_rule
+from modalctl.model.projection import reconstruct
+from modalctl.plan.reduction import ReductionError, fit, smallest_set, twenty_percent_rule
 
 
 def test_twenty_percent_rule_counts_most_pulses():

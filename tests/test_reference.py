@@ -5,8 +5,8 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from modalctl.hil.plant import Plant
-from modalctl.model import Grid, ModalModel
-from modalctl.reference import BLEND, decay, focus_state, modal_response, rise, rise_coefficients
+from modalctl.model.modes import Grid, ModalModel
+from modalctl.plan.reference import BLEND, decay, focus_state, modal_response, rise, rise_coefficients
 
 W, Z, TF = 2 * np.pi * 2253.0, 0.02862, 0.025  # mode 3 of the thesis's aluminium beam
 

@@ -1,11 +1,11 @@
-"""The voltage correction that holds the margin on the whole model (:mod:`modalctl.refine`)."""
+"""The voltage correction that holds the margin on the whole model (:mod:`modalctl.plan.refine`)."""
 
 import numpy as np
 import pytest
 
-import modalctl.refine as refine_module
-from modalctl.propagate import Plant
-from modalctl.scenes import load_scene
+import modalctl.plan.refine as refine_module
+from modalctl.model.propagate import Plant
+from modalctl.model.scenes import load_scene
 
 
 def test_the_searchs_gradient_is_the_plants_adjoint(monkeypatch):

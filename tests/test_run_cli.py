@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from modalctl.cli import main
-from modalctl.device import DeviceError, open_device, transports
-from modalctl.plugin import PluginError
-from modalctl.scenes import load_scene
+from modalctl.io.device import DeviceError, open_device, transports
+from modalctl.model.scenes import load_scene
+from modalctl.plugin.manager import PluginError
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "351", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--quiet"]
@@ -37,7 +37,7 @@ def test_run_writes_metrics_fields_and_pictures(capsys, tmp_path):
 
 
 def test_closed_loop_run_recovers_the_drifted_focus_and_logs_every_period(capsys, tmp_path):
-    from modalctl.recorder import read_log
+    from modalctl.loops.recorder import read_log
 
     args = [*RUN, "--focus-time", "25ms", "--drift", "1%", "--damping-error", "20%", "--snr", "40",
             "--sample-rate", "500kHz"]
@@ -133,7 +133,7 @@ def test_sim_device_lifecycle_and_transport_registry():
 
 
 def test_scan_indices_find_the_nearest_scan_points_and_refuse_a_far_one():
-    from modalctl.device import Capabilities, scan_indices
+    from modalctl.io.device import Capabilities, scan_indices
 
     scan = np.linspace(-0.05, 0.05, 201)[:, None]  # a vibrometer's 0.5 mm grid
     caps = Capabilities("vibrometer", 1, 1, 1e6, None, True, scan)

@@ -3,14 +3,14 @@
 import numpy as np
 import pytest
 
-from modalctl.hil.closed import run_focus, step_runtime
+from modalctl.experiments.focus import run_focus, step_runtime
+from modalctl.hil.phasor_board import HILBoard
 from modalctl.hil.scenario import Perturbation, perturb
-from modalctl.control import settling_time
-from modalctl.recorder import Recorder, read_log
-from modalctl.runtime import LifecycleError, State
-from modalctl.hil.board import HILBoard
-from modalctl.loop import loop_parts
-from modalctl.supervisor import Limits, Supervisor
+from modalctl.loops.design import settling_time
+from modalctl.loops.recorder import Recorder, read_log
+from modalctl.loops.runtime import LifecycleError, State
+from modalctl.loops.shot import loop_parts
+from modalctl.loops.supervisor import Limits, Supervisor
 
 FS, RATE = 500e3, 20e3
 D = int(FS / RATE)
@@ -156,7 +156,7 @@ def test_supervisor_checks_commands_played_after_the_last_period(sinc18):
 # A run that dies: three records written, a fourth half-written, then killed without closing its log.
 KILLED = """
 import os, signal, sys
-from modalctl.recorder import Recorder
+from modalctl.loops.recorder import Recorder
 rec = Recorder(sys.argv[1], {"a": ("<f8", (3,), "m"), "n": ("<i8", (), "1")}, capacity=2)
 for n in range(3):
     rec.write(a=[n, n + 1, n + 2], n=7 + n)
@@ -209,7 +209,8 @@ def test_limits_reject_nonsense():
 def test_pi_law_is_the_same_mode_by_mode_and_all_at_once():
     """The plain-Python evaluation used for few loops gives the numpy law's commands and integrals,
     through saturation, anti-windup holds, resting loops and loops taking authority back."""
-    from modalctl.control import LoopDesign, PIControl
+    from modalctl.loops.controller import LoopDesign
+    from modalctl.loops.pi import PIControl
 
     rng = np.random.default_rng(3)
     k = 7

@@ -7,10 +7,10 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from modalctl.cli import main
-from modalctl.hil.device import SimDevice
 from modalctl.hil.finger import Finger, FingerPlant
 from modalctl.hil.scenario import Perturbation
-from modalctl.scenes import load_scene
+from modalctl.hil.sim_device import SimDevice
+from modalctl.model.scenes import load_scene
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--quiet", "--no-plots", "--json"]

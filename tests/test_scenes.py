@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from modalctl.modal import gram
-from modalctl.scenes import SCENES, load_scene, thesis_tables
+from modalctl.model.projection import gram
+from modalctl.model.scenes import SCENES, load_scene, thesis_tables
 
 
 @pytest.mark.parametrize("name", list(SCENES))
@@ -25,8 +25,8 @@ def test_al_cc_uses_the_table():
 
 
 def test_packaged_tables_match_shared_copy():
-    from pathlib import Path
     import json
+    from pathlib import Path
 
     shared = Path(__file__).resolve().parents[2] / "shared" / "data" / "thesis_tables.json"
     if not shared.is_file():
@@ -35,9 +35,9 @@ def test_packaged_tables_match_shared_copy():
 
 
 def test_free_free_scene_reports_rigid_body_content():
-    from modalctl.decompose import decompose
-    from modalctl.plugin import get_shape
-    from modalctl.shape import parse_params
+    from modalctl.model.shape import parse_params
+    from modalctl.plan.decompose import decompose
+    from modalctl.plugin.manager import get_shape
 
     model = load_scene("thesis-al-ff")
     gen = get_shape("square")
@@ -47,7 +47,7 @@ def test_free_free_scene_reports_rigid_body_content():
 
 
 def test_a_grid_too_coarse_for_the_modes_is_refused():
-    from modalctl.model import ModelError
+    from modalctl.model.modes import ModelError
 
     assert load_scene("thesis-al-cc", 100).n_modes == 21  # ~10 points per half wave of mode 21: fine
     with pytest.warns(UserWarning, match="draws only the first 18 of its 21 modes"):

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from modalctl.cli import main
-from modalctl.device import DeviceError, open_device
 from modalctl.hil.scenario import Perturbation
 from modalctl.hil.serial_board import SerialBoardEmulator
-from modalctl.recorder import read_log
-from modalctl.scenes import load_scene
-from modalctl.transports.serial import link_budget
+from modalctl.io.device import DeviceError, open_device
+from modalctl.io.transports.serial import link_budget
+from modalctl.loops.recorder import read_log
+from modalctl.model.scenes import load_scene
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--loop", "closed",

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from scipy.signal.windows import tukey
 
-from modalctl.model import Grid
-from modalctl.plugin import get_shape
-from modalctl.shape import ParamError, parse_params, tukey_window
-from modalctl.structures import Plate
+from modalctl.model.modes import Grid
+from modalctl.model.shape import ParamError, parse_params, tukey_window
+from modalctl.model.structures import Plate
+from modalctl.plugin.manager import get_shape
 
 GRID = Grid.line(-0.0525, 0.0525, 1051, 0.0189)
 

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from modalctl.model import ModelError
-from modalctl.modal import gram
-from modalctl.structures import BOUNDARIES, Beam, BeamPatch, Piezo, Plate, PlatePatch
+from modalctl.model.modes import ModelError
+from modalctl.model.projection import gram
+from modalctl.model.structures import BOUNDARIES, Beam, BeamPatch, Piezo, Plate, PlatePatch
 
 
 @pytest.mark.parametrize("boundary", BOUNDARIES)

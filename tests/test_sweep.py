@@ -5,7 +5,7 @@ import json
 import pytest
 
 from modalctl.cli import main
-from modalctl.executor import DaskExecutor, LocalExecutor, executor_for
+from modalctl.experiments.executor import DaskExecutor, LocalExecutor, executor_for
 
 
 def square(x):

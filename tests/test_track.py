@@ -5,11 +5,11 @@ import warnings
 import numpy as np
 import pytest
 
-from modalctl.lockin import LockIn, Oscillators
-from modalctl.plugin import trackers
-from modalctl.scenes import load_scene
-from modalctl.track import LOST, TRACKING, UNEXCITED, RLSTracker
-from modalctl.hil.tracking import run_tracking, step
+from modalctl.experiments.tracking import run_tracking, step
+from modalctl.identify.trackers import LOST, TRACKING, UNEXCITED, RLSTracker
+from modalctl.loops.lockin import LockIn, Oscillators
+from modalctl.model.scenes import load_scene
+from modalctl.plugin.manager import trackers
 
 
 def test_lockin_gives_amplitude_and_phase():
@@ -67,10 +67,10 @@ def test_trackers_are_plugins():
 def test_tracked_model_plans_a_better_focus(sinc18):
     """Truth 1% above the model: one focus shot tracked with the pole tracker, then the next shot planned
     with the updated model focuses better on that truth than the stale model does."""
-    from modalctl.hil.device import SimDevice
     from modalctl.hil.scenario import Perturbation
+    from modalctl.hil.sim_device import SimDevice
+    from modalctl.identify.trackers import updated_model
     from modalctl.run import run_open_loop
-    from modalctl.track import updated_model
 
     model, shape, shot = sinc18
     with warnings.catch_warnings():
@@ -86,7 +86,7 @@ def test_updated_model_moves_the_untracked_resonances_by_the_median_shift():
     by their median relative shift, or keeps the model's value when asked."""
     from types import SimpleNamespace
 
-    from modalctl.track import updated_model
+    from modalctl.identify.trackers import updated_model
 
     model = load_scene("thesis-al-cc", 211)
     modes = [0, 2, 4]
@@ -111,12 +111,12 @@ def test_leak_ratio_is_what_a_reading_sees_in_steady_state():
     latter, is :func:`leak_ratio` (ratios from 0.003 to 1 on this plate)."""
     from dataclasses import replace
 
-    from modalctl.decompose import decompose
-    from modalctl.planner import plan
-    from modalctl.plugin import get_shape
-    from modalctl.propagate import Plant
-    from modalctl.shape import parse_params
-    from modalctl.track import leak_ratio, sensor_weights
+    from modalctl.loops.sensing import leak_ratio, sensor_weights
+    from modalctl.model.propagate import Plant
+    from modalctl.model.shape import parse_params
+    from modalctl.plan.decompose import decompose
+    from modalctl.plan.planner import plan
+    from modalctl.plugin.manager import get_shape
 
     model = load_scene("plate-glass")
     gauss = get_shape("gaussian")

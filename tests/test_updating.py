@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from modalctl.model import ModelError
-from modalctl.scenes import load_scene
-from modalctl.updating import update
+from modalctl.identify.updating import update
+from modalctl.model.modes import ModelError
+from modalctl.model.scenes import load_scene
 
 FS = 500e3
 
@@ -17,7 +17,7 @@ FS = 500e3
 def record_of(truth, voltages, fs):
     """The sensors' velocities (s, n) of ``truth`` under ``voltages`` held between samples, from
     scipy's ``lsim`` on the state space of its modes (q'' + 2 zeta w q' + w^2 q = actuator force),
-    an integration independent of :mod:`modalctl.propagate`."""
+    an integration independent of :mod:`modalctl.model.propagate`."""
     k = truth.n_modes
     w, z = truth.omega, truth.damping
     a = np.zeros((2 * k, 2 * k))

@@ -3,7 +3,7 @@
 MyBoard speaks modalctl's board protocol (``docs/protocol.md``) over USB serial at 2 Mbaud, so
 the plugin reuses the serial transport and adds what is particular to the board: its URL scheme,
 its line speed, and a check that the device that answers is a MyBoard. A board with its own
-protocol would implement the device interface itself (``modalctl.device.Device``: configure,
+protocol would implement the device interface itself (``modalctl.io.device.Device``: configure,
 activate, upload, trigger, scan, deactivate, and ``phasor_board`` for closed loops).
 """
 
@@ -11,9 +11,9 @@ from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-from modalctl.device import DeviceError
-from modalctl.hookspecs import hookimpl
-from modalctl.transports.serial import SerialDevice
+from modalctl.io.device import DeviceError
+from modalctl.io.transports.serial import SerialDevice
+from modalctl.plugin.spec import hookimpl
 
 __all__ = ["MyBoard", "modalctl_transports"]
 

@@ -1,0 +1,203 @@
+"""``sim://``: the HIL board. It runs the exact plant on the perturbed truth behind the device interface:
+drifted and erred modes, a finger resting on the surface, resonances moving during the shot."""
+
+from __future__ import annotations
+
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from modalctl.io.device import Capabilities, Capture, DeviceError
+from modalctl.model.modes import ModalModel
+
+from .finger import Finger, FingerPlant
+from .plant import HOLDS, Plant, truncation
+from .scenario import Perturbation, perturb
+
+__all__ = ["SimDevice"]
+
+CHUNK = 8192  # samples per plant step (one progress-bar tick)
+DRIFT_STEP = 50e-6  # s: resonances moving during a shot are retuned this often (the loops' period at 20 kHz)
+
+
+class SimDevice:
+    """A simulated amplifier board on a simulated structure, with a scanning vibrometer.
+
+    Parameters
+    ----------
+    model : ModalModel
+        The structure as built (every mode known); the truth is ``perturb(model, perturbation)``.
+    perturbation : Perturbation
+    hold : {"zoh", "foh"}
+        DAC output between samples.
+    tol : float
+        Modes whose bound on the velocity they add is below ``tol`` times the largest are left out
+        of the simulation; the sum of their bounds is reported in ``info``.
+    url : str
+    """
+
+    max_sample_rate = 10e6
+
+    def __init__(self, model: ModalModel, perturbation: Perturbation = Perturbation(), hold: str = "zoh",
+                 tol: float = 1e-4, url: str = "sim://"):
+        if hold not in HOLDS:
+            raise DeviceError(f"{url}: hold must be one of {HOLDS}, got {hold!r}")
+        self.url, self.model, self.perturbation, self.hold, self.tol = url, model, perturbation, hold, tol
+        self.truth = perturb(model, perturbation)
+        self.finger = _finger(model, perturbation, url)
+        self.state, self.sample_rate, self.info, self.capabilities = "unconfigured", None, {}, None
+        self._noise_sigma = None
+        self._voltages = self._modal = self._board = None
+        self._boards = 0  # phasor boards made so far
+        self._kept = np.arange(model.n_modes)
+        self._rng = np.random.default_rng(perturbation.seed + 1)
+
+    @classmethod
+    def from_url(cls, url: str, model: ModalModel | None = None, perturbation: Perturbation | None = None,
+                 **_ignored) -> "SimDevice":
+        """``sim://?hold=zoh&tol=1e-4``; the structure comes from ``model`` (the scene)."""
+        if model is None:
+            raise DeviceError(f"{url}: the simulator needs the structure's model (pass model=...)")
+        query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
+        unknown = set(query) - {"hold", "tol"}
+        if unknown:
+            raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: hold, tol")
+        try:
+            tol = float(query.get("tol", 1e-4))
+        except ValueError:
+            raise DeviceError(f"{url}: tol must be a number, got {query['tol']!r}") from None
+        return cls(model, perturbation or Perturbation(), query.get("hold", "zoh"), tol, url)
+
+    def configure(self, sample_rate: float) -> Capabilities:
+        """Set the DAC/ADC rate (Hz) and report what the board can do."""
+        if not 0 < sample_rate <= self.max_sample_rate:
+            raise DeviceError(f"{self.url}: sample rate {sample_rate:g} Hz outside (0, {self.max_sample_rate:g}]")
+        self.sample_rate, self.state = float(sample_rate), "inactive"
+        self.capabilities = Capabilities("modalctl HIL board", self.model.actuator_gains.shape[1],
+                                         self.model.sensor_gains.shape[1], self.max_sample_rate,
+                                         self.perturbation.voltage_limit, True, self.model.grid.points)
+        return self.capabilities
+
+    def activate(self) -> None:
+        if self.state == "unconfigured":
+            raise DeviceError(f"{self.url}: configure before activate")
+        self.state = "active"
+
+    def deactivate(self) -> None:
+        self.state = "inactive" if self.state != "unconfigured" else self.state
+
+    def upload(self, voltages: np.ndarray) -> None:
+        """Load one shot of waveforms, shape (channels, n), in volts."""
+        u = np.atleast_2d(np.asarray(voltages, float))
+        channels = self.model.actuator_gains.shape[1]
+        if u.shape[0] != channels:
+            raise DeviceError(f"{self.url}: {u.shape[0]} waveforms for {channels} channels")
+        if not np.all(np.isfinite(u)):
+            raise DeviceError(f"{self.url}: waveform contains non-finite samples")
+        self._voltages, self._played, self._board = u, None, None
+
+    def trigger(self, progress: bool = False) -> Capture:
+        """Play the uploaded waveforms and record the sensors (the plant from rest)."""
+        if self.state != "active":
+            raise DeviceError(f"{self.url}: trigger needs an active device (state: {self.state})")
+        if self._voltages is None:
+            raise DeviceError(f"{self.url}: nothing uploaded")
+        u, p = self._voltages, self.perturbation
+        if self._played is None:  # the structure answers a repeated drive identically; only noise differs
+            self._play(u, progress)
+        sensors = self._played
+        sensors = sensors + self._sigma(np.max(np.abs(sensors))) * self._rng.standard_normal(sensors.shape)
+        times = np.arange(u.shape[1]) / self.sample_rate
+        return Capture(times, sensors, np.clip(u, -p.voltage_limit, p.voltage_limit) if p.voltage_limit else u)
+
+    def _play(self, u: np.ndarray, progress: bool) -> None:
+        p = self.perturbation
+        if self.finger is None:
+            kept, bounds, dropped = truncation(self.truth, u, self.sample_rate, self.tol)
+            plant = Plant(self.truth.select(kept), self.sample_rate, self.hold, p.amplifier_bandwidth,
+                          p.voltage_limit)
+        else:  # the finger couples every mode to every other: all are simulated
+            kept, dropped = np.arange(self.truth.n_modes), 0.0
+            plant = FingerPlant(self.truth, self.finger, self.sample_rate, p.voltage_limit, self.hold)
+        self._kept = kept
+        self.info = {"modes_simulated": int(kept.size), "modes_available": int(self.truth.n_modes),
+                     "truncation_bound_m_s": dropped, "truncation_tol": self.tol}
+        chunk = max(1, int(round(DRIFT_STEP * self.sample_rate))) if p.moving else CHUNK
+        chunks = range(0, u.shape[1], chunk)
+        bar = tqdm(chunks, desc="HIL shot", unit="chunk", disable=not progress or len(chunks) < 4, leave=False)
+        base = plant.model.frequencies.copy()
+        played = []
+        for i in bar:
+            if p.moving:
+                plant.retune(base * (1 + p.shift((i + chunk / 2) / self.sample_rate)))  # the chunk's middle
+            played.append(plant.step(u[:, i:i + chunk]))
+        self._modal = np.hstack(played)
+        self.info["clipped_samples"] = plant.clipped
+        self._noise_sigma = self._sigma(self._field_peak()) / np.sqrt(self.perturbation.scan_repeats)
+        self._played = plant.sensors(self._modal)
+
+    def phasor_board(self, level: float, control_rate: float, latency: int = 0, drift=None):
+        """The board in phasor mode (closed loop) on the same truth, for a shot whose field peaks
+        near ``level`` (m/s): sensor and vibrometer noise ``snr_db`` below it (the vibrometer's
+        averaged over ``scan_repeats``), the same rails and amplifier. Returns an
+        :class:`~modalctl.hil.phasor_board.HILBoard` at the configured sample rate."""
+        from .phasor_board import HILBoard
+
+        if self.sample_rate is None:
+            raise DeviceError(f"{self.url}: configure before asking for the phasor mode")
+        p = self.perturbation
+        sigma = self._sigma(level)
+        truth = self.truth if self.finger is None else FingerPlant(self.truth, self.finger, self.sample_rate,
+                                                                   p.voltage_limit)
+        self._boards += 1  # each shot its own noise
+        self._board = HILBoard(truth, self.sample_rate, noise=sigma, voltage_limit=p.voltage_limit,
+                               latency=latency, drift=p.schedule() if drift is None else drift,
+                               amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma / np.sqrt(p.scan_repeats),
+                               seed=p.seed + self._boards)
+        return self._board
+
+    def scan(self, times: np.ndarray, points=None) -> np.ndarray:
+        """Velocity (n_points, nt) at the samples nearest to ``times`` of the last shot (m/s).
+
+        ``points``: grid indices to measure (default all), like moving the vibrometer's spot.
+        """
+        if self._board is not None:  # the last shot ran in phasor mode
+            return self._board.scan(times, points)
+        if self._modal is None:
+            raise DeviceError(f"{self.url}: no shot to scan")
+        idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._modal.shape[1] - 1)
+        shapes = self.truth.shapes[self._kept]
+        shapes = shapes if points is None else shapes[:, np.atleast_1d(points)]
+        field = shapes.T @ self._modal[:, idx]
+        return field + self._noise_sigma * self._rng.standard_normal(field.shape)
+
+    def modal_truth(self) -> tuple[np.ndarray, np.ndarray]:
+        """Simulation-only: the simulated modes (positional in the model) and their velocities (k, n)."""
+        return self._kept, self._modal
+
+    def _field_peak(self, points: int = 64) -> float:
+        """Peak |velocity| of the last shot over time and over about ``points`` evenly spread grid points (m/s)."""
+        shapes = self.truth.shapes[self._kept]
+        stride = max(1, shapes.shape[1] // points)
+        return float(np.max(np.abs(shapes[:, ::stride].T @ self._modal)))
+
+    def _sigma(self, peak: float) -> float:
+        """Noise standard deviation for a signal of this peak (0 without noise)."""
+        snr = self.perturbation.snr_db
+        return 0.0 if snr is None else peak / 10 ** (snr / 20)
+
+
+def _finger(model: ModalModel, p: Perturbation, url: str) -> Finger | None:
+    """The perturbation's finger on the grid point nearest to where it rests, or None."""
+    if not p.finger:
+        return None
+    at = np.atleast_1d(np.asarray(p.finger_at, float))
+    grid = model.grid
+    if at.size != grid.dim:
+        raise DeviceError(f"{url}: the finger rests at {at.size} coordinate(s) on a {grid.dim}-D structure")
+    low, high = grid.bounds
+    if np.any(at < low - 1e-9) or np.any(at > high + 1e-9):
+        raise DeviceError(f"{url}: the finger at {np.round(at * 1e3, 3).tolist()} mm is off the structure "
+                          f"({np.round(low * 1e3, 3).tolist()} to {np.round(high * 1e3, 3).tolist()} mm)")
+    return Finger(int(np.argmin(np.linalg.norm(grid.points - at, axis=1))), p.finger)

@@ -1,0 +1,345 @@
+"""Modal parameters from measured FRFs: the thesis's peak picking and a local SDOF fit.
+
+Both estimators return :class:`Modes`: per mode a frequency, a damping ratio and the modal
+constant at each measured point, ``A_p = phi(p) b`` with the mobility model
+
+    H_p(w) = sum_k A_pk j w / (w_k^2 - w^2 + 2 j zeta_k w_k w)           (Eq 3.4, velocity)
+
+so that at resonance ``H_p(w_k) = A_pk / (2 zeta_k w_k)`` (Eq 3.9). A mode is *unresolved*
+when one pole cannot explain the FRFs around its peak (two modes within their half-power
+bandwidths, or a peak with no half-power points): it is reported, never silently fitted.
+:func:`to_model` turns modes into a :class:`~modalctl.model.modes.ModalModel` (Eqs 3.13-3.14,
+then mass normalization).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+import scipy.optimize
+import scipy.signal
+
+from modalctl.model.modes import Grid, ModalModel, ModelError
+from modalctl.model.projection import mass_normalize
+
+from .frf import FRF, mobility
+
+__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "half_width",
+           "neighbours", "constants_of", "to_model",
+           "actuator_gains", "UNRESOLVED_ERROR", "NOISE_EXCESS"]
+
+UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole above which a peak may be unresolved...
+NOISE_EXCESS = 3.0  # ...when the misfit is also this many times what the measurement noise explains
+
+
+@dataclass(frozen=True, eq=False)
+class Modes:
+    """Identified modes.
+
+    Attributes
+    ----------
+    frequencies : ndarray, shape (k,)
+        Hz.
+    damping : ndarray, shape (k,)
+        Viscous damping ratios.
+    constants : ndarray, shape (k, n_points)
+        Modal constants ``phi(p) b`` (m/s^2/V), real (proportional damping).
+    misfit : ndarray, shape (k,)
+        Relative RMS misfit of one pole to the FRFs around the peak.
+    resolved : ndarray of bool, shape (k,)
+        False when one pole cannot explain the peak: misfit above ``UNRESOLVED_ERROR`` and
+        above ``NOISE_EXCESS`` times the measurement noise (the scatter between shots).
+    method : str
+    """
+
+    frequencies: np.ndarray
+    damping: np.ndarray
+    constants: np.ndarray
+    misfit: np.ndarray
+    resolved: np.ndarray
+    method: str
+
+    @property
+    def n_modes(self) -> int:
+        return self.frequencies.size
+
+    def only_resolved(self) -> "Modes":
+        """The resolved modes only."""
+        keep = self.resolved
+        return Modes(self.frequencies[keep], self.damping[keep], self.constants[keep], self.misfit[keep],
+                     self.resolved[keep], self.method)
+
+    def summary(self) -> list[dict]:
+        """One row per mode, for tables and JSON."""
+        return [{"f_hz": float(f), "zeta": float(z), "misfit": float(e), "resolved": bool(r)}
+                for f, z, e, r in zip(self.frequencies, self.damping, self.misfit, self.resolved)]
+
+
+@dataclass(frozen=True)
+class Identifier:
+    """A modal parameter estimator, as plugins provide them (hook ``modalctl_identifiers``).
+
+    Attributes
+    ----------
+    name, summary : str
+    identify : callable
+        ``identify(frf, threshold_db=3.0) -> Modes``; ``frf`` may stack several actuators' rows.
+    """
+
+    name: str
+    summary: str
+    identify: Callable[..., "Modes"]
+
+
+def _basis(freqs: np.ndarray, poles, centre: float) -> np.ndarray:
+    """One column per pole ``(f, zeta)`` plus a complex constant and slope for the modes outside
+    the band, shape (nb, len(poles) + 2)."""
+    f, z = np.array(poles, float).reshape(-1, 2).T
+    return np.column_stack([mobility(freqs, f, z, np.eye(f.size)).T, np.ones(freqs.size), freqs / centre - 1])
+
+
+def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
+                    others=()) -> tuple[np.ndarray, float, bool]:
+    """Real modal constants at every point for a known pole, and the relative misfit.
+
+    The FRFs within ``f +- half_width`` (Hz) are fitted by least squares with the mode, the
+    neighbouring poles ``others`` (``[(f, zeta), ...]``, close modes whose peaks reach into the
+    band) and a complex constant and slope per point (the modes outside the band). The
+    constants of a normal mode share one phase (zero for an ideal set-up; a DAC hold or a delay
+    turns it by ``w`` times the delay): they are rotated by the phase that makes them most
+    nearly real, and the misfit counts what one real shape and that phase cannot explain.
+
+    Returns
+    -------
+    constants : ndarray, shape (n_points,)
+        m/s^2/V.
+    misfit : float
+        RMS of the residual over RMS of the mode's part of the fit.
+    resolved : bool
+        Whether the poles explain the band (see :class:`Modes`).
+    """
+    keep = np.abs(frf.frequencies - f) <= half_width
+    if np.count_nonzero(keep) < 5:
+        raise ModelError(f"identify: fewer than 5 FRF bins within {half_width:g} Hz of {f:g} Hz")
+    h = frf.values[:, keep].T  # (nb, n_points)
+    b = _basis(frf.frequencies[keep], [(f, zeta), *others], f)
+    coef, *_ = np.linalg.lstsq(b, h, rcond=None)
+    phase = np.exp(0.5j * np.angle(np.sum(coef[0] ** 2)))
+    constants = (coef[0] / phase).real
+    mode_part = np.outer(b[:, 0], constants * phase)
+    resid = h - mode_part - b[:, 1:] @ coef[1:]
+    misfit = float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(np.abs(mode_part) ** 2)))
+    noise = frf.noise(keep)
+    excess = np.inf if noise is None else float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(noise ** 2)))
+    return constants, misfit, bool(misfit <= UNRESOLVED_ERROR or excess <= NOISE_EXCESS)
+
+
+def _half_power(freqs: np.ndarray, mag: np.ndarray, peak: int, level: float, others: np.ndarray):
+    """Frequencies where ``mag`` falls below ``level`` on each side of bin ``peak``, linearly
+    interpolated (Eq 3.6); None when another peak comes first (the modes are not resolved)."""
+    sides = []
+    for step in (-1, 1):
+        i = peak
+        while 0 <= i + step < mag.size and mag[i + step] >= level:
+            i += step
+        j = i + step
+        between = (others > min(peak, j)) & (others < max(peak, j))
+        if not 0 <= j < mag.size or np.any(between):
+            return None
+        sides.append(freqs[i] + (level - mag[i]) * (freqs[j] - freqs[i]) / (mag[j] - mag[i]))
+    return sides
+
+
+def _top(mag: np.ndarray, p: int, fraction: float = 0.9) -> np.ndarray:
+    """Contiguous bins around peak ``p`` above ``fraction`` of it, at least ``p - 1 .. p + 1``."""
+    lo = p
+    while lo > 0 and mag[lo - 1] >= fraction * mag[p]:
+        lo -= 1
+    hi = p
+    while hi < mag.size - 1 and mag[hi + 1] >= fraction * mag[p]:
+        hi += 1
+    return np.arange(min(lo, p - 1), max(hi, p + 1) + 1)
+
+
+def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None) -> Modes:
+    """The thesis's method (3.1.2-3.1.3): peaks of the mean FRF, half-power damping, shapes at the peaks.
+
+    Parameters
+    ----------
+    frf : FRF
+    threshold_db : float
+        A peak must stand this much above the valleys around it (prominence, dB).
+    min_frequency : float, optional
+        Ignore peaks below this (Hz).
+
+    Notes
+    -----
+    The peak is refined between bins by a least-squares parabola through ``1 / |H|^2`` over the
+    bins above 90% of the peak (at least three): nearly exact for an isolated mode, whose
+    inverse squared magnitude is quadratic near resonance, and robust to noise on broad peaks. Damping is ``(f2 - f1) / (2 f)`` from the interpolated half-power
+    points (Eq 3.6), the modal constants ``2 zeta w Re H(w_k)`` (Eq 3.9) from the FRF
+    interpolated at the refined frequency.
+    """
+    mag = frf.mean_magnitude()
+    freqs = frf.frequencies
+    level_db = 20 * np.log10(np.maximum(mag, np.finfo(float).tiny))
+    peaks, _ = scipy.signal.find_peaks(level_db, prominence=threshold_db)
+    if min_frequency is not None:
+        peaks = peaks[freqs[peaks] >= min_frequency]
+    rows = []
+    for p in peaks:
+        if p == 0 or p == mag.size - 1:
+            continue
+        top = _top(mag, p)
+        inv = 1 / mag[top] ** 2
+        c2, c1, c0 = np.polyfit(freqs[top] - freqs[p], inv, 2)
+        df = freqs[1] - freqs[0]
+        shift = -c1 / (2 * c2) if c2 > 0 else 0.0
+        f = freqs[p] + float(np.clip(shift, freqs[top[0]] - freqs[p], freqs[top[-1]] - freqs[p]))
+        peak_inv = c0 + c1 * (f - freqs[p]) + c2 * (f - freqs[p]) ** 2
+        peak_mag = 1 / np.sqrt(peak_inv) if peak_inv > 0 else mag[p]
+        sides = _half_power(freqs, mag, p, peak_mag / np.sqrt(2), np.setdiff1d(peaks, [p]))
+        if sides is None:
+            rows.append((f, np.nan, np.zeros(frf.values.shape[0]), np.inf, False))
+            continue
+        zeta = (sides[1] - sides[0]) / (2 * f)
+        h_at = np.array([np.interp(f, freqs[top], row.real) for row in frf.values[:, top]])
+        constants = 2 * zeta * 2 * np.pi * f * h_at
+        try:
+            _, misfit, resolved = modal_constants(frf, f, zeta, max(2 * zeta * f, 3 * df))
+        except ModelError:
+            misfit, resolved = np.inf, False
+        rows.append((f, zeta, constants, misfit, resolved))
+    return _modes(rows, frf.values.shape[0], "peaks")
+
+
+def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int = 4,
+             max_bins: int = 256) -> np.ndarray:
+    """Poles ``[(f in Hz, zeta), ...]`` of the modes in ``centre +- half_width`` by a local
+    least-squares fit to all points at once; returns them refined, shape (len(poles), 2).
+
+    Variable projection: for trial poles, the response at every point is fitted linearly
+    (each mode's constant, a complex constant and slope); the poles minimize what is left.
+    To keep it fast, the points are first reduced to their principal FRFs (the SVD of the
+    band; ``components`` plus one per extra pole), which carry the modes whatever their
+    shapes, and the band to at most ``max_bins`` evenly spread bins.
+    """
+    start = np.array(poles, float).reshape(-1, 2)
+    keep = np.flatnonzero(np.abs(frf.frequencies - centre) <= half_width)
+    keep = keep[::max(1, -(-keep.size // max_bins))]
+    freqs = frf.frequencies[keep]
+    u, s, _ = np.linalg.svd(frf.values[:, keep].T, full_matrices=False)
+    rank = components + len(start) - 1
+    data = u[:, :rank] * s[:rank]
+
+    def trial(x):
+        x = x.reshape(-1, 2)
+        return np.column_stack([start[:, 0] * (1 + 1e-3 * x[:, 0]), start[:, 1] * np.exp(x[:, 1])])
+
+    def residual(x):
+        b = _basis(freqs, trial(x), centre)
+        coef, *_ = np.linalg.lstsq(b, data, rcond=None)
+        r = data - b @ coef
+        return np.concatenate([r.real.ravel(), r.imag.ravel()])
+
+    scale = np.column_stack([start[:, 1] * 1e3, np.full(len(start), 0.3)]).ravel()
+    sol = scipy.optimize.least_squares(residual, np.zeros(2 * len(start)), x_scale=scale, method="lm")
+    return trial(sol.x)
+
+
+def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None,
+             band: float = 3.0) -> Modes:
+    """Peak picking refined by a local least-squares fit of each mode with its close neighbours.
+
+    Parameters
+    ----------
+    band : float
+        Half width of the fitted band in half-power half-widths (``zeta f``). Neighbouring
+        modes whose peaks reach into it are fitted with it (their poles too), so that close
+        modes do not bias each other.
+    """
+    start = peak_picking(frf, threshold_db, min_frequency)
+    df = frf.frequencies[1] - frf.frequencies[0]
+    rows = []
+    for i, (f, zeta) in enumerate(zip(start.frequencies, start.damping)):
+        if not start.resolved[i]:
+            rows.append((f, zeta, start.constants[i], start.misfit[i], False))
+            continue
+        half = half_width(start.frequencies, start.damping, i, df, band)
+        near = [j for j in neighbours(start.frequencies, start.damping, i, half) if start.resolved[j]]
+        poles = fit_band(frf, [(f, zeta), *[(start.frequencies[j], start.damping[j]) for j in near]], f, half)
+        f_fit, z_fit = poles[0]
+        if abs(f_fit - f) > half or not 0 < z_fit < 0.5:  # the fit ran away: no single pole here
+            rows.append((f, zeta, start.constants[i], np.inf, False))
+            continue
+        constants, misfit, resolved = modal_constants(frf, f_fit, z_fit, half, poles[1:])
+        rows.append((f_fit, z_fit, constants, misfit, resolved))
+    return _modes(rows, frf.values.shape[0], "sdof")
+
+
+def half_width(frequencies: np.ndarray, damping: np.ndarray, i: int, df: float, band: float = 3.0) -> float:
+    """Half width (Hz) of the band fitted around mode ``i``: ``band`` half-power half-widths
+    (``zeta f``), at least four bins."""
+    return max(band * damping[i] * frequencies[i], 4 * df)
+
+
+def neighbours(frequencies: np.ndarray, damping: np.ndarray, i: int, half: float) -> np.ndarray:
+    """Modes other than ``i`` whose half-power band reaches into ``f_i +- half``."""
+    reach = np.abs(frequencies - frequencies[i]) - 2 * damping * frequencies < half
+    reach[i] = False
+    return np.flatnonzero(reach)
+
+
+def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
+                 band: float = 3.0) -> tuple[np.ndarray, float, bool]:
+    """:func:`modal_constants` of mode ``k`` of a known set, in its band, with its neighbours."""
+    df = frf.frequencies[1] - frf.frequencies[0]
+    half = half_width(frequencies, damping, k, df, band)
+    near = neighbours(frequencies, damping, k, half)
+    return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])))
+
+
+def _modes(rows, n_points: int, method: str) -> Modes:
+    if not rows:
+        empty = np.zeros(0)
+        return Modes(empty, empty, np.zeros((0, n_points)), empty, np.zeros(0, bool), method)
+    f, z, c, e, r = zip(*rows)
+    return Modes(np.array(f), np.array(z), np.array(c), np.array(e), np.array(r, bool), method)
+
+
+def to_model(modes: Modes, grid: Grid, channels: int = 1, **meta) -> ModalModel:
+    """A modal model (shapes, no gains yet) from modes whose constants were measured on ``grid``.
+
+    Shapes are scaled to a positive maximum of one (Eq 3.13), then mass-normalized with the
+    grid's mass weights. Unresolved modes are left out and listed in ``meta``. The gains of
+    each channel come from :func:`actuator_gains`.
+    """
+    good = modes.only_resolved()
+    if good.n_modes == 0:
+        raise ModelError("identify: no resolved mode to build a model from")
+    peak = np.argmax(np.abs(good.constants), axis=1)
+    sign = np.sign(good.constants[np.arange(good.n_modes), peak])
+    unit = good.constants / (sign * np.abs(good.constants).max(axis=1))[:, None]  # Eq 3.13
+    shapes = mass_normalize(unit, grid.mass)
+    order = np.argsort(good.frequencies)
+    info = {"identified_by": good.method, "unresolved_hz": modes.frequencies[~modes.resolved].tolist(),
+            "misfit": good.misfit[order].tolist(), **meta}
+    return ModalModel(grid, good.frequencies[order], good.damping[order], shapes[order],
+                      np.zeros((good.n_modes, channels)), meta=info)
+
+
+def actuator_gains(model: ModalModel, frf: FRF, point_index: np.ndarray) -> ModalModel:
+    """Fill one actuator's gains from its FRFs at a few grid points (``point_index`` into the grid).
+
+    With the poles and shapes known, the modal constants at those points are ``phi(p) b``: ``b``
+    is their least-squares fit on the shapes at the points (Eq 3.14 with mass-normalized shapes,
+    so the gain is in SI units: m/s^2/V per square root of kilogram).
+    """
+    gains = np.array(model.actuator_gains, copy=True)
+    phi = model.shapes[:, point_index]
+    for k in range(model.n_modes):
+        constants, _, _ = constants_of(frf, model.frequencies, model.damping, k)
+        gains[k, frf.actuator] = float(phi[k] @ constants / (phi[k] @ phi[k]))
+    return replace(model, actuator_gains=gains)

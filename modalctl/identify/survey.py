@@ -1,0 +1,200 @@
+"""Identify a structure through a device, from scratch: the thesis's chapter 3, made robust.
+
+1. Every actuator is swept while the vibrometer measures a sparse subset of the points: the
+   poles (shared by all FRFs) are found on all of them at once, so a mode that one actuator
+   cannot drive (the thesis's mode 18) is still found, and each mode knows which actuators
+   drive it.
+2. The primary actuator is swept over the full grid; a mode it drives weakly is scanned again
+   with the actuator that drives it best. Shapes come from those scans (Eqs 3.9, 3.13).
+3. Every actuator's gains follow from its sparse FRFs and the shapes (Eq 3.14, SI units).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from modalctl.io.device import Device
+from modalctl.model.modes import Grid, ModalModel, quadrature_weights
+from modalctl.model.projection import crosstalk, orthonormalize_model
+from modalctl.plugin.manager import get_identifier
+
+from .acquire import measure_frf
+from .estimators import Modes, actuator_gains, constants_of, to_model
+from .frf import FRF, Sweep, bending_wavelength, check_spatial_step
+
+__all__ = ["Survey", "identify_device", "identify_frf", "WEAK_DRIVE"]
+
+WEAK_DRIVE = 0.1  # a mode the primary actuator drives below this fraction of the best one is rescanned
+
+
+@dataclass
+class Survey:
+    """What an identification produced and how.
+
+    Attributes
+    ----------
+    model : ModalModel
+        The identified model on the measured grid.
+    poles : Modes
+        Every pole found on the sparse FRFs of all actuators (resolved or not).
+    drive : ndarray, shape (k, channels)
+        RMS modal constant of each resolved mode from each actuator (m/s^2/V).
+    shape_actuator : ndarray of int, shape (k,)
+        Actuator whose full scan gave each mode's shape.
+    crosstalk_before, crosstalk_after : ndarray, shape (k, k)
+        Mass-weighted cross-talk of the shapes before and after Gram-Schmidt (Fig 3.11).
+    notes : list of str
+    seconds : dict
+        ``acquisition`` (measurement, or simulation, without the FFTs), ``frf`` (FRF estimation)
+        and ``modal`` (poles, shapes, gains): the compute is ``frf + modal``.
+    frfs : dict
+        ``{"sparse": {actuator: FRF}, "full": {actuator: FRF}}``.
+    """
+
+    model: ModalModel
+    poles: Modes
+    drive: np.ndarray
+    shape_actuator: np.ndarray
+    crosstalk_before: np.ndarray
+    crosstalk_after: np.ndarray
+    notes: list = field(default_factory=list)
+    seconds: dict = field(default_factory=dict)
+    frfs: dict = field(default_factory=dict)
+
+
+def _unresolved(poles: Modes) -> list[str]:
+    return [f"unresolved peak at {f:.1f} Hz: one pole cannot explain it (close modes?); left out"
+            for f in poles.frequencies[~poles.resolved]]
+
+
+def _grid(points: np.ndarray, mass_per_length: float) -> Grid:
+    x = np.asarray(points, float).reshape(len(points), -1)
+    if x.shape[1] != 1:
+        raise NotImplementedError("identify: plates (2-D grids) are not supported yet; measure along a line")
+    return Grid(x, mass_per_length * quadrature_weights(x[:, 0]))
+
+
+def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_length: float,
+                    method: str = "sdof", primary: int = 0, sparse: int = 5, averages: int = 2,
+                    orthogonalize: bool = True, threshold_db: float = 3.0, wavelength: float | None = None,
+                    progress: bool = False) -> Survey:
+    """Identify the structure behind ``device`` on the scan points ``points``.
+
+    Parameters
+    ----------
+    device : Device
+        Able to scan; configured here at ``sweep.sample_rate``.
+    sweep : Sweep
+    points : ndarray of int, shape (n,)
+        Scan indices of the measurement grid, ordered along the beam.
+    mass_per_length : float
+        Of the structure (kg/m): scales the mass-normalized shapes, hence the gains.
+    method : str
+        Identifier plugin name (``peaks``, ``sdof``, ...).
+    primary : int
+        The actuator swept over the full grid.
+    sparse : int
+        Every ``sparse``-th point is measured with every actuator.
+    averages : int
+        Shots per point.
+    orthogonalize : bool
+        Apply Gram-Schmidt to the identified shapes (thesis 3.1.3.3).
+    wavelength : float, optional
+        Shortest bending wavelength in the band (m) for the spatial-step check (Eq 3.15).
+    """
+    identifier = get_identifier(method)
+    caps = device.configure(sweep.sample_rate)
+    if not 0 <= primary < caps.channels:
+        raise ValueError(f"identify: primary actuator {primary}: the device has {caps.channels} "
+                         f"(0..{caps.channels - 1})")
+    device.activate()
+    points = np.asarray(points, int)
+    positions = caps.scan_points[points]
+    if wavelength is not None:
+        check_spatial_step(positions, wavelength)
+    few = np.unique(np.r_[np.arange(0, points.size, sparse), points.size - 1])
+    acquisition = compute = 0.0
+
+    t0 = time.perf_counter()
+    sparse_frf = {a: measure_frf(device, sweep, a, points[few], averages, progress=progress)
+                  for a in range(caps.channels)}
+    acquisition += time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    poles = identifier.identify(FRF.stack(list(sparse_frf.values())), threshold_db=threshold_db)
+    good = poles.only_resolved()
+    drive = np.zeros((good.n_modes, caps.channels))
+    for k in range(good.n_modes):
+        for a, frf in sparse_frf.items():
+            drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k)[0] ** 2))
+    weak = drive[:, primary] < WEAK_DRIVE * drive.max(axis=1)
+    chooser = np.where(weak, np.argmax(drive, axis=1), primary)
+    compute += time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    full_frf = {a: measure_frf(device, sweep, a, points, averages, progress=progress) for a in np.unique(chooser)}
+    acquisition += time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    constants = np.zeros((good.n_modes, points.size))
+    misfit, resolved = good.misfit.copy(), good.resolved.copy()
+    for k in range(good.n_modes):
+        constants[k], misfit[k], resolved[k] = constants_of(full_frf[chooser[k]], good.frequencies, good.damping, k)
+    grid = _grid(positions, mass_per_length)
+    notes = [f"mode at {f:.1f} Hz: actuator {primary} drives it at {100 * d[primary] / d.max():.1f}% of "
+             f"actuator {int(np.argmax(d))}; shape from actuator {int(np.argmax(d))}"
+             for f, d, w in zip(good.frequencies, drive, weak) if w]
+    left = [(f, sweep.left_at_end(f, 2 * np.pi * f * z)) for f, z in zip(good.frequencies, good.damping)]
+    notes += [f"mode at {f:.1f} Hz still rings at {r:.1e} of its peak when the record ends: its FRF leaks; "
+              f"lengthen the tail" for f, r in left if r > 1e-3]
+    notes += _unresolved(poles)
+    shapes_modes = Modes(good.frequencies, good.damping, constants, misfit, resolved, good.method)
+    model = to_model(shapes_modes, grid, caps.channels, source=f"identified through {device.url}",
+                     sweep={"f_low": sweep.f_low, "f_high": sweep.f_high, "duration": sweep.duration,
+                            "sample_rate": sweep.sample_rate, "amplitude": sweep.amplitude},
+                     averages=averages)
+    order = np.argsort(good.frequencies[resolved])
+    for a in range(caps.channels):
+        if a in full_frf:
+            model = actuator_gains(model, full_frf[a], np.arange(points.size))
+        else:
+            model = actuator_gains(model, sparse_frf[a], few)
+    before = crosstalk(model.shapes, model.grid.mass)
+    if orthogonalize:
+        model = orthonormalize_model(model)
+    after = crosstalk(model.shapes, model.grid.mass)
+    compute += time.perf_counter() - t0
+    device.deactivate()
+    frf_seconds = sum(f.seconds for f in [*sparse_frf.values(), *full_frf.values()])
+    return Survey(model, poles, drive[resolved][order], chooser[resolved][order], before, after, notes,
+                  {"acquisition": acquisition - frf_seconds, "frf": frf_seconds, "modal": compute},
+                  {"sparse": sparse_frf, "full": full_frf})
+
+
+def identify_frf(frf: FRF, mass_per_length: float, method: str = "sdof", orthogonalize: bool = True,
+                 threshold_db: float = 3.0) -> Survey:
+    """A model from measured FRFs of one actuator along a beam (e.g. read from UFF 58)."""
+    start = time.perf_counter()
+    poles = get_identifier(method).identify(frf, threshold_db=threshold_db)
+    model = to_model(poles, _grid(frf.points, mass_per_length), 1, source="identified from measured FRFs")
+    model = actuator_gains(model, frf, np.arange(frf.values.shape[0]))
+    before = crosstalk(model.shapes, model.grid.mass)
+    if orthogonalize:
+        model = orthonormalize_model(model)
+    notes = _unresolved(poles)
+    return Survey(model, poles, np.ones((model.n_modes, 1)), np.zeros(model.n_modes, int), before,
+                  crosstalk(model.shapes, model.grid.mass), notes,
+                  {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},
+                  {"sparse": {0: frf}, "full": {0: frf}})
+
+
+def beam_wavelength(model_meta: dict, f_high: float) -> float | None:
+    """Shortest bending wavelength (m) at ``f_high`` from a scene's metadata, or None."""
+    try:
+        return bending_wavelength(f_high, model_meta["modulus_Pa"], model_meta["density_kg_m3"],
+                                  model_meta["thickness_m"])
+    except KeyError:
+        return None

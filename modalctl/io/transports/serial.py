@@ -1,0 +1,80 @@
+"""``serial://``: a board over a serial line (pyserial), speaking the protocol of :mod:`modalctl.io.protocol`.
+
+``serial:///dev/ttyUSB0?baud=3000000&timeout=0.5`` (any path pyserial opens: a USB adapter, a
+pty of the emulator). Each message travels COBS-framed with its CRC; what the device does with
+them is :class:`~modalctl.io.transports.protocol_device.ProtocolDevice`.
+"""
+
+from __future__ import annotations
+
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+
+from modalctl.io import protocol as p
+from modalctl.io.device import DeviceError
+
+from .protocol_device import ProtocolDevice
+
+__all__ = ["SerialDevice", "link_budget"]
+
+
+def link_budget(baud: float, modes: int) -> float:
+    """Control periods per second the line sustains: a Commands and an Envelopes frame per period,
+    ten bits per byte on the wire (start and stop bits), COBS and CRC overhead included."""
+    frame = len(p.frame(p.Commands(commands=np.zeros(modes, np.complex64))))
+    return baud / 10 / (2 * frame)
+
+
+class SerialDevice(ProtocolDevice):
+    """A board on a serial line.
+
+    Parameters
+    ----------
+    url : str
+        ``serial://<path>?baud=<rate>&timeout=<s>``.
+    """
+
+    def __init__(self, url: str):
+        import serial
+
+        parts = urlsplit(url)
+        query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
+        unknown = set(query) - {"baud", "timeout"}
+        if unknown:
+            raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: baud, timeout")
+        try:
+            baud, timeout = int(query.get("baud", 3_000_000)), float(query.get("timeout", 0.5))
+        except ValueError:
+            raise DeviceError(f"{url}: baud must be an integer and timeout a number of seconds") from None
+        super().__init__(url, timeout)
+        self.baud, self.path = baud, parts.path or parts.netloc
+        try:
+            self.port = serial.Serial(self.path, self.baud, timeout=0)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(f"{url}: cannot open {self.path}: {exc}") from None
+        self.deframer = p.Deframer()
+
+    @classmethod
+    def from_url(cls, url: str, **_context) -> "SerialDevice":
+        return cls(url)
+
+    def _write(self, message: p.Message, node: int) -> None:
+        self.port.write(p.frame(message))
+
+    def _read(self) -> list:
+        data = self.port.read(self.port.in_waiting or 1)
+        items = self.deframer.feed(data) if data else []
+        for item in items:
+            if isinstance(item, p.Message):
+                item.node = self.nodes[0]
+        return items
+
+    def budget(self, modes: int) -> float:
+        return link_budget(self.baud, modes)
+
+    def link_description(self) -> str:
+        return f"{self.baud} baud"
+
+    def close(self) -> None:
+        self.port.close()

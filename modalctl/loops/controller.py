@@ -1,0 +1,111 @@
+"""What a per-mode controller is: the contract controller plugins implement, and what they are designed for.
+
+A controller plugin (hook ``modalctl_controllers``) provides a :class:`ControllerFactory`; its
+``create(plant: LoopPlant, **options)`` returns a :class:`Controller`, which the runtime
+(:mod:`modalctl.loops.runtime`) calls once per control period with each kept mode's envelope
+error in its carrier's frame. :class:`LoopDesign` is what the report shows of the design.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["Controller", "ControllerFactory", "LoopPlant", "LoopDesign"]
+
+
+@dataclass(frozen=True)
+class LoopPlant:
+    """What a per-mode controller is designed for (controller plugins receive it).
+
+    Attributes
+    ----------
+    frequencies, damping : ndarray, shape (k,)
+        The model's modes (Hz, ratios); the carriers sit on them.
+    bandwidths : ndarray, shape (k,)
+        Lock-in corners (Hz).
+    control_rate : float
+        Hz.
+    latency : float
+        Control periods from a measurement to the command's use (1, plus a slow board's).
+    noise : ndarray, shape (k,), optional
+        Standard deviation of each measured envelope.
+    level : ndarray, shape (k,), optional
+        Largest planned envelope of each mode (same units).
+    drift : float
+        Relative resonance error expected.
+    detuning : ndarray, shape (k,), optional
+        Known offset of each resonance from its carrier (rad/s), e.g. from a tracker.
+    """
+
+    frequencies: np.ndarray
+    damping: np.ndarray
+    bandwidths: np.ndarray
+    control_rate: float
+    latency: float = 1.0
+    noise: np.ndarray | None = None
+    level: np.ndarray | None = None
+    drift: float = 0.01
+    detuning: np.ndarray | None = None
+
+
+class Controller(ABC):
+    """Per-mode loops in the carriers' frames: what the runtime calls once per control period.
+
+    Subclasses implement :meth:`reset` and :meth:`update` and set ``design`` (a
+    :class:`LoopDesign`, for the report; its gains may be NaN where the law has none).
+    :meth:`scale` multiplies the feedback (a stability test) and is optional.
+    """
+
+    design: LoopDesign
+
+    @abstractmethod
+    def reset(self) -> None:
+        """Forget everything learned in a shot (integrators, observer states)."""
+
+    @abstractmethod
+    def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        """Command envelopes (k,) complex (modal force, N/sqrt(kg)) from the envelope errors (k,),
+        reference minus measured (m/s sqrt(kg)); each command at most ``limit`` (k,) in magnitude,
+        and a loop whose limit is zero rests."""
+
+    def scale(self, factor: float) -> None:
+        """Multiply every gain by ``factor`` (a stability test: a divergent loop must be caught)."""
+        raise NotImplementedError(f"{type(self).__name__} cannot scale its gains")
+
+
+@dataclass(frozen=True)
+class ControllerFactory:
+    """A per-mode controller as plugins provide them (hook ``modalctl_controllers``).
+
+    Attributes
+    ----------
+    name, summary : str
+    create : callable
+        ``create(plant: LoopPlant, **options) -> Controller``.
+    """
+
+    name: str
+    summary: str
+    create: Callable[..., Controller]
+
+
+@dataclass(frozen=True)
+class LoopDesign:
+    """Per-mode PI gains and what python-control says of each loop.
+
+    Attributes
+    ----------
+    kp, ki : ndarray, shape (k,)
+        Proportional (1) and integral (1/s) gains from envelope error (m/s sqrt(kg)) to modal force.
+    crossover_hz, phase_margin_deg, gain_margin_db : ndarray, shape (k,)
+    """
+
+    kp: np.ndarray
+    ki: np.ndarray
+    crossover_hz: np.ndarray
+    phase_margin_deg: np.ndarray
+    gain_margin_db: np.ndarray

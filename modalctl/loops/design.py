@@ -1,0 +1,125 @@
+"""Per-mode loops in each mode's carrier frame (phasor, I/Q control), designed with python-control.
+
+In its carrier's frame a mode's lock-in envelopes obey ``y' = p y + r f`` (see
+:mod:`modalctl.identify.trackers`), with ``p = -zeta w + j (w_d - w_c)`` and ``r`` about one half. The
+measured envelope arrives late by the lock-in's group delay. Each mode gets a PI controller on
+the envelope error, added to the planner's feed-forward: the zero cancels the mode's own pole
+(``ki / kp = zeta w``) and the crossover is the highest that keeps the designed phase margin with
+the delay (Pade), checked with ``control.margin``. Commands are clamped (anti-windup: the
+integrator holds while the command is at its limit and the error pushes further).
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+from scipy.signal import butter
+
+from .controller import LoopDesign, LoopPlant
+from .pi import PIControl
+
+# python-control loads matplotlib's pyplot when imported (~0.4 s): the controller plugins import
+# this module only when a controller is made, so commands that design no loop do not pay for it
+
+__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "pi_controller"]
+
+
+def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
+    """The lock-in's low-pass as seen by the envelope: the analog Butterworth of corner
+    ``bandwidth`` (Hz) (the digital filter runs far above its corner), as a cascade of unit-gain
+    sections (one polynomial of degree ``order`` in rad/s would be ill-conditioned)."""
+    poles = butter(order, 2 * np.pi * bandwidth, analog=True, output="zpk")[1]
+    sections = [control.ss(control.tf([abs(p) ** 2], [1, -2 * p.real, abs(p) ** 2])) for p in poles if p.imag > 0]
+    sections += [control.ss(control.tf([-p.real], [1, -p.real])) for p in poles if p.imag == 0]
+    out = sections[0]
+    for section in sections[1:]:
+        out = control.series(out, section)
+    return out
+
+
+def _loop(row: tuple, sigma: float, bandwidth: float) -> control.StateSpace:
+    """PI ``(kp, ki)``, the envelope ``0.5 / (s + sigma)`` and the lock-in's low-pass, in series."""
+    kp, ki = row
+    pi = control.ss(control.tf([kp, ki], [1, 0]))
+    return control.series(pi, control.ss(control.tf([0.5], [1, sigma])), lockin_filter(bandwidth))
+
+
+def loop_response(design_row: tuple, sigma: float, bandwidth: float, control_rate: float, latency: float,
+                  omega: np.ndarray) -> np.ndarray:
+    """Open-loop frequency response ``L(j omega)`` (complex, shape of ``omega`` in rad/s) of one
+    mode's loop: PI ``(kp, ki)`` times the envelope ``0.5 / (s + sigma)`` times the lock-in's
+    low-pass times ``latency`` control periods of pure delay (exact, not a Pade approximant)."""
+    response = _loop(design_row, sigma, bandwidth)(1j * omega)
+    return response * np.exp(-1j * omega * latency / control_rate)
+
+
+def design_loops(frequencies, damping, bandwidths, control_rate: float, phase_margin: float = 50.0,
+                 gain_margin: float = 6.0, latency: float = 1.0) -> LoopDesign:
+    """PI loops for modes (Hz, ratios) read through lock-ins of corners ``bandwidths`` (Hz).
+
+    The zero cancels the mode's pole, so the loop is ``kp / (2 s)`` times the lock-in's low-pass
+    times ``latency`` control periods of delay (a command computed at the end of one period is
+    reached at the end of the next, plus what a slow board adds): its phase does not depend on
+    the gain, and the crossover is the highest at which ``phase_margin`` degrees and
+    ``gain_margin`` dB remain. python-control's ``stability_margins`` then checks the exact
+    frequency response of the chosen loop (:func:`loop_response`) and gives the reported margins.
+    """
+    omega = 2 * np.pi * np.geomspace(0.1, control_rate / 2, 4000)
+    tau = latency / control_rate
+    kp, ki, wc_hz, pm, gm = [], [], [], [], []
+    for f, z, band in zip(frequencies, damping, bandwidths):
+        sigma = 2 * np.pi * f * z
+        num, den = butter(4, 2 * np.pi * band, analog=True)
+        shape = 0.5 / (1j * omega) * np.polyval(num, 1j * omega) / np.polyval(den, 1j * omega) \
+            * np.exp(-1j * omega * tau)  # the loop for kp = 1
+        phase = np.degrees(np.unwrap(np.angle(shape)))
+        below = np.flatnonzero(phase > -180)
+        w180 = below[-1] + 1 if below[-1] + 1 < omega.size else below[-1]
+        margin_db = 20 * np.log10(np.abs(shape) / np.abs(shape[w180]))  # gain margin were the crossover here
+        ok = (180 + phase >= phase_margin) & (margin_db >= gain_margin)
+        if not ok[0]:
+            raise ValueError(f"no PI loop for the mode at {f:g} Hz keeps {phase_margin:g} deg and "
+                             f"{gain_margin:g} dB at {control_rate:g} Hz: raise the control rate")
+        c = np.flatnonzero(~ok)
+        c = (c[0] if c.size else omega.size) - 1  # the last good frequency before the first bad one
+        gain = 1 / np.abs(shape[c])
+        row = (gain, gain * sigma)
+        check = omega[::32]  # python-control's margins interpolate: a coarser grid is plenty
+        frd = control.frd(loop_response(row, sigma, band, control_rate, latency, check), check)
+        g, m, _, _, w_gc, _ = control.stability_margins(frd)
+        kp.append(gain), ki.append(gain * sigma), wc_hz.append(w_gc / (2 * np.pi)), pm.append(m)
+        gm.append(20 * np.log10(g) if np.isfinite(g) else np.inf)
+    return LoopDesign(*(np.array(v) for v in (kp, ki, wc_hz, pm, gm)))
+
+
+def settling_time(design: LoopDesign, index: int, sigma: float, bandwidth: float, control_rate: float,
+                  latency: float = 1.0, band: float = 0.02) -> float:
+    """Time (s) for loop ``index`` of ``design`` to settle within ``band`` of a step in its reference,
+    from python-control's ``step_info`` on the closed loop (the delay as a fifth-order Pade
+    approximant, accurate well past the crossover)."""
+    delay = control.ss(control.tf(*control.pade(latency / control_rate, 5)))
+    loop = control.series(_loop((design.kp[index], design.ki[index]), sigma, bandwidth), delay)
+    return float(control.step_info(control.feedback(loop, 1), SettlingTimeThreshold=band)["SettlingTime"])
+
+
+def loop_poles(design: LoopDesign, index: int, sigma: float, bandwidth: float, control_rate: float,
+               latency: float = 1.0, detuning: float = 0.0) -> np.ndarray:
+    """Closed-loop poles (1/s) of loop ``index`` when its mode sits ``detuning`` (rad/s) off the
+    carrier and commands arrive ``latency`` control periods late (fifth-order Pade).
+
+    In the carrier's frame a detuned mode's envelope turns: on the real I/Q pair
+    ``x' = [[-sigma, -detuning], [detuning, -sigma]] x + u / 2``; each channel has the lock-in's
+    low-pass, the delay and the PI. The loop is stable when every pole has a negative real part."""
+    plant = control.ss([[-sigma, -detuning], [detuning, -sigma]], 0.5 * np.eye(2), np.eye(2), np.zeros((2, 2)))
+    pi = control.ss(control.tf([design.kp[index], design.ki[index]], [1, 0]))
+    delay = control.ss(control.tf(*control.pade(latency / control_rate, 5)))
+    lock = lockin_filter(bandwidth)
+    loop = control.series(control.append(pi, pi), plant, control.append(lock, lock), control.append(delay, delay))
+    return control.poles(control.feedback(loop, np.eye(2)))
+
+
+def pi_controller(plant: LoopPlant, phase_margin: float = 50.0, gain_margin: float = 6.0) -> PIControl:
+    """The PI loops of :func:`design_loops` for ``plant`` (the ``pi`` controller plugin)."""
+    design = design_loops(plant.frequencies, plant.damping, plant.bandwidths, plant.control_rate, phase_margin,
+                          gain_margin, plant.latency)
+    return PIControl(design, plant.control_rate)

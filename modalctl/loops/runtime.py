@@ -1,0 +1,227 @@
+"""The closed-loop runtime: a lifecycle and a read / update / write loop, one pass per control period.
+
+Like ros2_control's hardware and controller lifecycle, a :class:`Runtime` is
+``unconfigured -> configure() -> inactive -> activate() -> active -> deactivate() -> inactive``,
+and any fault (watchdog, divergence, a board error) sends it to ``error`` with the outputs
+ramped to zero. Each period, :meth:`Runtime.update`:
+
+1. **read**: the board's demodulated envelope of each mode's sensors (None if none arrived);
+2. **update**: supervisor watchdog and divergence check; the error against the planner's
+   reference (:mod:`modalctl.loops.schedule`), each loop's own command leaking into its reading
+   removed; the per-mode controller (:mod:`modalctl.loops.design`); the tracker, if any, learns;
+3. **write**: the dispatcher maps modal commands to per-channel phasors, the supervisor moves
+   down as far as the voltage and slew limits require, the board gets them;
+
+and the recorder appends the period to disk. The board is anything with the :class:`PhasorBoard`
+methods: the HIL emulator (:mod:`modalctl.hil.phasor_board`) or a transport to a real board.
+"""
+
+from __future__ import annotations
+
+import enum
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from .controller import Controller
+from .recorder import Recorder
+from .schedule import Schedule
+from .supervisor import Supervisor
+
+__all__ = ["State", "LifecycleError", "PhasorBoard", "Runtime", "RunResult", "log_fields"]
+
+
+class State(enum.IntEnum):
+    UNCONFIGURED = 0
+    INACTIVE = 1
+    ACTIVE = 2
+    ERROR = 3
+
+
+class LifecycleError(RuntimeError):
+    """A transition the lifecycle does not allow (e.g. update before activate)."""
+
+
+class PhasorBoard(Protocol):
+    """A board in phasor mode: per-mode commands down, per-mode demodulated measurements up."""
+
+    def configure(self, schedule: Schedule) -> None:
+        """Carriers, lock-in corners, sensor weights and the feed-forward waveform for one shot."""
+
+    def start(self) -> None:
+        """Arm and trigger: the feed-forward starts, the first period begins."""
+
+    def read(self) -> np.ndarray | None:
+        """Envelopes (k,) complex at the end of the period just played, or None if nothing came."""
+
+    def write(self, commands: np.ndarray) -> None:
+        """Per-mode command envelopes (k,) complex for the next period; the board maps them to its
+        channels with the schedule's weights and ramps each channel's phasors to them."""
+
+    def ramp_down(self, seconds: float) -> None:
+        """Bring every output to zero within ``seconds`` and hold it there."""
+
+
+@dataclass
+class RunResult:
+    """How a run ended: final ``state``, the ``reason`` of a fault (None if it ran out its schedule),
+    the periods played, the compute time of each period's update (s), periods held back by a limit,
+    the wall time of the loop from the first read to the last write (s), and of the board's
+    configuration before it (s; zero when it came configured)."""
+
+    state: State
+    reason: str | None
+    periods: int
+    step_seconds: np.ndarray = field(repr=False)
+    limited: int = 0
+    loop_seconds: float = float("nan")
+    configure_seconds: float = 0.0
+
+
+def log_fields(k: int, a: int) -> dict:
+    """The record of one period: for :class:`~modalctl.loops.recorder.Recorder`."""
+    return {"period": ("<i8", (), "1"), "state": ("<i1", (), "State"),
+            "reference": ("<c16", (k,), "m/s"), "measured": ("<c16", (k,), "m/s"),
+            "command": ("<c16", (k,), "N/sqrt(kg)"), "fraction": ("<f8", (), "1"),
+            "phasor_sum": ("<f8", (a,), "V"), "compute": ("<f8", (), "s")}
+
+
+class Runtime:
+    """One shot under feedback.
+
+    Parameters
+    ----------
+    board : PhasorBoard
+    schedule : Schedule
+        The planner's references for the shot.
+    controller : Controller
+    supervisor : Supervisor
+    leak : ndarray, shape (k,)
+        What each mode's reading picks up from its own command through the other modes
+        (:func:`modalctl.loops.sensing.feedthrough`), removed from the error.
+    authority : ndarray, shape (k, n)
+        Largest feedback command of each mode in each period.
+    recorder : Recorder, optional
+    tracker : optional
+        A tracker (:mod:`modalctl.identify.trackers`) that learns from the envelopes during the shot.
+    held : ndarray, shape (k,)
+        The DAC hold's gain at the carriers (what the tracker is told the structure receives).
+    """
+
+    def __init__(self, board: PhasorBoard, schedule: Schedule, controller: Controller, supervisor: Supervisor,
+                 leak: np.ndarray, authority: np.ndarray, recorder: Recorder | None = None,
+                 tracker=None, held: np.ndarray | None = None):
+        self.board, self.schedule, self.controller, self.supervisor = board, schedule, controller, supervisor
+        self.leak = np.asarray(leak)
+        # one contiguous row per period: the loop reads them period by period
+        self._reference, self._authority = (np.ascontiguousarray(np.asarray(x).T)
+                                            for x in (schedule.reference, authority))
+        self._gains = np.abs(schedule.weights)
+        self.recorder, self.tracker = recorder, tracker
+        self.held = np.ones(schedule.carriers.size) if held is None else held
+        self.state = State.UNCONFIGURED
+        self.reason: str | None = None
+        self.period = 0
+        k = schedule.carriers.size
+        self.command = np.zeros(k, complex)
+        self._costs: list[float] = []
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def _expect(self, *states: State, to: str) -> None:
+        if self.state not in states:
+            raise LifecycleError(f"cannot {to} from state {self.state.name.lower()}")
+
+    def configure(self) -> None:
+        self._expect(State.UNCONFIGURED, State.INACTIVE, to="configure")
+        self.board.configure(self.schedule)
+        self.state = State.INACTIVE
+
+    def activate(self) -> None:
+        self._expect(State.INACTIVE, to="activate")
+        self.controller.reset()
+        self.period, self.command[:] = 0, 0
+        self.board.start()
+        self.state = State.ACTIVE
+
+    def deactivate(self) -> None:
+        self._expect(State.ACTIVE, to="deactivate")
+        self.board.ramp_down(1 / self.schedule.control_rate)
+        self.state = State.INACTIVE
+
+    def fault(self, reason: str) -> None:
+        """Stop: outputs to zero within one period, the reason kept, the log closed with what it has."""
+        self.board.ramp_down(1 / self.schedule.control_rate)
+        self.state, self.reason = State.ERROR, reason
+        self._record(None, 0.0, 0.0)
+
+    # -- the loop ----------------------------------------------------------------------------
+    def update(self) -> State:
+        """One control period: read, update, write. Returns the state after it."""
+        self._expect(State.ACTIVE, to="update")
+        measured = self.board.read()
+        tic = time.perf_counter()
+        n = self.period
+        reason = self.supervisor.watch(measured)
+        if reason is None and measured is not None:
+            reason = self.supervisor.diverging(measured)
+        if reason is not None:
+            self.fault(reason)
+            return self.state
+        if measured is None:  # a lost reading the watchdog tolerates: hold the commands one more period
+            self.board.write(self.command)
+            self._record(None, 1.0, time.perf_counter() - tic)
+            self.period += 1
+            return self.state
+        reference = self._reference[n]
+        error = reference - measured + self.leak * self.command
+        if self.tracker is not None:  # the mode's own answer: the other modes' predicted share removed
+            drive = (self.schedule.drive[:, n] + self.command) * self.held
+            own = measured - (reference - self.schedule.own[:, n]) - self.leak * self.command
+            self.tracker.update(own[:, None], drive[:, None])
+        wanted = self.controller.update(error, self._authority[n])
+        fraction = self.supervisor.limit(self.command, wanted, n)
+        self.command = wanted if fraction == 1.0 else fraction * wanted
+        cost = time.perf_counter() - tic
+        self.board.write(self.command)
+        self._costs.append(cost)
+        self._record(measured, fraction, cost)
+        self.period += 1
+        return self.state
+
+    def _record(self, measured, fraction: float, cost: float) -> None:
+        if self.recorder is None:
+            return
+        n = min(self.period, self.schedule.periods - 1)
+        self.recorder.write(period=self.period, state=int(self.state), reference=self._reference[n],
+                            measured=0 if measured is None else measured, command=self.command,
+                            fraction=fraction, phasor_sum=self._gains @ np.abs(self.command), compute=cost)
+
+    def run(self, progress: bool = False) -> RunResult:
+        """Configure if needed, activate, update until the schedule ends or a fault, deactivate."""
+        periods = range(self.schedule.periods)
+        if progress:
+            from tqdm import tqdm
+            periods = tqdm(periods, desc="closed loop", unit="period", leave=False)
+        try:
+            configured = time.perf_counter()
+            if self.state == State.UNCONFIGURED:
+                self.configure()
+            configured = time.perf_counter() - configured
+            self.activate()
+            start = time.perf_counter()
+            for _ in periods:
+                if self.update() != State.ACTIVE:
+                    break
+        except Exception as exc:  # a board error mid-shot: stop safely, keep the log, then report
+            if self.state == State.ACTIVE:
+                self.fault(f"{type(exc).__name__}: {exc}")
+            raise
+        finally:
+            if self.state == State.ACTIVE:
+                self.deactivate()
+            if self.recorder is not None:
+                self.recorder.close()
+        return RunResult(self.state, self.reason, self.period, np.array(self._costs), self.supervisor.scaled,
+                         time.perf_counter() - start, configured)

@@ -1,0 +1,121 @@
+"""What a plan expects each control period: the references the planner hands down to the loops.
+
+The board demodulates each mode's sensor combination with that mode's carrier; the planner
+knows, before the shot, what those envelopes read if the controller's model is right: the
+whole model (every mode, not only the kept ones) driven by the plan's feed-forward, through the
+same sensors and the same lock-in. So the reference carries the lock-in's delay and the other
+modes' leakage, and a perfect model gives zero error. The schedule also holds the feed-forward's
+own envelopes (how much authority each loop gets) and the feed-forward voltages the board plays
+(the supervisor's headroom). All computed once, before the shot, so that the loop does no
+simulation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from modalctl.model.propagate import Plant
+
+from .lockin import LockIn, Oscillators
+
+__all__ = ["Schedule", "schedule", "envelope_noise", "HOLD", "ramp_in"]
+
+HOLD = "zoh"  # the board's DAC holds each sample, as the planner assumes
+
+
+def ramp_in(samples: int) -> np.ndarray:
+    """How far a board moves each phasor from its last value to its new one at each of a period's
+    samples, shape (samples,): a straight line, reached at the period's last sample."""
+    return np.arange(1, samples + 1) / samples
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """References per control period for one shot.
+
+    Attributes
+    ----------
+    control_rate : float
+        Hz.
+    decimation : int
+        DAC samples per control period.
+    carriers : ndarray, shape (k,)
+        Carrier frequencies (Hz), the model's resonances of the kept modes.
+    bandwidths : ndarray, shape (k,)
+        Lock-in corners (Hz).
+    sensors : ndarray, shape (k, s)
+        Sensor weights that read each kept mode.
+    reference : ndarray, shape (k, n)
+        Envelope each mode's reading should have at the end of each period (m/s).
+    drive : ndarray, shape (k, n)
+        Envelope of each mode's planned modal force (the loops' authority scales with it).
+    own : ndarray, shape (k, n)
+        Envelope of each mode's own modal velocity in the model: ``reference - own`` is what the
+        other modes add to the reading (a tracker removes it).
+    feedforward : ndarray, shape (a, n * decimation)
+        The feed-forward voltages the board plays (V).
+    weights : ndarray, shape (a, k)
+        Volts on each channel per unit modal command of each mode (the board's dispatch).
+    """
+
+    control_rate: float
+    decimation: int
+    carriers: np.ndarray
+    bandwidths: np.ndarray
+    sensors: np.ndarray
+    reference: np.ndarray
+    drive: np.ndarray
+    own: np.ndarray
+    feedforward: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def periods(self) -> int:
+        return self.reference.shape[1]
+
+    @property
+    def times(self) -> np.ndarray:
+        """End of each control period (s), shape (n,)."""
+        return (np.arange(self.periods) + 1) / self.control_rate
+
+
+def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: float) -> Schedule:
+    """The references of ``plan`` (sampled at its DAC rate) for loops running at ``control_rate`` (Hz).
+
+    Parameters
+    ----------
+    plan : modalctl.plan.planner.Plan
+    sensors : ndarray, shape (k, s)
+        Sensor weights per kept mode (:func:`modalctl.loops.sensing.sensor_weights`).
+    bandwidths : ndarray, shape (k,)
+        Lock-in corners per kept mode (Hz).
+    """
+    fs = plan.sample_rate
+    decimation = int(round(fs / control_rate))
+    if decimation < 1 or abs(decimation - fs / control_rate) > 1e-6 * decimation:
+        raise ValueError(f"the control rate {control_rate:g} Hz must divide the DAC rate {fs:g} Hz")
+    n = plan.times.size // decimation
+    t = plan.times[:n * decimation]
+    drive = plan.modal(t + 0.5 / fs)[1]  # (k, N) modal forces, held as the DAC holds them
+    volts = plan.voltages(drive)  # on the actuators, with any correction of the plan
+    carriers = plan.model.frequencies[plan.modes]
+    phasors = Oscillators(carriers, fs).phasors(t.size)
+    expected = Plant(plan.model, fs, hold=HOLD)
+    velocity = expected.step(volts)
+    lockin = lambda signals: LockIn(bandwidths, fs, decimation, closing=True).demodulate(signals, phasors)  # noqa: E731
+    reference = lockin(sensors @ expected.sensors(velocity))
+    planned = lockin(drive)
+    own = lockin(velocity[plan.modes])
+    return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),
+                    reference, planned, own, volts, np.asarray(plan.weights))
+
+
+def envelope_noise(sigma: float, sensors: np.ndarray, bandwidths: np.ndarray, sample_rate: float,
+                   order: int = 4) -> np.ndarray:
+    """Standard deviation of each demodulated envelope (k,) for white sensor noise ``sigma`` (m/s)
+    at ``sample_rate`` (Hz): ``2 sigma |w| sqrt(2 B_n / fs)`` with the Butterworth's noise
+    bandwidth ``B_n`` (``1.026 B`` at order 4)."""
+    noise_bandwidth = {2: 1.111, 4: 1.026}.get(order, 1.0) * np.asarray(bandwidths, float)
+    return 2 * sigma * np.linalg.norm(sensors, axis=1) * np.sqrt(2 * noise_bandwidth / sample_rate)

@@ -1,0 +1,169 @@
+"""Named scenes: ready-made modal models of the thesis's prototypes and of a plate.
+
+The thesis presets use the tabulated resonance frequencies and damping ratios
+(``modalctl/data/thesis_tables.json``, a copy of the project's transcription of the thesis
+tables) with analytic mode shapes of the stated boundary conditions.
+
+Gain scale. The printed modal gains are only relative (their units and scale disagree
+between tables), so actuator gains come from the pin-force model of PZT-5A patches
+0.2 mm thick (d31 = 171 pm/V, E = 61 GPa) bonded on the beam: a physical scale in SI units,
+consistent across scenes, that puts drive voltages in the tens of volts for the thesis's
+40 mm/s pulses, the range of the thesis's amplifiers. The patch layout is stated in each
+scene's ``meta`` (the thesis does not print it).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+from typing import Callable
+
+import numpy as np
+
+from .modes import ModalModel, ModelError
+from .projection import gram
+from .structures import Beam, BeamPatch, Plate, PlatePatch
+
+__all__ = ["Scene", "SCENES", "load_scene", "thesis_tables", "UnknownScene"]
+
+
+class UnknownScene(LookupError):
+    """A scene name that is not defined."""
+
+
+@lru_cache(maxsize=None)
+def thesis_tables() -> dict:
+    """The transcribed thesis tables (structures, experiments, shape definitions)."""
+    return json.loads(resources.files("modalctl").joinpath("data/thesis_tables.json").read_text())
+
+
+def _beam_from_table(key: str) -> tuple[Beam, dict]:
+    s = thesis_tables()["structures"][key]
+    beam = Beam(s["length_m"], s["width_m"], s["thickness_m"], s["material"]["E_Pa"], s["material"]["rho_kg_m3"],
+                s["boundary"])
+    return beam, s
+
+
+def _even_patches(length: float, count: int, patch_length: float) -> list[BeamPatch]:
+    centres = -length / 2 + (np.arange(count) + 0.5) * length / count
+    return [BeamPatch(c - patch_length / 2, c + patch_length / 2, f"patch{i + 1}") for i, c in enumerate(centres)]
+
+
+def _fill_missing(beam: Beam, numbers: np.ndarray, freqs: list, zetas: list) -> tuple[np.ndarray, np.ndarray, list]:
+    """Fill modes the thesis could not identify: frequency from the analytic one scaled by the
+    ratio measured/analytic of the nearest identified modes, damping as their mean."""
+    analytic = beam.frequencies(int(numbers.max()))[numbers - 1]
+    f, z = np.array(freqs, dtype=float), np.array(zetas, dtype=float)
+    known = np.isfinite(f)
+    estimated = []
+    for i in np.flatnonzero(~known):
+        near = np.argsort(np.abs(np.flatnonzero(known) - i))[:2]
+        idx = np.flatnonzero(known)[near]
+        f[i] = analytic[i] * np.mean(f[idx] / analytic[idx])
+        z[i] = np.nanmean(z[idx]) if not np.isfinite(z[i]) else z[i]
+        estimated.append(int(numbers[i]))
+    z[~np.isfinite(z)] = np.nanmedian(z)
+    return f, z, estimated
+
+
+def _thesis_beam(key: str, name: str, patches: Callable[[Beam], list], sensors, n_points: int,
+                 elastic_numbers=None) -> ModalModel:
+    beam, table = _beam_from_table(key)
+    rows = table["modes"]
+    numbers = np.array([r["n"] for r in rows]) if elastic_numbers is None else np.asarray(elastic_numbers)
+    freqs = [r.get("f_hz") if r.get("f_hz") is not None else np.nan for r in rows]
+    zetas = [r.get("zeta") if r.get("zeta") is not None else np.nan for r in rows]
+    f, z, estimated = _fill_missing(beam, numbers, freqs, zetas)
+    meta = {"name": name, "source": f"thesis tables: {key}", "what": table["what"],
+            "estimated_modes": estimated,
+            "estimated_note": "frequency scaled from the analytic one by the nearest identified modes' ratio",
+            "thesis_gain": [r.get("gain") for r in rows], "thesis_gain_unit": table["gain_unit_as_printed"]}
+    return beam.modal_model(numbers, n_points=n_points, patches=patches(beam), sensors=sensors,
+                            frequencies=f, damping=z, meta=meta)
+
+
+def _al_cc(n_points):
+    return _thesis_beam("al_cc_beam", "thesis-al-cc", lambda b: _even_patches(b.length, 8, 0.010),
+                        [-0.036, -0.012, 0.012, 0.036], n_points)
+
+
+def _rython_pp(n_points):
+    # mode 1 was not identified (printed gain 0): its frequency is estimated like the thesis's FEM value
+    return _thesis_beam("rython_pp_beam", "thesis-rython-pp",
+                        lambda b: [BeamPatch(-b.length / 2 + 0.002, -b.length / 2 + 0.017, "patch1")],
+                        [0.0], n_points)
+
+
+def _al_ff(n_points):
+    # the thesis models the nine symmetric elastic modes, numbered 1, 3, ..., 17
+    return _thesis_beam("al_ff_beam", "thesis-al-ff", lambda b: _even_patches(b.length, 6, 0.012),
+                        [0.0, 0.02], n_points)
+
+
+def _plate(n_points):
+    nx, ny = (101, 71) if n_points is None else n_points
+    plate = Plate(0.100, 0.070, 0.001, 70e9, 2500, 0.22)  # glass, the size of a small touch screen
+    patches = [PlatePatch((x - 0.006, x + 0.006), (y - 0.006, y + 0.006), f"patch{i + 1}")
+               for i, (x, y) in enumerate([(-0.035, -0.022), (0.035, -0.022), (-0.035, 0.022), (0.035, 0.022)])]
+    return plate.modal_model(21, nx=nx, ny=ny, patches=patches, sensors=[(0.0, 0.0), (0.02, 0.01)],
+                             damping=0.01, meta={"name": "plate-glass", "source": "analytic"})
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A named model builder; ``build(n_points)`` returns its :class:`ModalModel`."""
+
+    name: str
+    summary: str
+    build: Callable[..., ModalModel]
+    default_points: object
+
+
+SCENES = {s.name: s for s in [
+    Scene("thesis-al-cc", "aluminium beam 105x7x1 mm, clamped-clamped, 21 modes (mode 18 estimated), 8 patches",
+          _al_cc, 1051),
+    Scene("thesis-rython-pp", "Rython beam 140x6x5 mm, pinned-pinned, 31 modes, 1 patch near a hinge",
+          _rython_pp, 1401),
+    Scene("thesis-al-ff", "aluminium beam 100x6x2 mm, free-free, 9 symmetric modes, 6 patches",
+          _al_ff, 1001),
+    Scene("plate-glass", "glass plate 100x70x1 mm, simply supported, 21 modes, 4 patches", _plate, (101, 71)),
+]}
+
+
+#: Largest error of the modes' orthonormality a grid may leave (a coarser grid cannot draw them).
+ORTHONORMAL_TOLERANCE = 0.05
+
+
+def load_scene(name: str, n_points=None) -> ModalModel:
+    """Build the scene ``name`` (see :data:`SCENES`); ``n_points`` overrides its grid size."""
+    if name not in SCENES:
+        raise UnknownScene(f"unknown scene {name!r}; available scenes: {', '.join(SCENES)}")
+    scene = SCENES[name]
+    if n_points is None:
+        return scene.build(scene.default_points)
+    if np.ndim(scene.default_points) != np.ndim(n_points):
+        raise ModelError(f"{name}: its grid is given as {scene.default_points!r} points, got {n_points!r}")
+    model = scene.build(n_points)
+    drawn = resolved_modes(model)
+    if drawn == model.n_modes:
+        return model
+    if drawn == 0:
+        raise ModelError(f"{name} on {n_points!r} points: the grid is too coarse to draw even its first mode; use "
+                         f"more points (the default is {scene.default_points!r})")
+    warnings.warn(f"{name} on {n_points!r} points: the grid draws only the first {drawn} of its {model.n_modes} modes "
+                  f"(beyond, their inner products on it are off by more than {ORTHONORMAL_TOLERANCE:g}); the model "
+                  f"keeps those {drawn}. The default is {scene.default_points!r} points", UserWarning, stacklevel=2)
+    return model.select(np.arange(drawn))
+
+
+def resolved_modes(model: ModalModel, tolerance: float = None) -> int:
+    """How many of the model's first modes its grid can draw: the largest n for which the first n
+    are orthonormal on the grid within ``tolerance`` (default :data:`ORTHONORMAL_TOLERANCE`); a
+    grid too coarse for a mode aliases it onto the others."""
+    tolerance = ORTHONORMAL_TOLERANCE if tolerance is None else tolerance
+    error = np.abs(gram(model.shapes, model.grid.mass) - np.eye(model.n_modes))
+    first = np.array([error[:n, :n].max() for n in range(1, model.n_modes + 1)])  # grows with n
+    return int(np.count_nonzero(first <= tolerance))

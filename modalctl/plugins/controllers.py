@@ -1,0 +1,31 @@
+"""First-party per-mode controllers: PI loops designed on margins, and a Kalman observer with LQ feedback.
+
+Both are designed with python-control, which loads matplotlib's pyplot when imported: the modules
+that design are imported when a controller is made, so that listing plugins or planning a shot
+does not pay for it.
+"""
+
+from __future__ import annotations
+
+from modalctl.loops.controller import Controller, ControllerFactory, LoopPlant
+from modalctl.plugin.spec import hookimpl
+
+
+def _pi(plant: LoopPlant, **options) -> Controller:
+    from modalctl.loops.design import pi_controller
+
+    return pi_controller(plant, **options)
+
+
+def _lqg(plant: LoopPlant, **options) -> Controller:
+    from modalctl.loops.lqg import LQGControl
+
+    return LQGControl(plant, **options)
+
+
+@hookimpl
+def modalctl_controllers():
+    return [ControllerFactory("pi", "PI per mode, zero on the mode's pole, the highest crossover that keeps "
+                                    "50 deg and 6 dB with the lock-in and the latency (default)", _pi),
+            ControllerFactory("lqg", "per-mode Kalman observer of the envelope model (detuning, latency, lock-in) "
+                                     "with LQ state feedback and integral action", _lqg)]

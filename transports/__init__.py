@@ -1,1 +1,0 @@
-"""Transports to boards, installed as ``modalctl.transports``: they open ports; the core does not."""
