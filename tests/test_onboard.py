@@ -11,7 +11,7 @@ from modalctl.hil.can_board import CanBoardEmulator
 from modalctl.hil.scenario import Perturbation
 from modalctl.hil.serial_board import SerialBoardEmulator
 from modalctl.io import protocol as p
-from modalctl.loops.onboard import board_loop, from_program, to_program
+from modalctl.loops.onboard import board_loop
 from modalctl.loops.recorder import read_log
 from modalctl.loops.shot import loop_parts
 from modalctl.model.scenes import load_scene
@@ -68,13 +68,13 @@ def test_parametric_references_follow_the_whole_model_within_the_unplanned_modes
 def test_program_messages_round_trip_and_bad_ones_are_refused(shot):
     the_plan, parts = shot
     loops = board_loop(the_plan, parts)
-    back = from_program(p.decode(p.encode(to_program(loops))))
+    back = p.from_program(p.decode(p.encode(p.to_program(loops))))
     assert np.allclose(back.targets, loops.targets, rtol=1e-6) and np.allclose(back.reading, loops.reading, rtol=1e-6)
     assert np.allclose(back.leak, loops.leak, rtol=1e-6, atol=1e-12) and back.focus_time == pytest.approx(0.025)
-    message = to_program(loops)
+    message = p.to_program(loops)
     message.kp = message.kp[:-1]
     with pytest.raises(ValueError, match="arrays of sizes"):
-        from_program(message)
+        p.from_program(message)
 
 
 def test_loops_on_the_board_measure_what_the_host_loops_measure(tmp_path, capsys):

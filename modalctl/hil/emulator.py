@@ -20,7 +20,6 @@ import time
 import numpy as np
 
 from modalctl.io import protocol as p
-from modalctl.loops.onboard import from_program
 from modalctl.loops.schedule import Schedule
 from modalctl.model.modes import ModalModel
 
@@ -148,7 +147,7 @@ class BoardEmulator:
             self._refuse("state", "program before a configuration with modes")
             return
         try:
-            loops = from_program(message)
+            loops = p.from_program(message)
         except ValueError as exc:
             self._refuse("config", f"program: {exc}")
             return

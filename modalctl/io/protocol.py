@@ -24,11 +24,13 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from cobs import cobs
 
+from modalctl.loops.onboard import BoardLoop
+
 __all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", "Upload", "Start", "Commands",
            "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Program", "Field", "Error", "Ack", "encode", "decode",
            "frame", "Deframer", "MAX_FRAME", "CAN_DATA", "SYNC_ID", "to_board", "to_host", "segments", "Reassembler",
            "NMT_ID", "NMT_COMMANDS", "NMT_STATES", "heartbeat_id", "nmt",
-           "ERRORS", "WARNINGS"]
+           "ERRORS", "WARNINGS", "to_program", "from_program"]
 
 VERSION = 1
 MAX_FRAME = 1 << 16  # bytes of one encoded message, at most
@@ -444,3 +446,24 @@ class Reassembler:
             return decode(body[2:2 + length])
         except ProtocolError as exc:
             return exc
+
+
+# -- loops loaded into a board (Program) ------------------------------------------------------------
+
+_PROGRAM_ARRAYS = ("damping", "targets", "kappa", "brake", "reading", "kp", "ki", "limit", "leak")
+
+
+def to_program(loops: BoardLoop) -> Program:
+    """The protocol's Program message that loads ``loops`` into a board."""
+    return Program(focus_time=loops.focus_time, **{name: np.ravel(getattr(loops, name)) for name in _PROGRAM_ARRAYS})
+
+
+def from_program(message: Program) -> BoardLoop:
+    """The loops a Program message describes; ValueError if its arrays do not fit one another."""
+    k = message.targets.size
+    sizes = {name: getattr(message, name).size for name in _PROGRAM_ARRAYS}
+    if any(size != (k * k if name == "reading" else k) for name, size in sizes.items()):
+        raise ValueError(f"program for {k} modes with arrays of sizes {sizes}")
+    values = {name: getattr(message, name).astype(complex if name == "leak" else float) for name in _PROGRAM_ARRAYS}
+    values["reading"] = values["reading"].reshape(k, k)
+    return BoardLoop(float(message.focus_time), **values)

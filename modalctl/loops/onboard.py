@@ -22,13 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modalctl.io import protocol as p
 from modalctl.plan.reference import modal_response
 
 from .lockin import LockIn, Oscillators
 from .pi import PIControl
 
-__all__ = ["BoardLoop", "BoardLog", "board_loop", "to_program", "from_program"]
+__all__ = ["BoardLoop", "BoardLog", "board_loop"]
 
 
 @dataclass
@@ -135,20 +134,3 @@ def board_loop(plan, parts) -> BoardLoop:
                      parts.authority.max(axis=1), np.asarray(parts.leak, complex))
 
 
-_ARRAYS = ("damping", "targets", "kappa", "brake", "reading", "kp", "ki", "limit", "leak")
-
-
-def to_program(loops: BoardLoop) -> p.Program:
-    """The protocol's Program message that loads ``loops`` into a board."""
-    return p.Program(focus_time=loops.focus_time, **{name: np.ravel(getattr(loops, name)) for name in _ARRAYS})
-
-
-def from_program(message: p.Program) -> BoardLoop:
-    """The loops a Program message describes; ValueError if its arrays do not fit one another."""
-    k = message.targets.size
-    sizes = {name: getattr(message, name).size for name in _ARRAYS}
-    if any(size != (k * k if name == "reading" else k) for name, size in sizes.items()):
-        raise ValueError(f"program for {k} modes with arrays of sizes {sizes}")
-    values = {name: getattr(message, name).astype(complex if name == "leak" else float) for name in _ARRAYS}
-    values["reading"] = values["reading"].reshape(k, k)
-    return BoardLoop(float(message.focus_time), **values)

@@ -313,12 +313,12 @@ class ProtocolPhasorBoard:
     def run_loops(self, loops):
         """Load the shot's loops into the board (Program), start it, wait for the whole shot and
         bring back the loops' log (:class:`modalctl.loops.onboard.BoardLog`)."""
-        from modalctl.loops.onboard import BoardLog, to_program
+        from modalctl.loops.onboard import BoardLog
 
         d = self.device
         if len(d.nodes) > 1:
             raise DeviceError(f"{d.url}: loops on the board need one board with every channel and sensor")
-        d.request(to_program(loops), (p.Ack,))
+        d.request(p.to_program(loops), (p.Ack,))
         d._operational(True)
         d.send(p.Start())
         while True:  # the board beats while it runs the shot; it is done when it acknowledges
