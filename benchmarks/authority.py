@@ -3,7 +3,7 @@
     python benchmarks/authority.py   # writes benchmarks/results/authority.{json,md,png} (--report-only: redraw)
 
 A loop's command is capped at ``authority`` times its mode's planned drive at that moment
-(:data:`modalctl.loops.shot.AUTHORITY`). Too little and a detuned mode, which answers its carrier
+(:attr:`modalctl.options.LoopOptions.authority`). Too little and a detuned mode, which answers its carrier
 several times less, cannot be brought back; too much and noise or a misread mode gets more
 voltage. Five structures and shapes, each on a perfect truth (sensor noise only), with the
 resonances 1, 2 and 3% off (damping +20%), and with a 1 N s/m finger at the focus; SNR 40 dB,
@@ -23,7 +23,7 @@ from common import main_or_report, save_figure, write_json, write_markdown  # no
 
 from modalctl.experiments.executor import LocalExecutor  # noqa: E402
 from modalctl.experiments.sweep import Case, run_case  # noqa: E402
-from modalctl.loops.shot import AUTHORITY  # noqa: E402
+from modalctl.options import LoopOptions  # noqa: E402
 
 AUTHORITIES = (0.25, 0.5, 1.0, 2.0, 4.0)
 EXPERIMENTS = {  # label: (scene, shape, params, focus time, points, modes)
@@ -111,8 +111,8 @@ def report(data: dict, path) -> None:
         ax.set_xscale("log")
         ax.minorticks_off()
         ax.set_xticks(authorities, [f"{a:g}" for a in authorities])
-        ax.axvline(AUTHORITY, color="k", lw=0.7, ls="--")
-        ax.set_xlabel(f"authority (feedback over planned drive; dashed: the default, {AUTHORITY:g})")
+        ax.axvline(LoopOptions.authority, color="k", lw=0.7, ls="--")
+        ax.set_xlabel(f"authority (feedback over planned drive; dashed: the default, {LoopOptions.authority:g})")
     axes[0].set(ylabel="tau on the truth", title="tau, one line per experiment and truth")
     axes[1].set(ylabel="peak voltage / open loop's", title="what the feedback adds to the peak voltage")
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]

@@ -85,6 +85,7 @@ def timescales() -> dict:
 
     from modalctl.loops.shot import loop_parts
     from modalctl.model.scenes import load_scene
+    from modalctl.options import LoopOptions, PlanOptions
     from modalctl.plan.decompose import decompose
     from modalctl.plan.planner import plan
 
@@ -96,8 +97,8 @@ def timescales() -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             shot = plan(decompose(model, target(model, shape, center=f"{centres[0]}m", **params), modes or "auto"),
-                        tf, sample_rate=500e3)
-        design = loop_parts(shot, 20e3, 0.0).design
+                        tf, PlanOptions(sample_rate=500e3))
+        design = loop_parts(shot, LoopOptions(control_rate=20e3)).design
         rise = 1e3 / (shot.kappa * model.damping[shot.modes] * model.omega[shot.modes])
         rise_and_loops = found.setdefault(scene, ([], []))
         rise_and_loops[0].extend(rise)

@@ -101,3 +101,13 @@ def target(model, shape: str, **params):
 
     generator = get_shape(shape)
     return generator.generate(model.grid, **parse_params(generator, params))
+
+
+def open_loop(model, shape, device, focus_time: float, **plan):
+    """An open-loop shot through :func:`modalctl.run.run`, the path ``modalctl run`` takes, with the
+    plan options ``plan`` (:class:`modalctl.options.PlanOptions`' fields); its
+    :class:`modalctl.run.ShotResult`."""
+    from modalctl.options import PlanOptions, RunOptions
+    from modalctl.run import run
+
+    return run(model, shape, device, RunOptions(focus_time, PlanOptions(**plan)))

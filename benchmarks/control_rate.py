@@ -40,10 +40,11 @@ from common import (  # noqa: E402
     write_markdown,
 )
 
-from modalctl.experiments.focus import run_focus  # noqa: E402
+from modalctl.experiments.focus import Bench, run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
 from modalctl.loops.realtime import keep_memory  # noqa: E402
 from modalctl.model.scenes import load_scene  # noqa: E402
+from modalctl.options import LoopOptions, PlanOptions  # noqa: E402
 from modalctl.plan.decompose import decompose  # noqa: E402
 from modalctl.plan.planner import plan  # noqa: E402
 
@@ -69,7 +70,7 @@ def timed(truth, shot, shape, lifted: bool, logs: Path, discrete=None) -> tuple[
     peers = {rate: [] for rate in RATES}
     for _ in range(REPEATS):
         for rate, seed in keys:
-            play = run_focus(truth, shot, shape, control_rate=rate, seed=seed, lifted=lifted,
+            play = run_focus(truth, shot, shape, LoopOptions(control_rate=rate), Bench(seed=seed, lifted=lifted),
                              log=logs / f"{rate:g}-{seed}")
             if first.setdefault((rate, seed), play).tau != play.tau:
                 raise AssertionError(f"{rate:g} Hz seed {seed}: the same shot measured different tau")
@@ -100,9 +101,9 @@ def main() -> None:
     warnings.simplefilter("ignore")
     model = load_scene("thesis-al-cc", 211)
     shape = target(model, "sinc", width="18mm", center="24mm")
-    shot = plan(decompose(model, shape, "auto"), 0.025, sample_rate=FS)
+    shot = plan(decompose(model, shape, "auto"), 0.025, PlanOptions(sample_rate=FS))
     truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
-    open_tau = [run_focus(truth, shot, shape, closed=False, seed=s).tau for s in SEEDS]
+    open_tau = [run_focus(truth, shot, shape, bench=Bench(seed=s), closed=False).tau for s in SEEDS]
     discrete = control.sample_system(state_space(truth), 1 / FS, "zoh")
     # the C allocator as it comes first (keep_memory lasts for the rest of the process), then as
     # modalctl run and sweep set it

@@ -26,7 +26,7 @@ from modalctl.loops.design import design_loops
 from modalctl.loops.lockin import lockin_bandwidths
 from modalctl.loops.pi import PIControl
 from modalctl.loops.recorder import Recorder
-from modalctl.loops.runtime import Runtime, log_fields
+from modalctl.loops.runtime import LoopParts, PhasorBoard, Runtime, log_fields
 from modalctl.loops.schedule import Schedule
 from modalctl.loops.supervisor import Limits, Supervisor
 from modalctl.model.scenes import load_scene
@@ -36,8 +36,10 @@ STEPS = 10_000
 RATE = 20e3
 
 
-class StubBoard:
+class StubBoard(PhasorBoard):
     """Answers every read at once with the next of a list of envelopes."""
+
+    sensed = applied = None  # no records: the runtime alone is timed
 
     def __init__(self, readings):
         self.readings, self.n = readings, 0
@@ -75,8 +77,9 @@ def runtime(model, log=None):
                         ff, weights)
     supervisor = Supervisor(Limits(100.0, 5e7), schedule, np.full(k, 1e-3))
     recorder = None if log is None else Recorder(log, log_fields(k, a))
-    rt = Runtime(StubBoard(readings), schedule, PIControl(design, RATE), supervisor,
-                 np.zeros(k), np.full((k, STEPS + 1), 1.0), recorder)
+    parts = LoopParts(schedule, PIControl(design, RATE), design, np.full((k, STEPS + 1), 1.0), np.zeros(k),
+                      np.zeros(k), supervisor.limits)
+    rt = Runtime(StubBoard(readings), parts, supervisor, recorder)
     rt.configure()
     rt.activate()
     return rt, design, weights

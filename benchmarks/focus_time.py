@@ -15,14 +15,14 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import save_figure, target, write_json  # noqa: E402
+from common import open_loop, save_figure, target, write_json  # noqa: E402
 
 from modalctl.hil.scenario import Perturbation  # noqa: E402
-from modalctl.io.device import open_device  # noqa: E402
+from modalctl.hil.sim_device import SimDevice  # noqa: E402
 from modalctl.model.scenes import load_scene  # noqa: E402
+from modalctl.options import PlanOptions  # noqa: E402
 from modalctl.plan.decompose import decompose  # noqa: E402
 from modalctl.plan.planner import min_focus_time  # noqa: E402
-from modalctl.run import run_open_loop  # noqa: E402
 
 FOCUS_TIMES = [0.002, 0.003, 0.005, 0.0075, 0.01, 0.015, 0.025, 0.04]
 LIMIT = 10.0  # V, for the min-focus-time search
@@ -36,11 +36,12 @@ def main() -> None:
     for tf in FOCUS_TIMES:
         row = {"focus_time_s": tf}
         for name, p in [("perfect", Perturbation()), ("drift 1%", Perturbation(drift=0.01))]:
-            m = run_open_loop(model, shape, open_device("sim://", model=model, perturbation=p), tf, modes=9).metrics
+            m = open_loop(model, shape, SimDevice(model, p), tf, modes=9).to_dict()
             row[name] = {k: m[k] for k in ("tau", "margin_ratio", "peak_voltage", "plan_seconds", "sim_seconds")}
         rows.append(row)
         print(tf, row["perfect"]["tau"], row["drift 1%"]["tau"], row["perfect"]["peak_voltage"])
-    shortest, plan = min_focus_time(decompose(model, shape, 9), LIMIT, lower=5e-4, upper=0.05)
+    shortest, plan = min_focus_time(decompose(model, shape, 9), PlanOptions(voltage_limit=LIMIT), lower=5e-4,
+                                    upper=0.05)
     data = {"rows": rows, "min_focus_time_s": shortest, "min_focus_time_limit_v": LIMIT,
             "min_focus_time_peak_v": plan.info["peak_voltage"]}
     write_json("focus_time", data)

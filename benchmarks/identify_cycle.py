@@ -14,7 +14,7 @@ import time
 import warnings
 
 import numpy as np
-from common import RESULTS, target, write_json
+from common import RESULTS, open_loop, target, write_json
 from thesis_table import experiments
 
 from modalctl.hil.scenario import Perturbation
@@ -22,7 +22,6 @@ from modalctl.hil.sim_device import SimDevice
 from modalctl.identify.frf import Sweep
 from modalctl.identify.survey import identify_device
 from modalctl.model.scenes import load_scene
-from modalctl.run import run_open_loop
 
 
 def main() -> None:
@@ -44,8 +43,8 @@ def main() -> None:
                 shape = target(model, shape_name, **params, center=f"{centre}m")
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    shot = run_open_loop(model, shape, SimDevice(truth), tf, modes=modes or "auto")
-                taus[which] = shot.metrics["tau"]
+                    shot = open_loop(model, shape, SimDevice(truth), tf, modes=modes or "auto")
+                taus[which] = shot.metrics.tau
             label = f"{name} @ {centre * 1e3:g} mm"
             rows.append({"experiment": label, "tau_identified": taus["identified"], "tau_true": taus["true"],
                          "difference": taus["identified"] - taus["true"]})

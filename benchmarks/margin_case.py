@@ -17,16 +17,16 @@ import re
 import warnings
 
 import numpy as np
-from common import RESULTS, median_seconds, target, write_json
+from common import RESULTS, median_seconds, open_loop, target, write_json
 
-from modalctl.io.device import open_device
+from modalctl.hil.sim_device import SimDevice
 from modalctl.model.metrics import margin_ratio
 from modalctl.model.propagate import Plant
 from modalctl.model.scenes import load_scene, thesis_tables
+from modalctl.options import PlanOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import PlanError, plan
 from modalctl.report import plot_spacetime
-from modalctl.run import run_open_loop
 
 
 def steady_floor(model, shape, modes: int, focus_time: float, window: float = 100e-6):
@@ -76,16 +76,17 @@ def main() -> None:
     for mode, k in case["kappa_found_by_trial_and_error"].items():
         thesis_kappa[int(mode) - 1] = k
     variants = [("kappa = 1", {"kappa": 1.0}), ("thesis kappa", {"kappa": thesis_kappa}),
-                ("optimized", {"margin": margin}), ("optimized, whole model", {"margin": margin, "verify": "whole"})]
+                ("optimized", {"margin": margin, "margin_on": "kept"}),
+                ("optimized, whole model", {"margin": margin, "margin_on": "whole"})]
     rows = []
     for name, options in variants:
-        device = open_device("sim://", model=model)
+        device = SimDevice(model)
         try:
-            shot = run_open_loop(model, shape, device, tf, modes=case["modes_used"], **options)
+            shot = open_loop(model, shape, device, tf, modes=case["modes_used"], **options)
         except PlanError as exc:
             rows.append({"plan": name, "error": str(exc), "best_ratio": exc.needed})
             continue
-        m, info = shot.metrics, shot.plan.info
+        m, info = shot.to_dict(), shot.plan.info
         rows.append({"plan": name, "planned_ratio": info["predicted_margin_ratio"],
                      "whole_model_ratio": info["whole_model_margin_ratio"], "measured_ratio": m["margin_ratio"],
                      "peak_voltage": m["peak_voltage"], "tau": m["tau"], "plan_seconds": m["plan_seconds"],
@@ -100,7 +101,7 @@ def main() -> None:
         plot_spacetime(shot, RESULTS / f"margin_{slug}.png")
     floor, at = steady_floor(model, shape, case["modes_used"], tf)
     dec16 = decompose(model, target(model, "sinc", width="10mm", center="24mm"), 16)
-    plan16 = median_seconds(lambda: plan(dec16, tf), 5)
+    plan16 = median_seconds(lambda: plan(dec16, tf, PlanOptions()), 5)
     data = {"case": "al_sinc18_p4_margin", "margin": margin, "rows": rows, "plan_seconds_16_modes_median": plan16,
             "steady_envelope_floor": {"ratio": floor, "t_minus_tf_s": at},
             "strongest_unplanned_modes": [{"mode": int(m), "hz": f, "off_target_share": v} for m, f, v in culprits],

@@ -22,10 +22,11 @@ import numpy as np  # noqa: E402
 from common import save_figure, target, write_json, write_markdown  # noqa: E402
 
 import modalctl.loops.shot  # noqa: E402
-from modalctl.experiments.focus import run_focus  # noqa: E402
+from modalctl.experiments.focus import Bench, run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
 from modalctl.loops.supervisor import Supervisor  # noqa: E402
 from modalctl.model.scenes import load_scene  # noqa: E402
+from modalctl.options import LoopOptions, PlanOptions  # noqa: E402
 from modalctl.plan.decompose import decompose  # noqa: E402
 from modalctl.plan.planner import plan  # noqa: E402
 
@@ -53,7 +54,8 @@ def shot_row(truth, shot, shape, rail: float | None, method: str, seed: int) -> 
     """One shot: ``method`` is open, exact (the supervisor) or bound (the phase-free bound)."""
     modalctl.loops.shot.Supervisor = PhaseFreeSupervisor if method == "bound" else Supervisor
     try:
-        r = run_focus(truth, shot, shape, closed=method != "open", control_rate=RATE, voltage_limit=rail, seed=seed)
+        r = run_focus(truth, shot, shape, LoopOptions(control_rate=RATE), Bench(voltage_limit=rail, seed=seed),
+                      closed=method != "open")
     finally:
         modalctl.loops.shot.Supervisor = Supervisor
     return {"tau": r.tau, "margin_ratio": r.margin_ratio, "peak_voltage": r.peak_voltage, "clipped": int(r.clipped),
@@ -66,7 +68,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     model = load_scene("thesis-al-cc", 211)
     shape = target(model, "sinc", width="18mm", center="24mm")
-    shot = plan(decompose(model, shape, "auto"), 0.025, sample_rate=FS)
+    shot = plan(decompose(model, shape, "auto"), 0.025, PlanOptions(sample_rate=FS))
     peak = float(np.abs(shot.voltages()).max())
     rows = []
     for drift in DRIFTS:

@@ -28,6 +28,7 @@ from modalctl.loops.design import loop_poles  # noqa: E402
 from modalctl.loops.recorder import read_log  # noqa: E402
 from modalctl.loops.runtime import State  # noqa: E402
 from modalctl.model.scenes import load_scene  # noqa: E402
+from modalctl.options import LoopOptions  # noqa: E402
 
 MODE, RATE = 4, 20e3
 DETUNING_HZ = np.linspace(-1500, 1500, 13)
@@ -43,8 +44,8 @@ def observe(point) -> dict:
     f = model.frequencies.copy()
     f[MODE] += detuning
     log = tempfile.mkdtemp() + "/log"
-    runtime, *_ = step_runtime(model, MODE, truth=replace(model, frequencies=f), control_rate=RATE, periods=820,
-                               latency=int(extra), log=log)
+    runtime, *_ = step_runtime(model, MODE, truth=replace(model, frequencies=f), loop=LoopOptions(control_rate=RATE),
+                               periods=820, latency=int(extra), log=log)
     result = runtime.run()
     error = np.abs(read_log(log)[0]["measured"][:, 0] - 1e-4) / 1e-4
     quarter = max(1, error.size // 4)
@@ -56,7 +57,7 @@ def observe(point) -> dict:
 
 def main() -> None:
     model = load_scene("thesis-al-cc", 105)
-    runtime, design, sigma, band = step_runtime(model, MODE, control_rate=RATE)
+    runtime, design, sigma, band = step_runtime(model, MODE, loop=LoopOptions(control_rate=RATE))
     fine_d = np.linspace(DETUNING_HZ[0], DETUNING_HZ[-1], 61)
     fine_l = np.linspace(0, EXTRA[-1], 49)
     growth = np.array([[loop_poles(design, 0, sigma, band, RATE, 1 + extra, 2 * np.pi * d).real.max()

@@ -20,13 +20,12 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from common import RESULTS, target, write_json
+from common import RESULTS, open_loop, target, write_json
 from tqdm import tqdm
 
 from modalctl.hil.scenario import Perturbation
-from modalctl.io.device import open_device
+from modalctl.hil.sim_device import SimDevice
 from modalctl.model.scenes import load_scene, thesis_tables
-from modalctl.run import run_open_loop
 
 SCENE = {"al_cc_beam": "thesis-al-cc", "rython_pp_beam": "thesis-rython-pp", "al_ff_beam": "thesis-al-ff"}
 REALISTIC = Perturbation(drift_spread=0.005, damping_error=0.2, snr_db=40, amplifier_bandwidth=500e3, seed=0)
@@ -50,8 +49,8 @@ def experiments():
 
 
 def one(model, shape, device, tf, modes):
-    shot = run_open_loop(model, shape, device, tf, modes=modes if modes else "auto")
-    m = shot.metrics
+    shot = open_loop(model, shape, device, tf, modes=modes if modes else "auto")
+    m = shot.to_dict()
     return {k: m[k] for k in ("tau", "tau_model", "tau_norm", "nrmse", "margin_ratio", "peak_voltage")} | {
         "modes": len(m["modes_used"])}
 
@@ -63,8 +62,8 @@ def main() -> None:
     for name, scene, shape_name, params, centre, modes, tf, thesis_tau in tqdm(jobs, desc="thesis table", unit="run"):
         model = models.setdefault(scene, load_scene(scene))
         shape = target(model, shape_name, center=f"{centre}m", **params)
-        perfect = one(model, shape, open_device("sim://", model=model), tf, modes)
-        real = one(model, shape, open_device("sim://", model=model, perturbation=REALISTIC), tf, modes)
+        perfect = one(model, shape, SimDevice(model), tf, modes)
+        real = one(model, shape, SimDevice(model, REALISTIC), tf, modes)
         rows.append({"experiment": name, "scene": scene, "centre_m": centre, "focus_time_s": tf,
                      "thesis_tau": thesis_tau, "perfect": perfect, "realistic": real})
     write_json("thesis_table", {"realistic_truth": REALISTIC.describe(), "rows": rows})

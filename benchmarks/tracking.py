@@ -19,10 +19,10 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import RESULTS, save_figure, target, write_json  # noqa: E402
+from common import RESULTS, open_loop, save_figure, target, write_json  # noqa: E402
 from scipy.ndimage import median_filter  # noqa: E402
 
-from modalctl.experiments.tracking import ramp, run_tracking, step  # noqa: E402
+from modalctl.experiments.tracking import TrackingOptions, ramp, run_tracking, step  # noqa: E402
 from modalctl.model.scenes import load_scene  # noqa: E402
 
 CHANGE = 0.1  # s
@@ -61,7 +61,7 @@ def main() -> None:
 def scenarios(truth, tracker: str, runs: dict) -> dict:
     results = {}
     for name, drift in (("step 1%", step(CHANGE, 0.01)), ("ramp 0.5%/s", ramp(CHANGE, 0.005))):
-        run = run_tracking(truth, MODES, drift, DURATION, snr_db=40.0, seed=1, tracker=tracker)
+        run = run_tracking(truth, MODES, drift, DURATION, TrackingOptions(snr_db=40.0, seed=1, tracker=tracker))
         runs[f"{tracker}: {name}"] = run
         error = run.estimates / run.truth - 1
         last = run.times >= DURATION - 0.05
@@ -89,14 +89,15 @@ def focus_shot(truth, tracker: str) -> dict:
     the error of each planned mode's estimate at the focus."""
     import warnings
 
+    from modalctl.options import PlanOptions
     from modalctl.plan.decompose import decompose
     from modalctl.plan.planner import plan
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         shot = plan(decompose(truth, target(truth, "sinc", width="18mm", center="24mm"), "auto"), 0.025,
-                    sample_rate=500e3)
-    run = run_tracking(truth, None, step(0.0, 0.01), 0.025, snr_db=40.0, plan=shot, tracker=tracker)
+                    PlanOptions(sample_rate=500e3))
+    run = run_tracking(truth, None, step(0.0, 0.01), 0.025, TrackingOptions(snr_db=40.0, tracker=tracker), plan=shot)
     error = run.estimates[:, -1] / run.truth[:, -1] - 1
     rows = [{"mode": int(k + 1), "error_at_focus": float(e), "status": str(s)}
             for k, e, s in zip(shot.modes, error, run.status[:, -1])]
@@ -112,23 +113,24 @@ def shot_to_shot(truth) -> list[dict]:
     from modalctl.hil.scenario import Perturbation
     from modalctl.hil.sim_device import SimDevice
     from modalctl.identify.trackers import updated_model
+    from modalctl.options import PlanOptions
     from modalctl.plan.decompose import decompose
     from modalctl.plan.planner import plan
-    from modalctl.run import run_open_loop
 
     shape = target(truth, "sinc", width="18mm", center="24mm")
     rows = []
     for label, drift in (("+1% every mode", 0.01), ("-2% every mode", -0.02)):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            shot = plan(decompose(truth, shape, "auto"), 0.025, sample_rate=500e3)
-            run = run_tracking(truth, None, step(0.0, drift), 0.029, snr_db=40.0, plan=shot, tracker="pole")
+            shot = plan(decompose(truth, shape, "auto"), 0.025, PlanOptions(sample_rate=500e3))
+            run = run_tracking(truth, None, step(0.0, drift), 0.029, TrackingOptions(snr_db=40.0, tracker="pole"),
+                               plan=shot)
             drifted = Perturbation(drift=drift, snr_db=40, seed=2)
-            taus = [run_open_loop(m, shape, SimDevice(truth, drifted), 0.025).metrics["tau"]
+            taus = [open_loop(m, shape, SimDevice(truth, drifted), 0.025).metrics.tau
                     for m in (truth, updated_model(truth, run.modes, run.tracker))]
-            ceiling = run_open_loop(updated_model(truth, np.arange(truth.n_modes),
-                                                  _Known(truth.frequencies * (1 + drift), truth.damping)),
-                                    shape, SimDevice(truth, drifted), 0.025).metrics["tau"]
+            ceiling = open_loop(updated_model(truth, np.arange(truth.n_modes),
+                                              _Known(truth.frequencies * (1 + drift), truth.damping)),
+                                shape, SimDevice(truth, drifted), 0.025).metrics.tau
         rows.append({"truth": label, "tau_stale_model": taus[0], "tau_after_one_tracked_shot": taus[1],
                      "tau_true_model": ceiling})
         print(f"shot to shot, {label}: tau {taus[0]:.3f} stale -> {taus[1]:.3f} after one tracked shot "

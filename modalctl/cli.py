@@ -9,25 +9,25 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import re
 import sys
 from pathlib import Path
 
-from modalctl.io.device import DeviceError
+from modalctl.io.device import DeviceContext, DeviceError, add_transport_options
 from modalctl.loops.realtime import keep_memory
-from modalctl.loops.shot import AUTHORITY
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.scenes import SCENES, UnknownScene, load_scene
 from modalctl.model.shape import ParamError, parse_params
+from modalctl.options import LEARN_FROM, LoopOptions, PlanOptions, RunOptions, SurveyOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import PlanError
 from modalctl.plan.reduction import ReductionError
 from modalctl.plugin.manager import PluginError, get_controller, get_shape, plugin_table, shape_generators
 
-from .units import UnitError, parse_point, parse_quantity
+from .units import UnitError, number_type, parse_quantity, quantity_type
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
+PLAN, LOOP, SURVEY = PlanOptions(), LoopOptions(), SurveyOptions()  # the defaults the options below show and use
 REAL_TIME = {"run", "sweep", "emulate"}  # the commands that play shots (see modalctl.loops.realtime)
 
 
@@ -41,39 +41,6 @@ def _parse_param(text: str) -> tuple[str, str]:
 NEGATIVE = re.compile(r"^-\.?\d")  # a value, not an option: -1%, -30mm, -.5
 
 
-def _quantity(unit: str, name: str, reader=parse_quantity):
-    """An argparse type reading text with units (``reader``: :func:`parse_quantity` or :func:`parse_point`)."""
-    def parse(text: str):
-        try:
-            return reader(text, unit, name)
-        except UnitError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-    return parse
-
-
-def _within(parse, name: str, low: float, high: float = math.inf, low_open: bool = True):
-    """``parse`` (text -> number) that refuses values outside ``(low, high]`` (``[low, high]`` when
-    not ``low_open``), naming the option."""
-    def checked(text: str):
-        value = parse(text)
-        if not (low < value if low_open else low <= value) or not value <= high:
-            span = f"{'(' if low_open else '['}{low:g}, {high:g}{']' if math.isfinite(high) else ')'}"
-            raise argparse.ArgumentTypeError(f"{name} must lie in {span}, got {text!r}")
-        return value
-    checked.__name__ = name  # argparse's "invalid <name> value" for text it cannot read
-    return checked
-
-
-def _drift_step(text: str) -> tuple[float, float]:
-    """``SHIFT@TIME`` (``1%@20ms``) -> (relative shift, time in s)."""
-    shift, at, time = text.partition("@")
-    if not at:
-        raise argparse.ArgumentTypeError(f"drift-step: expected SHIFT@TIME, e.g. 1%@20ms, got {text!r}")
-    step = _quantity("1", "drift-step")(shift), _within(_quantity("s", "drift-step time"), "drift-step time", 0,
-                                                        low_open=False)(time)
-    return step
-
-
 def _points(text: str):
     """Grid points: ``211`` for a beam, ``101x71`` (or ``101,71``) for a plate."""
     try:
@@ -81,53 +48,6 @@ def _points(text: str):
     except ValueError:
         raise argparse.ArgumentTypeError(f"points: expected N (a beam) or NxM (a plate), got {text!r}") from None
     return parts[0] if len(parts) == 1 else tuple(parts)
-
-
-def _add_truth(group, finger_default: str = "the target's peak") -> None:
-    """The simulator's truth options (run and emulate): how the structure differs from the model."""
-    group.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="shift of every resonance, e.g. 1%%")
-    group.add_argument("--drift-spread", type=_quantity("1", "drift-spread"), default=0.0,
-                       help="random extra shift per mode (standard deviation), e.g. 0.5%%")
-    group.add_argument("--drift-rate", type=_quantity("1/s", "drift-rate"), default=0.0,
-                       help="resonances moving during the shot, from its start, e.g. 40%%/s (+1%% at 25 ms)")
-    group.add_argument("--drift-step", type=_drift_step, default=(0.0, 0.0), metavar="SHIFT@TIME",
-                       help="every resonance jumps by SHIFT at TIME of the shot, e.g. 1%%@20ms")
-    group.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0,
-                       help="relative damping error, e.g. 20%%")
-    group.add_argument("--finger", type=_within(_quantity("N s/m", "finger"), "finger", 0, low_open=False),
-                       default=0.0, help="a finger resting on the surface: its viscous damping, e.g. 0.5Ns/m")
-    group.add_argument("--finger-at", type=_quantity("m", "finger-at", parse_point), metavar="POINT",
-                       help=f"where the finger rests, e.g. 24mm or 30mm,20mm (default: {finger_default})")
-    group.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
-    group.add_argument("--scan-repeats", type=_within(int, "scan-repeats", 1, low_open=False), default=1,
-                       help="the vibrometer measures each point N times and keeps the mean (1)")
-    group.add_argument("--amplifier-bandwidth",
-                       type=_within(_quantity("Hz", "amplifier-bandwidth"), "amplifier-bandwidth", 0),
-                       help="first-order amplifier bandwidth, e.g. 100kHz")
-    group.add_argument("--rails", type=_within(_quantity("V", "rails"), "rails", 0),
-                       help="amplifier voltage rails (clipping)")
-    group.add_argument("--seed", type=int, default=0)
-
-
-def _perturbation(args, model: ModalModel, shape=None):
-    """The Perturbation the truth options ask for; a finger rests on the target's peak unless placed."""
-    import numpy as np
-
-    from modalctl.hil.scenario import Perturbation
-
-    at = args.finger_at
-    if at is not None and not args.finger:
-        raise ParamError("--finger-at places a finger: give its damping too (--finger, e.g. 0.5Ns/m)")
-    if args.finger and at is None:
-        if shape is None:
-            raise ParamError("--finger needs --finger-at here (no target to rest it on)")
-        at = tuple(model.grid.points[int(np.argmax(np.abs(shape.values)))])
-    try:
-        return Perturbation(args.drift, args.drift_spread, args.damping_error, args.snr, args.amplifier_bandwidth,
-                            args.rails, args.seed, args.drift_rate, *args.drift_step, args.finger, at,
-                            args.scan_repeats)
-    except ValueError as exc:
-        raise ParamError(str(exc)) from None
 
 
 def _add_target(p) -> None:
@@ -140,7 +60,7 @@ def _add_target(p) -> None:
                    help="shape parameter with units, e.g. width=18mm (repeatable)")
     p.add_argument("--modes", type=_modes, default="auto",
                    help="auto (smallest set meeting the target), all, or N (the N lowest modes)")
-    p.add_argument("--tau-target", type=_within(float, "tau-target", 0, 1),
+    p.add_argument("--tau-target", type=number_type(float, "tau-target", low=0, high=1),
                    help="auto: least tau for the kept modes (default 0.98)")
     p.add_argument("--points", type=_points, help="grid points: N for a beam, NxM for a plate (default: the scene's)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -167,7 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("decompose", help="project a target field on a scene's modes and reduce")
     _add_target(p)
-    p.add_argument("--nrmse-target", type=_within(float, "nrmse-target", 0),
+    p.add_argument("--nrmse-target", type=number_type(float, "nrmse-target", low=0),
                    help="auto: largest NRMSE for the kept modes")
     p.add_argument("--orthogonalize", action="store_true", help="Gram-Schmidt the mode shapes first")
     p.add_argument("--plot", metavar="FILE.png", help="draw the field and the modal bars")
@@ -175,43 +95,46 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="plan a focus, play it on a device (default sim://) and measure it")
     _add_target(p)
-    p.add_argument("--focus-time", required=True, type=_quantity("s", "focus-time"), help="T_F, e.g. 25ms")
-    p.add_argument("--margin", type=_within(_quantity("1", "margin"), "margin", 0, 1),
+    p.add_argument("--focus-time", required=True, type=quantity_type("s", "focus-time"), help="T_F, e.g. 25ms")
+    p.add_argument("--margin", type=quantity_type("1", "margin", low=0, high=1),
                    help="transient margin to plan for, e.g. 0.5 or 50%% (runs the envelope optimizer)")
-    p.add_argument("--voltage-limit", type=_within(_quantity("V", "voltage-limit"), "voltage-limit", 0),
+    p.add_argument("--voltage-limit", type=quantity_type("V", "voltage-limit", low=0),
                    help="largest drive voltage, e.g. 100V")
-    p.add_argument("--margin-on", choices=("whole", "kept"), default="whole",
+    p.add_argument("--margin-on", choices=("whole", "kept"), default=PLAN.margin_on,
                    help="where --margin must hold: whole (the field the voltages drive on every mode of the "
                         "model; they are corrected near the focus until it does, up to a minute) or kept (the "
                         "kept modes' references, the thesis's criterion)")
-    p.add_argument("--kappa", type=float, default=1.0, help="envelope rate without --margin (default 1)")
+    p.add_argument("--kappa", type=number_type(float, "kappa", low=0), default=PLAN.kappa,
+                   help=f"envelope rate without --margin ({PLAN.kappa:g})")
     p.add_argument("--no-brake", action="store_true", help="optimizer: free decay after the focus only")
-    p.add_argument("--after", type=_quantity("s", "after"), default=4e-3,
-                   help="post-transient window recorded and checked (default 4ms)")
-    p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=1e6, help="DAC rate (1MHz)")
+    p.add_argument("--after", type=quantity_type("s", "after", low=0), default=PLAN.after,
+                   help=f"post-transient window recorded and checked ({PLAN.after * 1e3:g}ms)")
+    p.add_argument("--sample-rate", type=quantity_type("Hz", "sample-rate", low=0), default=PLAN.sample_rate,
+                   help=f"DAC rate ({PLAN.sample_rate / 1e6:g}MHz)")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
     loop = p.add_argument_group("closed loop")
     loop.add_argument("--loop", choices=("open", "closed", "board"), default="open",
                       help="open: feed-forward only (the thesis); closed: per-mode feedback on top, one "
                            "exchange with the board per period; board: the same PI loops loaded into the board, "
                            "which closes them itself (no link budget)")
-    loop.add_argument("--control-rate", type=_quantity("Hz", "control-rate"), default=20e3,
-                      help="loop rate, a divisor of the sample rate (20kHz)")
-    loop.add_argument("--slew-limit", type=_within(_quantity("V/s", "slew-limit"), "slew-limit", 0),
+    loop.add_argument("--control-rate", type=quantity_type("Hz", "control-rate", low=0), default=LOOP.control_rate,
+                      help=f"loop rate, a divisor of the sample rate ({LOOP.control_rate / 1e3:g}kHz)")
+    loop.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=0),
                       help="largest output slope, e.g. 2e6V/s")
-    loop.add_argument("--authority", type=_within(float, "authority", 0, low_open=False), default=AUTHORITY,
-                      help=f"largest feedback per mode, as a fraction of its planned drive ({AUTHORITY:g})")
-    loop.add_argument("--latency", type=_within(int, "latency", 0, low_open=False), default=0,
-                      help="extra periods the board takes to use a command (0)")
-    loop.add_argument("--controller", default="pi", help="per-mode controller plugin: pi (default) or lqg")
-    loop.add_argument("--watchdog", type=_within(int, "watchdog", 1, low_open=False), default=1,
-                      help="periods without a measurement before the supervisor stops the shot (1)")
-    loop.add_argument("--learn", action="store_true",
-                      help="a first closed-loop shot updates the model's resonances and damping from its "
-                           "record; the shot planned again on the updated model is the one reported")
-    truth = p.add_argument_group("simulator truth (sim:// only)")
-    truth.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
-    _add_truth(truth)
+    loop.add_argument("--authority", type=number_type(float, "authority", low=0, low_open=False),
+                      default=LOOP.authority,
+                      help=f"largest feedback per mode, as a fraction of its planned drive ({LOOP.authority:g})")
+    loop.add_argument("--latency", type=number_type(int, "latency", low=0, low_open=False), default=LOOP.latency,
+                      help=f"extra periods the board takes to use a command ({LOOP.latency})")
+    loop.add_argument("--controller", default=LOOP.controller,
+                      help=f"per-mode controller plugin: pi or lqg ({LOOP.controller})")
+    loop.add_argument("--watchdog", type=number_type(int, "watchdog", low=1, low_open=False), default=LOOP.watchdog,
+                      help=f"periods without a measurement before the supervisor stops the shot ({LOOP.watchdog})")
+    loop.add_argument("--learn", nargs="?", const="record", choices=LEARN_FROM,
+                      help="a first closed-loop shot teaches the model: from its record (record, the default: "
+                           "every resonance and damping fitted to it) or from a pole tracker during it (tracker); "
+                           "the shot planned again on the updated model is the one reported")
+    p.set_defaults(transports=add_transport_options(p))
     p.add_argument("--out", required=True, help="directory for metrics.json, fields.npz and the pictures")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -223,18 +146,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shape", default="sinc", help="shape generator (sinc)")
     p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
                    help="shape parameter with units (default width=18mm center=24mm)")
-    p.add_argument("--focus-time", type=_quantity("s", "focus-time"), default=25e-3, help="T_F (25ms)")
-    p.add_argument("--margin", type=_within(_quantity("1", "margin"), "margin", 0, 1),
+    p.add_argument("--focus-time", type=quantity_type("s", "focus-time"), default=25e-3, help="T_F (25ms)")
+    p.add_argument("--margin", type=quantity_type("1", "margin", low=0, high=1),
                    help="transient margin to plan for")
     p.add_argument("--vary", action="append", default=[], type=_parse_param, metavar="NAME=V1,V2,...",
                    help="a swept parameter and its values: " + ", ".join(SWEPT) + " (one or two)")
     p.add_argument("--methods", default="open,closed,tracked",
                    help="open, closed, tracked, learned (default the first three)")
-    p.add_argument("--drift", type=_quantity("1", "drift"), default=0.0, help="fixed drift when not swept")
-    p.add_argument("--damping-error", type=_quantity("1", "damping-error"), default=0.0)
+    p.add_argument("--drift", type=quantity_type("1", "drift"), default=0.0, help="fixed drift when not swept")
+    p.add_argument("--damping-error", type=quantity_type("1", "damping-error"), default=0.0)
     p.add_argument("--snr", type=float, default=40.0, help="sensor noise, dB below the focus peak (40)")
-    p.add_argument("--control-rate", type=_quantity("Hz", "control-rate"), default=20e3)
-    p.add_argument("--sample-rate", type=_quantity("Hz", "sample-rate"), default=500e3)
+    p.add_argument("--control-rate", type=quantity_type("Hz", "control-rate"), default=20e3)
+    p.add_argument("--sample-rate", type=quantity_type("Hz", "sample-rate"), default=500e3)
     p.add_argument("--controller", default="pi", help="per-mode controller plugin of the closed loops (pi)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--scheduler", help="dask.distributed scheduler address (default: a local process pool)")
@@ -246,31 +169,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("emulate", help="serve the HIL board on a serial device path (a pty) until interrupted")
     p.add_argument("--scene", default="thesis-al-cc", help="the structure (thesis-al-cc)")
     p.add_argument("--points", type=_points, help="grid points: N for a beam, NxM for a plate (default: the scene's)")
-    _add_truth(p.add_argument_group("the structure simulated behind the board"), "none, give it with --finger")
-    p.add_argument("--latency", type=_within(int, "latency", 0, low_open=False), default=0,
+    p.set_defaults(transports=add_transport_options(p))
+    p.add_argument("--latency", type=number_type(int, "latency", low=0, low_open=False), default=0,
                    help="extra periods before a command is used")
-    p.add_argument("--for", dest="seconds", type=_quantity("s", "for"), help="stop after this long (default: never)")
+    p.add_argument("--for", dest="seconds", type=quantity_type("s", "for"), help="stop after this long (default: never)")
 
     p = sub.add_parser("identify", help="identify a structure's modes from FRFs measured through a device")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
     p.add_argument("--scene", help="sim://: the structure simulated (and its mass per length by default)")
     p.add_argument("--frf", help="identify from measured FRFs in a universal file (datasets 58 and 15) instead")
-    p.add_argument("--snr", type=float, default=40.0, help="sim://: vibrometer noise, dB below the peak (40)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--f-low", type=_quantity("Hz", "f-low"), default=100.0, help="sweep start (100Hz)")
-    p.add_argument("--f-high", type=_quantity("Hz", "f-high"), default=100e3, help="sweep end (100kHz)")
-    p.add_argument("--resolution", type=_within(_quantity("Hz", "resolution"), "resolution", 0), default=4.0,
+    p.set_defaults(transports=add_transport_options(p), snr=40.0)  # a vibrometer of 40 dB, unless said
+    p.add_argument("--f-low", type=quantity_type("Hz", "f-low"), default=100.0, help="sweep start (100Hz)")
+    p.add_argument("--f-high", type=quantity_type("Hz", "f-high"), default=100e3, help="sweep end (100kHz)")
+    p.add_argument("--resolution", type=quantity_type("Hz", "resolution", low=0), default=4.0,
                    help="FRF resolution = 1 / T_sweep (4Hz)")
-    p.add_argument("--amplitude", type=_within(_quantity("V", "amplitude"), "amplitude", 0), default=15.0,
+    p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=0), default=15.0,
                    help="sweep peak voltage (15V)")
-    p.add_argument("--step", type=_within(_quantity("m", "step"), "step", 0), default=1e-3,
+    p.add_argument("--step", type=quantity_type("m", "step", low=0), default=1e-3,
                    help="spatial step of the scan (1mm)")
-    p.add_argument("--mass-per-length", type=_within(_quantity("kg/m", "mass-per-length"), "mass-per-length", 0),
+    p.add_argument("--mass-per-length", type=quantity_type("kg/m", "mass-per-length", low=0),
                    help="of the beam (kg/m); default from the scene")
-    p.add_argument("--method", default="sdof", help="identifier plugin: sdof (default) or peaks")
-    p.add_argument("--primary", type=_within(int, "primary", 0, low_open=False), default=0,
-                   help="actuator swept over the whole grid (0)")
-    p.add_argument("--averages", type=int, default=2, help="shots per point (2)")
+    p.add_argument("--method", default=SURVEY.method, help=f"identifier plugin: sdof or peaks ({SURVEY.method})")
+    p.add_argument("--primary", type=number_type(int, "primary", low=0, low_open=False), default=SURVEY.primary,
+                   help=f"actuator swept over the whole grid ({SURVEY.primary})")
+    p.add_argument("--averages", type=number_type(int, "averages", low=1, low_open=False), default=SURVEY.averages,
+                   help=f"shots per point ({SURVEY.averages})")
     p.add_argument("--no-orthogonalize", action="store_true", help="skip Gram-Schmidt")
     p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
     p.add_argument("--no-plots", action="store_true")
@@ -341,76 +264,68 @@ def _decompose(args) -> int:
     return 0
 
 
+def _run_options(args, out: Path) -> RunOptions:
+    """The typed options of ``modalctl run``."""
+    if args.learn and args.loop == "open":
+        raise ParamError("--learn needs a closed loop (--loop closed or board)")
+    plan = PlanOptions(modes=args.modes, tau_min=args.tau_target or PLAN.tau_min, margin=args.margin,
+                       margin_on=args.margin_on, voltage_limit=args.voltage_limit, kappa=args.kappa,
+                       brake=not args.no_brake, after=args.after, sample_rate=args.sample_rate)
+    loop = None if args.loop == "open" else LoopOptions(
+        control_rate=args.control_rate, controller=args.controller, on_board=args.loop == "board",
+        authority=args.authority, latency=args.latency, slew_limit=args.slew_limit, watchdog=args.watchdog)
+    return RunOptions(args.focus_time, plan, loop, args.learn, out / "log" if loop else None, not args.quiet)
+
+
+def _open_device(args, model=None, shape=None):
+    """The device at ``--transport`` with its transport's own options; another transport's are refused."""
+    from urllib.parse import urlsplit
+
+    from modalctl.io.device import open_device
+
+    scheme = urlsplit(args.transport).scheme
+    misplaced = args.transports.misplaced(args, scheme)
+    if misplaced:
+        raise ParamError(f"{', '.join(misplaced)}: not an option of {scheme}:// (--transport {args.transport})")
+    return open_device(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
+
+
 def _run(args) -> int:
     import warnings
 
     from modalctl.plan.dispatch import DecouplingWarning
 
+    from .run import run
+
     warnings.simplefilter("ignore", DecouplingWarning)  # printed below from the metrics
-
-    from modalctl.io.device import open_device
-
-    from .run import run_closed_loop, run_open_loop
-
-    if args.learn and args.loop == "open":
-        raise ParamError("--learn needs a closed loop (--loop closed or board)")
-    model, shape = _model_and_shape(args)
-    perturbation = _perturbation(args, model, shape)
-    truth = load_scene(args.truth) if args.truth else model
-    for what in ("actuator", "sensor"):
-        ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))
-        if ours != theirs:
-            raise ModelError(f"--truth {args.truth} has {theirs} {what}s, the model {ours}: the truth must be the "
-                             f"same structure as the one planned on (its modes may differ)")
-    device = open_device(args.transport, model=truth, perturbation=perturbation)
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    common = dict(modes=args.modes, tau_min=args.tau_target, margin=args.margin, voltage_limit=args.voltage_limit,
-                  sample_rate=args.sample_rate, progress=not args.quiet, kappa=args.kappa, brake=not args.no_brake,
-                  verify="whole" if args.margin_on == "whole" else "planned",
-                  after=args.after)
-    try:
-        if args.loop in ("closed", "board"):
-            shot = run_closed_loop(model, shape, device, args.focus_time, control_rate=args.control_rate,
-                                   slew_limit=args.slew_limit, authority=args.authority, latency=args.latency,
-                                   log=out / "log", controller=args.controller, watchdog=args.watchdog,
-                                   on_board=args.loop == "board", learn=args.learn, **common)
-        else:
-            shot = run_open_loop(model, shape, device, args.focus_time, **common)
-        return _report(args, model, shape, device, shot, perturbation, out)
-    finally:
-        getattr(device, "close", lambda: None)()
+    options = _run_options(args, out)
+    model, shape = _model_and_shape(args)
+    with _open_device(args, model, shape) as device:
+        out.mkdir(parents=True, exist_ok=True)
+        shot = run(model, shape, device, options)
+        return _report(args, model, shot, device, out)
 
 
-def _report(args, model, shape, device, shot, perturbation, out) -> int:
+def _report(args, model, shot, device, out) -> int:
     """metrics.json, fields.npz and the pictures of a run; the summary on stdout."""
     import numpy as np
 
-    metrics = {**shot.metrics, "scene": model.meta.get("name", args.model), "shape": args.shape,
-               "params": dict(args.param), "truth": perturbation.describe(), "out": str(out)}
-    centre = int(np.argmax(np.abs(shot.focus_field) * shape.target_mask))
-    from modalctl.io.device import scan_indices
-
-    index = scan_indices(device.capabilities, model.grid.points[[centre]], device.url)
-    focus_velocity = device.scan(shot.capture.times, points=centre if index is None else index)[0]
+    metrics = {**shot.to_dict(), "scene": model.meta.get("name", args.model), "shape": args.shape,
+               "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out)}
     coeffs = shot.coefficients()
     # the field scan is stored in float32 (7 digits, far below any measurement noise) to keep runs small
     np.savez_compressed(out / "fields.npz", times=shot.times, field=shot.field.astype(np.float32),
                         focus_field=shot.focus_field,
-                        target=shape.values, target_mask=shape.target_mask, grid=model.grid.points,
+                        target=shot.decomposition.shape.values, target_mask=shot.decomposition.shape.target_mask,
+                        grid=model.grid.points,
                         sample_times=shot.capture.times, voltages=shot.capture.voltages,
-                        sensors=shot.capture.sensors, focus_point_velocity=focus_velocity,
+                        sensors=shot.capture.sensors, focus_point_velocity=shot.focus_velocity,
                         labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
     if not args.no_plots:
         from .report import write_run_report
 
-        metrics["pictures"] = write_run_report(shot, out, focus_velocity, args.sample_rate,
-                                               float(model.grid.points[centre, 0]),
-                                               perturbation.finger_at if perturbation.finger else None)
-        if args.loop in ("closed", "board"):
-            from .report import plot_loop
-
-            metrics["pictures"]["loop"] = str(plot_loop(out / "log", out / "loop.png"))
+        metrics["pictures"] = write_run_report(shot, out)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_jsonable))
     fault = metrics.get("loop", {}).get("fault")
     if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
@@ -437,12 +352,14 @@ def _report(args, model, shape, device, shot, perturbation, out) -> int:
               f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
         print(f"the shot took {lp['real_time_factor']:.2f}x its played time (set-up, loop, log, records; "
               f"design {lp['design_seconds']:.2f} s and the field's scan {lp['scan_seconds']:.2f} s besides)")
-    if "learning_shot" in m:
-        ls = m["learning_shot"]
-        print(f"learning shot: tau {ls['tau']:.4f}, margin ratio {ls['margin_ratio']:.3f}; its record moved the "
-              f"resonances by {100 * ls['common_shift']:+.2f}% in common ({100 * min(ls['relative_shift']):+.2f}% "
-              f"to {100 * max(ls['relative_shift']):+.2f}%; fit {ls['update_seconds']:.1f} s, misfit "
-              f"{100 * ls['misfit']:.1f}%); the numbers above are the shot planned again on the updated model")
+    if shot.learning is not None:
+        ls = shot.learning
+        how = (f"fit {ls.update_seconds:.1f} s, misfit {100 * ls.misfit:.1f}%" if ls.source == "record"
+               else "a pole tracker during the shot")
+        print(f"learning shot: tau {ls.tau:.4f}, margin ratio {ls.margin_ratio:.3f}; its {ls.source} moved the "
+              f"resonances by {100 * ls.common_shift:+.2f}% in common ({100 * min(ls.relative_shift):+.2f}% "
+              f"to {100 * max(ls.relative_shift):+.2f}%; {how}); the numbers above are the shot planned again "
+              f"on the updated model")
     for w in m["decoupling_warnings"]:
         print("warning: " + w)
     print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in m else ")"))
@@ -522,10 +439,16 @@ def _sweep(args) -> int:
 def _emulate(args) -> int:
     import time
 
+    from modalctl.hil.scenario import Perturbation
     from modalctl.hil.serial_board import SerialBoardEmulator
 
     model = load_scene(args.scene, args.points)
-    perturbation = _perturbation(args, model)
+    misplaced = args.transports.misplaced(args, "sim")
+    if misplaced:
+        raise ParamError(f"{', '.join(misplaced)}: not an option of the simulated board")
+    if args.truth:
+        raise ParamError("emulate: the structure is --scene (--truth is for modalctl run)")
+    perturbation = Perturbation.from_options(args.transports.of(args, "sim"), model)
     with SerialBoardEmulator(model, perturbation, args.latency) as board:
         print(f"board emulator for {args.scene} ({perturbation.describe()}) on {board.path}", flush=True)
         print(f"use: modalctl run ... --transport serial://{board.path}   (Ctrl-C to stop)", flush=True)
@@ -541,10 +464,8 @@ def _emulate(args) -> int:
 def _identify(args) -> int:
     import numpy as np
 
-    from modalctl.hil.scenario import Perturbation
     from modalctl.identify.frf import Sweep, read_uff58
     from modalctl.identify.survey import beam_wavelength, identify_device, identify_frf
-    from modalctl.io.device import open_device
 
     scene = load_scene(args.scene) if args.scene else None
     if args.frf is None and args.transport.startswith("sim") and scene is None:
@@ -564,13 +485,14 @@ def _identify(args) -> int:
         points = np.arange(survey.model.grid.n)
     else:
         sweep = Sweep.design(args.f_low, args.f_high, args.resolution, args.amplitude)
-        device = open_device(args.transport, model=scene, perturbation=Perturbation(snr_db=args.snr, seed=args.seed))
-        caps = device.configure(sweep.sample_rate)
-        x = np.asarray(caps.scan_points, float)[:, 0]
-        points = np.flatnonzero(np.diff(np.floor((x - x[0]) / args.step + 1e-9), prepend=-1) > 0)
-        survey = identify_device(device, sweep, points, mass, method=args.method, primary=args.primary,
-                                 averages=args.averages, orthogonalize=not args.no_orthogonalize,
-                                 wavelength=beam_wavelength(meta, args.f_high), progress=not args.quiet)
+        options = SurveyOptions(method=args.method, primary=args.primary, averages=args.averages,
+                                orthogonalize=not args.no_orthogonalize)
+        with _open_device(args, scene) as device:
+            caps = device.configure(sweep.sample_rate)
+            x = np.asarray(caps.scan_points, float)[:, 0]
+            points = np.flatnonzero(np.diff(np.floor((x - x[0]) / args.step + 1e-9), prepend=-1) > 0)
+            survey = identify_device(device, sweep, points, mass, options, beam_wavelength(meta, args.f_high),
+                                     progress=not args.quiet)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     path = survey.model.save(out)

@@ -125,10 +125,10 @@ def plot_spacetime(shot, path, finger=None) -> Path:
     tf, sel = shot.plan.focus_time, _window(shot)
     t, field = shot.times[sel], shot.field[:, sel]
     peak = np.max(np.abs(shot.focus_field))
-    limit = m["margin_criterion"] * peak
+    limit = m.margin_criterion * peak
     mask = shot.decomposition.shape.target_mask
-    title = (f"margin ratio {m['margin_ratio']:.2f} (criterion {m['margin_criterion']:g}, "
-             f"{'met' if m['margin_ok'] else 'NOT met'}), tau {m['tau']:.3f}")
+    title = (f"margin ratio {m.margin_ratio:.2f} (criterion {m.margin_criterion:g}, "
+             f"{'met' if m.margin_ok else 'NOT met'}), tau {m.tau:.3f}")
     if finger is not None:
         title += f"; a finger rests at {', '.join(f'{1e3 * v:g}' for v in finger)} mm"
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [3, 2]})
@@ -151,7 +151,7 @@ def plot_spacetime(shot, path, finger=None) -> Path:
     ax = left if grid.dim != 1 else right
     ax.plot((t - tf) * 1e3, on * 1e3, "C2", lw=1, label="max |w| in target zone")
     ax.plot((t - tf) * 1e3, off * 1e3, "C0", lw=1, label="max |w| off target")
-    ax.axhline(limit * 1e3, color="red", ls="--", lw=1, label=f"margin {m['margin_criterion']:g} x focus peak")
+    ax.axhline(limit * 1e3, color="red", ls="--", lw=1, label=f"margin {m.margin_criterion:g} x focus peak")
     ax.set_ylabel("velocity (mm/s)")
     ax.legend(frameon=False, fontsize=8)
     for a in (left, right):
@@ -186,8 +186,8 @@ def plot_modal_bars(shot, path) -> Path:
     bottom.axhline(0, color="0.5", lw=0.5)
     bottom.legend(frameon=False, fontsize=8)
     m = shot.metrics
-    top.set_title(f"tau {m['tau']:.3f} (model {m['tau_model']:.3f}), tau_norm {m['tau_norm']:.3f}, "
-                  f"NRMSE {m['nrmse']:.3f}", fontsize=10)
+    top.set_title(f"tau {m.tau:.3f} (model {m.tau_model:.3f}), tau_norm {m.tau_norm:.3f}, "
+                  f"NRMSE {m.nrmse:.3f}", fontsize=10)
     return _save(fig, path)
 
 
@@ -201,7 +201,7 @@ def plot_voltages(shot, path) -> Path:
     ax.axvline(shot.plan.focus_time * 1e3, color="k", ls=":", lw=1, label="T_F")
     ax.set_xlabel("t (ms)")
     ax.set_ylabel("voltage (V)")
-    ax.set_title(f"peak {shot.metrics['peak_voltage']:.1f} V", fontsize=10)
+    ax.set_title(f"peak {shot.metrics.peak_voltage:.1f} V", fontsize=10)
     ax.legend(frameon=False, fontsize=7, ncol=4)
     return _save(fig, path)
 
@@ -320,52 +320,66 @@ def plot_sweep_maps(rows, axes, methods, path) -> Path:
     return _save(fig, path)
 
 
-def plot_learning(learned: dict, labels, path) -> Path:
-    """What a learning shot's record taught (``metrics["learning_shot"]``): each mode's resonance
-    and damping relative to the model it was planned on, with two standard errors, and the common
-    shift; the modes of the shot drawn in colour, the others (seen less, held near the common
-    change by the prior) in grey."""
-    shift = 100 * np.asarray(learned["relative_shift"])
-    f = np.asarray(learned["frequencies_hz"])
-    f_error = 200 * np.asarray(learned["frequency_error_hz"]) / (f / (1 + shift / 100))
+def plot_learning(learned, labels, path) -> Path:
+    """What a learning shot taught (:class:`modalctl.run.LearningMetrics`): each mode's resonance
+    and damping relative to the model it was planned on, with two standard errors where a record's
+    fit gives them, and the common shift; the modes of the shot drawn in colour, the others (seen
+    less, held near the common change by the prior, or moved by the tracked ones) in grey."""
+    shift = 100 * np.asarray(learned.relative_shift)
+    f = np.asarray(learned.frequencies_hz)
+    fitted = learned.frequency_error_hz is not None
+    f_error = 200 * np.asarray(learned.frequency_error_hz) / (f / (1 + shift / 100)) if fitted else None
     pos = np.arange(shift.size)
-    used = np.isin(np.asarray(labels), learned["modes_used"])
+    used = np.isin(np.asarray(labels), learned.modes_used)
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
     for mask, colour, name in ((used, "C0", "modes of the shot"), (~used, "0.6", "other modes")):
-        top.errorbar(pos[mask], shift[mask], yerr=f_error[mask], fmt="o", color=colour, capsize=3, label=name)
-    common, error = 100 * learned["common_shift"], 100 * learned["common_shift_error"]
-    top.axhspan(common - 2 * error, common + 2 * error, color="C3", alpha=0.15)
-    top.axhline(common, color="C3", lw=1, label=f"common shift {common:+.2f}% (+-{2 * error:.2f}%)")
+        top.errorbar(pos[mask], shift[mask], yerr=f_error[mask] if fitted else None, fmt="o", color=colour,
+                     capsize=3, label=name)
+    common = 100 * learned.common_shift
+    if learned.common_shift_error is not None:
+        error = 100 * learned.common_shift_error
+        top.axhspan(common - 2 * error, common + 2 * error, color="C3", alpha=0.15)
+        top.axhline(common, color="C3", lw=1, label=f"common shift {common:+.2f}% (+-{2 * error:.2f}%)")
+    else:
+        top.axhline(common, color="C3", lw=1, label=f"median shift of the tracked modes {common:+.2f}%")
     top.axhline(0, color="k", lw=0.5)
     top.set_ylabel("resonance change (%)")
     top.legend(frameon=False, fontsize=8)
-    change = np.asarray(learned["relative_damping_change"])
-    z_error = 200 * np.asarray(learned["damping_error"]) / (np.asarray(learned["damping"]) / (1 + change))
+    change = np.asarray(learned.relative_damping_change)
+    z_error = 200 * np.asarray(learned.damping_error) / (np.asarray(learned.damping) / (1 + change)) if fitted \
+        else None
     for mask, colour in ((used, "C0"), (~used, "0.6")):
-        bottom.errorbar(pos[mask], 100 * change[mask], yerr=z_error[mask], fmt="o", color=colour, capsize=3)
-    bottom.axhline(100 * learned["common_damping_change"], color="C3", lw=1,
-                   label=f"common change {100 * learned['common_damping_change']:+.0f}%")
+        bottom.errorbar(pos[mask], 100 * change[mask], yerr=z_error[mask] if fitted else None, fmt="o",
+                        color=colour, capsize=3)
+    bottom.axhline(100 * learned.common_damping_change, color="C3", lw=1,
+                   label=f"common change {100 * learned.common_damping_change:+.0f}%")
     bottom.axhline(0, color="k", lw=0.5)
     bottom.set_ylabel("damping change (%)")
     bottom.legend(frameon=False, fontsize=8)
     bottom.set_xticks(pos, [str(l) for l in labels], fontsize=7)
     bottom.set_xlabel("mode")
-    top.set_title(f"learned from the first shot (tau {learned['tau']:.3f}, margin {learned['margin_ratio']:.3f}): "
-                  f"2 standard errors, fit {learned['update_seconds']:.1f} s", fontsize=10)
+    how = (f"its record: 2 standard errors, fit {learned.update_seconds:.1f} s" if fitted
+           else "a pole tracker during it")
+    top.set_title(f"learned from the first shot (tau {learned.tau:.3f}, margin {learned.margin_ratio:.3f}), "
+                  f"from {how}", fontsize=10)
     return _save(fig, path)
 
 
-def write_run_report(shot, out, focus_velocity=None, sample_rate=None, where=None, finger=None) -> dict:
-    """All run pictures into directory ``out``; returns {name: path}. ``finger``: see :func:`plot_spacetime`."""
+def write_run_report(shot, out) -> dict:
+    """All the pictures of a run (a :class:`modalctl.run.ShotResult`) into directory ``out``;
+    returns {name: path}. A finger the device says rests on the structure is drawn where it rests."""
     out = Path(out)
+    finger = shot.metrics.device_info.get("finger_at_m")
+    where = float(shot.decomposition.model.grid.points[shot.focus_point, 0])
     paths = {"spacetime": plot_spacetime(shot, out / "spacetime.png", finger),
              "modal_bars": plot_modal_bars(shot, out / "modal_bars.png"),
-             "voltages": plot_voltages(shot, out / "voltages.png")}
-    if focus_velocity is not None:
-        paths["spectrogram"] = plot_spectrogram(shot, focus_velocity, sample_rate, where, out / "spectrogram.png")
-    if "learning_shot" in shot.metrics:
-        paths["learning"] = plot_learning(shot.metrics["learning_shot"], shot.decomposition.model.labels,
-                                          out / "learning.png")
+             "voltages": plot_voltages(shot, out / "voltages.png"),
+             "spectrogram": plot_spectrogram(shot, shot.focus_velocity, shot.plan.sample_rate, where,
+                                             out / "spectrogram.png")}
+    if shot.learning is not None:
+        paths["learning"] = plot_learning(shot.learning, shot.decomposition.model.labels, out / "learning.png")
+    if shot.loop is not None and (out / "log.json").exists():
+        paths["loop"] = plot_loop(out / "log", out / "loop.png")
     return {k: str(v) for k, v in paths.items()}
 
 

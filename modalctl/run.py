@@ -1,33 +1,207 @@
-"""A focusing shot end to end, open or closed loop (after a learning shot if asked): decompose, plan,
-play on a device, measure.
+"""A focus shot end to end: decompose, plan, (learn, plan again,) play on a device, measure.
 
-The device is any :class:`modalctl.io.device.Device` (``sim://`` or a board); this module opens no
+:func:`run` is the one path every shot takes, from the command line, an experiment or a sweep:
+:class:`~modalctl.options.RunOptions` in, :class:`ShotResult` out. Open loop plays the plan's
+waveforms (the thesis's set-up); closed loop plays it on the device's phasor board under the
+per-mode loops (:mod:`modalctl.loops.shot`), or loads the loops into the board; a learning shot
+first teaches the model from its record or a pole tracker. Everything measured is measured here,
+through the device (its record and its vibrometer's scan), into typed metrics.
+
+The device is any :class:`modalctl.io.device.Device` (``sim://`` or a board): this module opens no
 port itself and draws nothing (pictures are in :mod:`modalctl.report`).
 """
 
 from __future__ import annotations
 
 import time as _time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from modalctl.io.device import Capture, Device, DeviceError, scan_indices
-from modalctl.loops.shot import AUTHORITY
+from modalctl.identify.trackers import updated_model
+from modalctl.identify.updating import update
+from modalctl.io.device import Capabilities, Capture, Device, DeviceError, scan_indices
+from modalctl.loops.onboard import board_loop
+from modalctl.loops.runtime import LoopParts, PhasorBoard, RunResult, State
+from modalctl.loops.schedule import HOLD
+from modalctl.loops.shot import closed_shot, loop_log, loop_parts
 from modalctl.model.metrics import margin_ratio, nrmse, tau, tau_norm
 from modalctl.model.modes import ModalModel
-from modalctl.model.projection import project, reconstruct
+from modalctl.model.projection import project
 from modalctl.model.shape import Shape
-from modalctl.plan.decompose import Decomposition, decompose
-from modalctl.plan.planner import Plan, PlanError, plan
+from modalctl.options import THESIS_MARGIN, LoopOptions, RunOptions
+from modalctl.plan.decompose import Decomposition
+from modalctl.plan.planner import Plan, plan_shot
+from modalctl.plugin.manager import get_tracker
 
-__all__ = ["Shot", "run_open_loop", "run_closed_loop", "THESIS_MARGIN"]
+__all__ = ["run", "ShotResult", "ShotMetrics", "LoopMetrics", "LearningMetrics"]
 
-THESIS_MARGIN = 0.5
+
+@dataclass(frozen=True)
+class ShotMetrics:
+    """What a shot measured (the field by the device's vibrometer, the voltages by its record) and
+    what its plan predicted.
+
+    Attributes
+    ----------
+    tau, tau_norm, nrmse : float
+        The measured field at T_F against the target (Eq 4.2).
+    tau_model : float
+        What the kept modes can draw at best.
+    margin_ratio : float
+        Largest off-target velocity over the scanned instants, over the focus peak.
+    margin_criterion : float
+        The margin asked, or the thesis's 0.5.
+    margin_ok : bool
+    worst_off_target : dict
+        ``x_m`` (the point, or None) and ``t_s`` of the margin's worst sample.
+    peak_voltage : float
+        V, on any actuator.
+    modes_used : list of int
+        Mode labels.
+    kappa, brake : list of float
+        Each kept mode's envelope rate and post-focus decay (units of ``zeta w``).
+    focus_time_s, sample_rate_hz : float
+    plan_seconds, sim_seconds : float
+        Wall time of the plan, and of the device's part (play and measure).
+    predicted_margin_ratio, whole_model_margin_ratio : float
+        The plan's: on the kept modes' references, and on every mode of the model.
+    decoupling_worst : dict
+    decoupling_warnings : list of str
+    device : str
+        Its URL.
+    device_info : dict
+        What the device said of itself.
+    optimizer : dict or None
+        The envelope optimizer's status, rounds and time, when it ran.
+    """
+
+    tau: float
+    tau_norm: float
+    nrmse: float
+    tau_model: float
+    margin_ratio: float
+    margin_criterion: float
+    margin_ok: bool
+    worst_off_target: dict
+    peak_voltage: float
+    modes_used: list
+    kappa: list
+    brake: list
+    focus_time_s: float
+    sample_rate_hz: float
+    plan_seconds: float
+    sim_seconds: float
+    predicted_margin_ratio: float
+    whole_model_margin_ratio: float
+    decoupling_worst: dict
+    decoupling_warnings: list
+    device: str
+    device_info: dict
+    optimizer: dict | None = None
+
+
+@dataclass(frozen=True)
+class LoopMetrics:
+    """How a closed-loop shot ran.
+
+    Attributes
+    ----------
+    controller : str
+    on_board : bool
+    state : str
+        How the runtime ended (``inactive``, or ``error`` when the supervisor stopped it).
+    fault : str or None
+        Why the supervisor stopped it.
+    periods : int
+    loop_seconds, configure_seconds : float
+        Wall time of the loop, and of the board's set-up before it.
+    control_rate_hz : float
+    limited_periods : int
+        Periods whose feedback a limit held back.
+    step_seconds_median : float or None
+        The runtime's compute per period.
+    crossover_hz, phase_margin_deg, gain_margin_db : list of float
+        The loops' design.
+    design_seconds, shot_seconds : float
+        The loops' design (once per plan), and the shot on the device: its set-up, activation,
+        loop and log, play-out and records.
+    real_time_factor : float
+        ``shot_seconds`` over the time the shot plays.
+    scan_seconds : float
+        The field's scan after the shot (a measurement of it, not part of it).
+    """
+
+    controller: str
+    on_board: bool
+    state: str
+    fault: str | None
+    periods: int
+    loop_seconds: float
+    configure_seconds: float
+    control_rate_hz: float
+    limited_periods: int
+    step_seconds_median: float | None
+    crossover_hz: list
+    phase_margin_deg: list
+    gain_margin_db: list
+    design_seconds: float
+    shot_seconds: float
+    real_time_factor: float
+    scan_seconds: float
+
+
+@dataclass(frozen=True)
+class LearningMetrics:
+    """What a learning shot measured and what it taught the model.
+
+    Attributes
+    ----------
+    source : {"record", "tracker"}
+    tau, margin_ratio, peak_voltage, sim_seconds : float
+        The learning shot's own measurement.
+    modes_used : list of int
+    frequencies_hz, damping : list of float
+        The updated model's, every mode.
+    relative_shift, relative_damping_change : list of float
+        Against the model planned on.
+    common_shift, common_damping_change : float
+        The change common to every mode (the median of the tracked ones for a tracker).
+    common_shift_error : float or None
+        One standard error of the common shift (a record's fit only).
+    frequency_error_hz, damping_error : list of float or None
+        One standard error of each (a record's fit only).
+    update_seconds : float
+        Wall time of the fit or of reading the tracker.
+    update_evaluations : int or None
+        Plant runs of the record's fit.
+    residual_noise, misfit : float or None
+        What the record's fit leaves (m/s), and relative to the record.
+    """
+
+    source: str
+    tau: float
+    margin_ratio: float
+    peak_voltage: float
+    sim_seconds: float
+    modes_used: list
+    frequencies_hz: list
+    damping: list
+    relative_shift: list
+    relative_damping_change: list
+    common_shift: float
+    common_damping_change: float
+    update_seconds: float
+    common_shift_error: float | None = None
+    frequency_error_hz: list | None = None
+    damping_error: list | None = None
+    update_evaluations: int | None = None
+    residual_noise: float | None = None
+    misfit: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
-class Shot:
+class ShotResult:
     """What one run produced.
 
     Attributes
@@ -35,14 +209,22 @@ class Shot:
     decomposition : Decomposition
     plan : Plan
     capture : Capture
-        Sensor record and applied voltages.
+        Sensor record and applied voltages at the DAC rate.
     times : ndarray, shape (nt,)
         Instants of the field scan (s).
     field : ndarray, shape (n, nt)
         Measured velocity on the grid (m/s).
     focus_field : ndarray, shape (n,)
         Measured velocity at the focus time (m/s).
-    metrics : dict
+    focus_point : int
+        Grid index of the focus's peak inside the target zone.
+    focus_velocity : ndarray, shape (n_samples,)
+        Velocity there at every DAC sample of the shot (m/s).
+    metrics : ShotMetrics
+    loop : LoopMetrics or None
+        A closed loop's.
+    learning : LearningMetrics or None
+        The learning shot's, when one was played.
     """
 
     decomposition: Decomposition
@@ -51,7 +233,16 @@ class Shot:
     times: np.ndarray
     field: np.ndarray
     focus_field: np.ndarray
-    metrics: dict
+    focus_point: int
+    focus_velocity: np.ndarray
+    metrics: ShotMetrics
+    loop: LoopMetrics | None = None
+    learning: LearningMetrics | None = None
+
+    @property
+    def fault(self) -> str | None:
+        """Why the supervisor stopped the shot, or None."""
+        return None if self.loop is None else self.loop.fault
 
     def coefficients(self) -> dict:
         """Modal coefficients (all modes of the model): reference, reduced model and measured."""
@@ -61,59 +252,31 @@ class Shot:
         measured = project(self.focus_field, dec.model.shapes, dec.model.grid.mass)
         return {"reference": dec.coefficients, "reduced": reduced, "measured": measured}
 
-
-MAX_ADDED_MODES = 4
-
-
-def _plan_growing(dec: Decomposition, focus_time, margin, grow: bool, **options):
-    """Plan; when the margin fails on an automatic mode set, add the next strongest modes (up to 4).
-
-    The margin is part of what a scene needs: more modes give the optimizer more freedom to
-    cancel the off-target field (the thesis's second remedy, chapter 5).
-    """
-    for added in range(MAX_ADDED_MODES + 1):
-        try:
-            return plan(dec, focus_time, margin=margin, **options), dec
-        except PlanError as exc:
-            left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
-            if not grow or margin is None or exc.limit != margin or left.size == 0 or added == MAX_ADDED_MODES:
-                raise
-            chosen = np.sort(np.append(dec.modes_used, left[np.argmax(np.abs(dec.coefficients[left]))]))
-            dec = replace(dec, modes_used=chosen, reconstruction=reconstruct(dec.coefficients[chosen],
-                                                                             dec.model.shapes[chosen]),
-                          rule=dec.rule + f", plus modes for the {margin:g} margin")
+    def to_dict(self) -> dict:
+        """JSON-ready metrics: the shot's, ``loop`` and ``learning_shot`` when there are."""
+        out = {key: value for key, value in asdict(self.metrics).items() if value is not None or key != "optimizer"}
+        if self.loop is not None:
+            out["loop"] = asdict(self.loop)
+        if self.learning is not None:
+            out["learning_shot"] = asdict(self.learning)
+        return out
 
 
-def _configure(device, sample_rate, voltage_limit):
-    """Configure ``device``; its capabilities and the voltage limit its rails leave."""
-    caps = device.configure(sample_rate)
-    if caps.voltage_limit is not None:
-        voltage_limit = caps.voltage_limit if voltage_limit is None else min(voltage_limit, caps.voltage_limit)
-    if not caps.can_scan:
-        raise DeviceError(f"{device.url}: focus runs measure the field, and this device cannot scan it")
-    return caps, voltage_limit
+@dataclass
+class _Played:
+    """What playing a plan gave, before it is measured."""
+
+    capture: Capture
+    seconds: float  # from the start of the play to the end of the records
+    board: PhasorBoard | None = None
+    result: RunResult | None = None
+    parts: LoopParts | None = None
+    design_seconds: float = 0.0
 
 
-def _plan_for(model, shape, focus_time, modes, tau_min, margin, voltage_limit, sample_rate, plan_options):
-    """Decompose and plan (adding modes for the margin if needed); ``(decomposition, plan)``."""
-    dec = decompose(model, shape, modes, tau_min=tau_min)
-    the_plan, dec = _plan_growing(dec, focus_time, margin, grow=modes == "auto", voltage_limit=voltage_limit,
-                                  sample_rate=sample_rate, **plan_options)
-    return dec, the_plan
-
-
-def _plan_on(model, shape, device, focus_time, modes, tau_min, margin, voltage_limit, sample_rate, plan_options):
-    """Configure ``device``, decompose and plan (adding modes for the margin if needed)."""
-    caps, voltage_limit = _configure(device, sample_rate, voltage_limit)
-    dec, the_plan = _plan_for(model, shape, focus_time, modes, tau_min, margin, voltage_limit, sample_rate,
-                              plan_options)
-    return caps, voltage_limit, dec, the_plan
-
-
-def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: float, *, modes="auto",
-                  tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
-                  sample_rate: float = 1e6, progress: bool = False, **plan_options) -> Shot:
-    """Plan the shape's focus, play it on ``device`` and measure it.
+def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
+        planned: tuple[Decomposition, Plan] | None = None) -> ShotResult:
+    """Plan ``shape``'s focus on ``model``, play it on ``device`` and measure it.
 
     Parameters
     ----------
@@ -123,162 +286,174 @@ def run_open_loop(model: ModalModel, shape: Shape, device: Device, focus_time: f
         Target on the model's grid.
     device : Device
         Opened, not yet configured.
-    focus_time : float
-        T_F (s).
-    margin : float, optional
-        Transient margin to plan for (the envelope optimizer runs); the measured ratio is reported
-        against it, or against the thesis's 0.5 when None.
-    voltage_limit : float, optional
-        Largest voltage (V); the device's rails also apply.
-    plan_options
-        Passed to :func:`modalctl.plan.planner.plan` (``kappa``, ``brake``, ``after``...).
+    options : RunOptions
+    planned : (Decomposition, Plan), optional
+        A plan made before for this model, shape and options (a sweep plans once for many truths);
+        the device's rails still apply.
     """
-    caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
-                                                  voltage_limit, sample_rate, {**plan_options, "progress": progress})
-    voltages = the_plan.voltages()
+    caps, voltage_limit = _configure(device, options)
+    plan_options = options.plan.but(voltage_limit=voltage_limit)
+    dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
+    learning = None
+    if options.learn is not None:
+        learning, model = _learning_shot(dec, the_plan, device, options, voltage_limit)
+        dec, the_plan = plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     start = _time.perf_counter()
-    device.activate()
-    try:
-        device.upload(voltages)
-        capture = device.trigger(progress=progress)
-        times = np.union1d(the_plan.check_times(), [focus_time])
-        field = device.scan(times, scan_indices(caps, model.grid.points, device.url))
-    finally:
-        device.deactivate()
-    return _shot(dec, the_plan, shape, capture, times, field, margin, device, _time.perf_counter() - start)
+    played = _play(the_plan, device, options, voltage_limit, options.log)
+    shot = _measure(dec, the_plan, played, device, caps, options, start)
+    return replace(shot, learning=learning)
 
 
-def run_closed_loop(model: ModalModel, shape: Shape, device: Device, focus_time: float, *, modes="auto",
-                    tau_min: float | None = None, margin: float | None = None, voltage_limit: float | None = None,
-                    slew_limit: float | None = None, sample_rate: float = 1e6, control_rate: float = 20e3,
-                    authority: float = AUTHORITY, latency: int = 0, drift=None, log=None, progress: bool = False,
-                    controller: str = "pi", watchdog: int = 1, on_board: bool = False, learn: bool = False,
-                    **plan_options) -> Shot:
-    """Plan the shape's focus and play it on ``device`` with per-mode feedback (its phasor mode).
-
-    Parameters are those of :func:`run_open_loop`, and
-    control_rate : float
-        Loop rate (Hz); it must divide ``sample_rate``.
-    slew_limit : float, optional
-        Largest output slope (V/s) the supervisor allows.
-    authority : float
-        Largest feedback per mode as a fraction of its planned drive.
-    latency : int
-        Extra control periods the board takes to use a command.
-    drift : callable, optional
-        Simulator only: ``drift(t, k)`` relative resonance shifts during the shot.
-    log : path, optional
-        Every control period recorded there (``.json`` + ``.bin``; a learning shot's beside it,
-        ``<log>-learning``).
-    controller : str
-        Controller plugin (``pi``, ``lqg``...).
-    watchdog : int
-        Periods without a measurement before the shot is stopped.
-    on_board : bool
-        Load the loops into the board (:mod:`modalctl.loops.onboard`: parametric references, PI) and let
-        it close them itself: no exchange per period, so no link budget; the board's rails are the
-        only voltage limit.
-    learn : bool
-        Play a first closed-loop shot, update the model's resonances and damping from its record
-        (:func:`modalctl.identify.updating.update`), plan again on the updated model and report the second
-        shot; the first's tau, margin and what was learned are in ``metrics["learning_shot"]``.
-    """
-    if not hasattr(device, "phasor_board"):
+def _configure(device: Device, options: RunOptions) -> tuple[Capabilities, float | None]:
+    """Configure ``device``; its capabilities and the voltage limit its rails leave."""
+    caps = device.configure(options.plan.sample_rate)
+    voltage_limit = options.plan.voltage_limit
+    if caps.voltage_limit is not None:
+        voltage_limit = caps.voltage_limit if voltage_limit is None else min(voltage_limit, caps.voltage_limit)
+    if not caps.can_scan:
+        raise DeviceError(f"{device.url}: focus runs measure the field, and this device cannot scan it")
+    if options.closed and not caps.phasor_mode:
         raise DeviceError(f"{device.url}: this device has no phasor mode, so it cannot run a closed loop")
-    options = dict(control_rate=control_rate, authority=authority, latency=latency, drift=drift, controller=controller,
-                   voltage_limit=voltage_limit, slew_limit=slew_limit, progress=progress, watchdog=watchdog)
-    plan_options = {**plan_options, "progress": progress}
-    caps, voltage_limit, dec, the_plan = _plan_on(model, shape, device, focus_time, modes, tau_min, margin,
-                                                  voltage_limit, sample_rate, plan_options)
-    options["voltage_limit"] = voltage_limit
-    learned = None
-    if learn:
-        learned, model = _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, options)
-        dec, the_plan = _plan_for(model, shape, focus_time, modes, tau_min, margin, voltage_limit, sample_rate,
-                                  plan_options)
-    shot, result, parts, (design_seconds, shot_seconds) = _closed(dec, the_plan, shape, device, caps, margin, log,
-                                                                  on_board, **options)
-    shot.metrics["loop"] = {
-        "controller": controller, "on_board": on_board, "state": result.state.name.lower(), "fault": result.reason,
-        "periods": result.periods, "loop_seconds": result.loop_seconds, "configure_seconds": result.configure_seconds,
-        "control_rate_hz": control_rate, "limited_periods": result.limited,
-        "step_seconds_median": float(np.median(result.step_seconds)) if result.step_seconds.size else None,
-        "crossover_hz": parts.design.crossover_hz.tolist(), "phase_margin_deg": parts.design.phase_margin_deg.tolist(),
-        "gain_margin_db": parts.design.gain_margin_db.tolist(),
-        "design_seconds": design_seconds, "shot_seconds": shot_seconds,
-        # the shot on the device over the time it plays: its set-up, activation, loop and log, play-out and
-        # records; the design is once per plan, and the field's scan after the shot a measurement of it
-        "real_time_factor": shot_seconds / the_plan.duration,
-        "scan_seconds": shot.metrics["sim_seconds"] - design_seconds - shot_seconds}
-    if learned is not None:
-        shot.metrics["learning_shot"] = learned
-    return shot
+    return caps, voltage_limit
 
 
-def _closed(dec, the_plan, shape, device, caps, margin, log, on_board=False, *, control_rate,
-            authority, latency, drift, controller, voltage_limit, slew_limit, progress, watchdog):
-    """Play ``the_plan`` closed loop on the device's phasor board and measure it; returns
-    ``(shot, run result, loop parts, (design seconds, shot seconds))``: the shot from its
-    configuration to its records (the scan of the field and the metrics after it excluded)."""
-    from modalctl.loops.shot import closed_shot, loop_parts
-
-    focus_time = the_plan.focus_time
-    board = device.phasor_board(the_plan.focus_peak, control_rate, latency=latency, drift=drift)
+def _play(the_plan: Plan, device: Device, options: RunOptions, voltage_limit, log, tracker=None) -> _Played:
+    """Play ``the_plan`` on ``device``: its waveforms (open loop) or under the loops (closed loop)."""
+    if not options.closed:
+        start = _time.perf_counter()
+        device.activate()
+        try:
+            device.upload(the_plan.voltages())
+            capture = device.trigger(progress=options.progress)
+        finally:
+            device.deactivate()
+        return _Played(capture, _time.perf_counter() - start)
+    loop = options.loop
+    board = device.phasor_board(the_plan.focus_peak, loop.control_rate, loop.latency)
     start = _time.perf_counter()
-    parts = loop_parts(the_plan, control_rate, board.noise, authority, latency, controller)
+    parts = loop_parts(the_plan, loop, board.noise, voltage_limit)
     designed = _time.perf_counter()
-    if on_board:
+    if loop.on_board:
         result = _loops_on_board(the_plan, board, parts, device, log)
     else:
-        result = closed_shot(the_plan, board, parts, True, voltage_limit, slew_limit, latency,
-                             log=log, progress=progress, watchdog=watchdog)
-    board.play_out()
+        result = closed_shot(the_plan, board, parts, tracker=tracker, log=log, progress=options.progress)
+    try:
+        board.play_out()
+        capture = Capture(the_plan.times, board.sensed, board.applied)
+    except DeviceError as exc:
+        raise _stopped(result, log, exc) from None
+    return _Played(capture, _time.perf_counter() - designed, board, result, parts, designed - start)
+
+
+def _stopped(result: RunResult, log, exc: DeviceError) -> DeviceError:
+    """A device error after a shot: said as the supervisor's stop when it stopped the shot (the
+    device may be gone for the same reason), as itself otherwise."""
+    if result.reason is None:
+        return exc
+    return DeviceError(f"the supervisor stopped the shot ({result.reason}); every period up to it is in "
+                       f"{log}.json/.bin; the shot could not be measured afterwards: {exc}")
+
+
+def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device, caps: Capabilities,
+             options: RunOptions, start: float) -> ShotResult:
+    """Scan the field the shot made and measure it: the one place where a shot's metrics are made."""
+    model, focus_time, shape = dec.model, the_plan.focus_time, dec.shape
     times = np.union1d(the_plan.check_times(), [focus_time])
     try:
-        capture = Capture(the_plan.times, board.sensed, board.applied)  # the shot's records
-        played = _time.perf_counter()
-        field = board.scan(times, scan_indices(caps, dec.model.grid.points, device.url))
+        field = device.scan(times, scan_indices(caps, model.grid.points, device.url))
     except DeviceError as exc:
-        if result.reason is None:
+        if played.result is None:
             raise
-        raise DeviceError(f"the supervisor stopped the shot ({result.reason}); every period up to it is in "
-                          f"{log}.json/.bin; the field could not be measured afterwards: {exc}") from None
-    shot = _shot(dec, the_plan, shape, capture, times, field, margin, device, _time.perf_counter() - start)
-    return shot, result, parts, (designed - start, played - designed)
+        raise _stopped(played.result, options.log, exc) from None
+    focus = field[:, np.argmin(np.abs(times - focus_time))]
+    point = int(np.argmax(np.abs(focus) * shape.target_mask))
+    index = scan_indices(caps, model.grid.points[[point]], device.url)
+    focus_velocity = device.scan(played.capture.times, points=point if index is None else index)[0]
+    sim_seconds = _time.perf_counter() - start
+    metrics = _metrics(dec, the_plan, played.capture, (times, field), device, options, sim_seconds)
+    loop = None if played.result is None else _loop_metrics(played, the_plan, options.loop, sim_seconds)
+    return ShotResult(dec, the_plan, played.capture, times, field, focus, point, focus_velocity, metrics, loop)
 
 
-def _learning_shot(dec, the_plan, shape, device, caps, margin, log, on_board, options):
-    """A closed-loop shot whose record updates the model; ``(what it measured and learned, the
-    updated model)``."""
-    from modalctl.identify.updating import update
-    from modalctl.loops.schedule import HOLD
+def _metrics(dec, the_plan, capture, scan, device, options, sim_seconds) -> ShotMetrics:
+    """The shot's metrics from its record and ``scan``: the instants (nt,) and the field (n, nt) there."""
+    model, shape = dec.model, dec.shape
+    times, field = scan
+    focus = field[:, np.argmin(np.abs(times - the_plan.focus_time))]
+    ratio, worst = margin_ratio(field, times, the_plan.focus_time, shape.target_mask)
+    criterion = THESIS_MARGIN if options.plan.margin is None else options.plan.margin
+    info = the_plan.info
+    optimizer = info.get("optimizer")
+    return ShotMetrics(
+        tau=float(tau(shape.values, focus)), tau_norm=float(tau_norm(shape.values, focus)),
+        nrmse=float(nrmse(shape.values, focus)), tau_model=float(tau(shape.values, dec.reconstruction)),
+        margin_ratio=ratio, margin_criterion=criterion, margin_ok=bool(ratio <= criterion),
+        worst_off_target={"x_m": model.grid.points[worst[0]].tolist() if worst[0] >= 0 else None, "t_s": worst[1]},
+        peak_voltage=float(np.max(np.abs(capture.voltages))),
+        modes_used=[int(model.labels[k]) for k in the_plan.modes],
+        kappa=the_plan.kappa.tolist(), brake=the_plan.brake.tolist(), focus_time_s=the_plan.focus_time,
+        sample_rate_hz=the_plan.sample_rate, plan_seconds=info["plan_seconds"], sim_seconds=sim_seconds,
+        predicted_margin_ratio=info["predicted_margin_ratio"],
+        whole_model_margin_ratio=info["whole_model_margin_ratio"], decoupling_worst=info["decoupling_worst"],
+        decoupling_warnings=info["decoupling_warnings"], device=device.url, device_info=device.info,
+        optimizer=None if optimizer is None else {k: optimizer[k] for k in ("status", "rounds", "seconds")})
 
-    learning_log = None if log is None else type(log)(f"{log}-learning")
-    shot, result, _, _ = _closed(dec, the_plan, shape, device, caps, margin, learning_log, on_board, **options)
-    if result.reason is not None:
-        raise DeviceError(f"the supervisor stopped the learning shot ({result.reason}); log in {learning_log}.json")
-    model = dec.model
-    got = update(model, shot.capture.voltages, shot.capture.sensors, the_plan.sample_rate, hold=HOLD)
+
+def _loop_metrics(played: _Played, the_plan: Plan, loop: LoopOptions, sim_seconds: float) -> LoopMetrics:
+    result, design = played.result, played.parts.design
+    return LoopMetrics(
+        controller=loop.controller, on_board=loop.on_board, state=result.state.name.lower(), fault=result.reason,
+        periods=result.periods, loop_seconds=result.loop_seconds, configure_seconds=result.configure_seconds,
+        control_rate_hz=loop.control_rate, limited_periods=result.limited,
+        step_seconds_median=float(np.median(result.step_seconds)) if result.step_seconds.size else None,
+        crossover_hz=design.crossover_hz.tolist(), phase_margin_deg=design.phase_margin_deg.tolist(),
+        gain_margin_db=design.gain_margin_db.tolist(), design_seconds=played.design_seconds,
+        shot_seconds=played.seconds, real_time_factor=played.seconds / the_plan.duration,
+        scan_seconds=sim_seconds - played.design_seconds - played.seconds)
+
+
+def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):
+    """A closed-loop shot that teaches the model (from its record, or from a pole tracker during it);
+    ``(what it measured and taught, the updated model)``."""
+    model, caps = dec.model, device.capabilities
+    log = None if options.log is None else type(options.log)(f"{options.log}-learning")
+    tracker = None
+    if options.learn == "tracker":  # the carriers stay on the plan's during the shot
+        tracker = get_tracker("pole").create(model.frequencies[the_plan.modes], model.damping[the_plan.modes],
+                                             options.loop.control_rate, retune=np.inf)
+    start = _time.perf_counter()
+    played = _play(the_plan, device, options, voltage_limit, log, tracker)
+    shot = _measure(dec, the_plan, played, device, caps, options, start)
+    if shot.fault is not None:
+        raise DeviceError(f"the supervisor stopped the learning shot ({shot.fault}); log in {log}.json")
+    tic = _time.perf_counter()
+    if tracker is not None:
+        learned, fit = updated_model(model, the_plan.modes, tracker), None
+    else:
+        fit = update(model, shot.capture.voltages, shot.capture.sensors, the_plan.sample_rate, hold=HOLD)
+        learned = fit.model
     m = shot.metrics
-    return {"tau": m["tau"], "margin_ratio": m["margin_ratio"], "peak_voltage": m["peak_voltage"],
-            "sim_seconds": m["sim_seconds"], "modes_used": m["modes_used"],
-            "update_seconds": got.seconds, "update_evaluations": got.evaluations, "common_shift": got.shift,
-            "common_shift_error": got.shift_error, "common_damping_change": got.damping_change,
-            "frequencies_hz": got.model.frequencies.tolist(), "frequency_error_hz": got.frequency_error.tolist(),
-            "damping": got.model.damping.tolist(), "damping_error": got.damping_error.tolist(),
-            "relative_shift": (got.model.frequencies / model.frequencies - 1).tolist(),
-            "relative_damping_change": (got.model.damping / model.damping - 1).tolist(),
-            "residual_noise": got.noise, "misfit": got.misfit}, got.model
+    shift = learned.frequencies / model.frequencies - 1
+    details = {} if fit is None else dict(
+        common_shift_error=fit.shift_error, frequency_error_hz=fit.frequency_error.tolist(),
+        damping_error=fit.damping_error.tolist(), update_evaluations=fit.evaluations, residual_noise=fit.noise,
+        misfit=fit.misfit)
+    metrics = LearningMetrics(
+        source=options.learn, tau=m.tau, margin_ratio=m.margin_ratio, peak_voltage=m.peak_voltage,
+        sim_seconds=m.sim_seconds, modes_used=m.modes_used, frequencies_hz=learned.frequencies.tolist(),
+        damping=learned.damping.tolist(), relative_shift=shift.tolist(),
+        relative_damping_change=(learned.damping / model.damping - 1).tolist(),
+        common_shift=fit.shift if fit is not None else float(np.median(shift[the_plan.modes])),
+        common_damping_change=fit.damping_change if fit is not None else
+        float(np.median((learned.damping / model.damping - 1)[the_plan.modes])),
+        update_seconds=fit.seconds if fit is not None else _time.perf_counter() - tic, **details)
+    return metrics, learned
 
 
-def _loops_on_board(the_plan, board, parts, device, log):
+def _loops_on_board(the_plan: Plan, board: PhasorBoard, parts: LoopParts, device: Device, log) -> RunResult:
     """Load the shot's loops into the board, let it run them, and keep its log (as the runtime's);
     returns a :class:`~modalctl.loops.runtime.RunResult`."""
-    from modalctl.loops.onboard import board_loop
-    from modalctl.loops.runtime import RunResult, State
-    from modalctl.loops.shot import loop_log
-
-    if not hasattr(board, "run_loops"):
+    if not board.runs_loops:
         raise DeviceError(f"{device.url}: this board cannot run loops itself")
     s = parts.schedule
     configured = _time.perf_counter()
@@ -293,33 +468,3 @@ def _loops_on_board(the_plan, board, parts, device, log):
                                measured=record.measured[:, n], command=record.command[:, n], fraction=1.0,
                                phasor_sum=np.abs(s.weights) @ np.abs(record.command[:, n]), compute=0.0)
     return RunResult(State.INACTIVE, None, record.command.shape[1], np.zeros(0), 0, seconds, start - configured)
-
-
-def _shot(dec, the_plan, shape, capture, times, field, margin, device, sim_seconds) -> Shot:
-    """Metrics of a measured field (open or closed loop) and the Shot that holds them."""
-    model, focus_time = dec.model, the_plan.focus_time
-    focus = field[:, np.argmin(np.abs(times - focus_time))]
-    ratio, worst = margin_ratio(field, times, focus_time, shape.target_mask)
-    criterion = THESIS_MARGIN if margin is None else margin
-    ref = shape.values
-    metrics = {
-        "tau": float(tau(ref, focus)), "tau_norm": float(tau_norm(ref, focus)), "nrmse": float(nrmse(ref, focus)),
-        "tau_model": float(tau(ref, dec.reconstruction)),
-        "margin_ratio": ratio, "margin_criterion": criterion, "margin_ok": bool(ratio <= criterion),
-        "worst_off_target": {"x_m": model.grid.points[worst[0]].tolist() if worst[0] >= 0 else None,
-                             "t_s": worst[1]},
-        "peak_voltage": float(np.max(np.abs(capture.voltages))),
-        "modes_used": [int(model.labels[k]) for k in the_plan.modes],
-        "kappa": the_plan.kappa.tolist(), "brake": the_plan.brake.tolist(),
-        "focus_time_s": focus_time, "sample_rate_hz": the_plan.sample_rate,
-        "plan_seconds": the_plan.info["plan_seconds"], "sim_seconds": sim_seconds,
-        "predicted_margin_ratio": the_plan.info["predicted_margin_ratio"],
-        "whole_model_margin_ratio": the_plan.info["whole_model_margin_ratio"],
-        "decoupling_worst": the_plan.info["decoupling_worst"],
-        "decoupling_warnings": the_plan.info["decoupling_warnings"],
-        "device": device.url, "device_info": getattr(device, "info", {}),
-    }
-    if "optimizer" in the_plan.info:
-        opt = the_plan.info["optimizer"]
-        metrics["optimizer"] = {"status": opt["status"], "rounds": opt["rounds"], "seconds": opt["seconds"]}
-    return Shot(dec, the_plan, capture, times, field, focus, metrics)

@@ -1,14 +1,19 @@
 """Parse physical quantities at the edges (``18mm``, ``25ms``, ``1%``) into SI floats.
 
 Everything inside ``modalctl`` is SI: metres, seconds, hertz, volts. Text with units only
-enters through :func:`parse_quantity`, which raises :class:`UnitError` naming the field.
+enters through :func:`parse_quantity`, which raises :class:`UnitError` naming the field; the
+command line's options (and transports' own, see :mod:`modalctl.io.device`) read it through
+:func:`quantity_type` and :func:`number_type`. A foundation module: it imports nothing of modalctl.
 """
 
 from __future__ import annotations
 
+import argparse
+import math
 import re
+from typing import Any, Callable
 
-__all__ = ["UnitError", "parse_quantity", "parse_point", "DIMENSIONS"]
+__all__ = ["UnitError", "parse_quantity", "parse_point", "quantity_type", "number_type", "DIMENSIONS"]
 
 _PREFIXES = {"n": 1e-9, "u": 1e-6, "\u00b5": 1e-6, "m": 1e-3, "c": 1e-2, "k": 1e3, "M": 1e6}
 
@@ -82,3 +87,39 @@ def parse_point(value, unit: str, name: str = "value") -> tuple[float, ...]:
     else:
         parts = list(value)
     return tuple(parse_quantity(p, unit, name) for p in parts)
+
+
+def quantity_type(unit: str, name: str, *, low: float | None = None, high: float = math.inf,
+                  low_open: bool = True, point: bool = False) -> Callable[[str], Any]:
+    """An argparse ``type`` reading text with units of dimension ``unit`` into SI, refusing values
+    outside ``(low, high]`` (``[low, high]`` when not ``low_open``; no lower bound when ``low`` is
+    None), with messages that name the option. ``point``: comma-separated coordinates (a tuple)."""
+    reader = parse_point if point else parse_quantity
+
+    def parse(text: str):
+        try:
+            value = reader(text, unit, name)
+        except UnitError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+        if low is not None and not point and not ((low < value if low_open else low <= value) and value <= high):
+            span = f"{'(' if low_open else '['}{low:g}, {high:g}{']' if math.isfinite(high) else ')'}"
+            raise argparse.ArgumentTypeError(f"{name} must lie in {span}, got {text!r}")
+        return value
+
+    parse.__name__ = name  # argparse's "invalid <name> value" for text it cannot read
+    return parse
+
+
+def number_type(kind: type, name: str, *, low: float, high: float = math.inf,
+                low_open: bool = True) -> Callable[[str], Any]:
+    """An argparse ``type`` reading a plain number (``int`` or ``float``, no unit) within bounds, as
+    :func:`quantity_type`."""
+    def parse(text: str):
+        value = kind(text)  # ValueError: argparse's "invalid <name> value: <text>"
+        if not ((low < value if low_open else low <= value) and value <= high):
+            span = f"{'(' if low_open else '['}{low:g}, {high:g}{']' if math.isfinite(high) else ')'}"
+            raise argparse.ArgumentTypeError(f"{name} must lie in {span}, got {text!r}")
+        return value
+
+    parse.__name__ = name
+    return parse

@@ -1,9 +1,10 @@
-"""The house keeps its shape: layers imported downward only, a small top level.
+"""The house keeps its shape: layers imported downward only, a small top level, narrow functions.
 
 The layers and the other import rules are import-linter contracts in ``pyproject.toml``
 (``[tool.importlinter]``); ``docs/architecture.md`` explains them.
 """
 
+import ast
 import subprocess
 import sys
 import textwrap
@@ -53,3 +54,29 @@ def test_the_layer_check_fails_on_an_upward_import(tmp_path):
 def test_the_top_level_holds_at_most_a_dozen_modules():
     modules = sorted(p.name for p in PACKAGE.glob("*.py"))
     assert len(modules) <= 12, modules
+
+
+def wide_functions(path: Path, limit: int = 8) -> list[str]:
+    """``name (count)`` of every function in ``path`` taking more than ``limit`` parameters (self and
+    cls not counted; positional, keyword and keyword-only all counted)."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            args = node.args
+            names = [a.arg for a in args.posonlyargs + args.args + args.kwonlyargs if a.arg not in ("self", "cls")]
+            if len(names) > limit:
+                found.append(f"{node.name} ({len(names)})")
+    return found
+
+
+def test_no_function_takes_more_than_eight_parameters():
+    """Options travel as dataclasses (modalctl.options), not as long parameter lists."""
+    wide = [f"{path.relative_to(ROOT)}: {row}" for path in sorted(PACKAGE.rglob("*.py")) for row in wide_functions(path)]
+    assert not wide, "\n".join(wide)
+
+
+def test_the_parameter_count_sees_keyword_only_parameters_and_skips_self(tmp_path):
+    source = tmp_path / "wide.py"
+    source.write_text("def f(a, b, *, c, d, e, f, g, h, i):\n    pass\n\n"
+                      "class A:\n    def g(self, a, b, c, d, e, f, g, h):\n        pass\n")
+    assert wide_functions(source) == ["f (9)"]

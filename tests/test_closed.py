@@ -2,9 +2,10 @@
 
 import numpy as np
 
-from modalctl.experiments.focus import run_focus
+from modalctl.experiments.focus import Bench, run_focus
 from modalctl.hil.scenario import Perturbation, perturb
 from modalctl.loops.design import design_loops
+from modalctl.options import LoopOptions, PlanOptions
 
 
 def test_loop_design_keeps_its_phase_margin():
@@ -31,7 +32,7 @@ def test_feedback_nearly_leaves_a_perfect_model_alone(sinc18):
     open_loop = run_focus(model, shot, shape, closed=False)
     closed = run_focus(model, shot, shape, closed=True)
     assert abs(closed.tau - open_loop.tau) < 0.1
-    noiseless = run_focus(model, shot, shape, closed=True, snr_db=None)
+    noiseless = run_focus(model, shot, shape, bench=Bench(snr_db=None), closed=True)
     assert abs(noiseless.tau - open_loop.tau) < 2e-3
 
 
@@ -49,12 +50,12 @@ def test_kalman_lq_controller_is_stable_by_design_and_recovers_the_focus(sinc18)
                                                  noise=np.full(modes.size, 1e-7), level=np.full(modes.size, 1e-4)))
     assert np.all(lqg.spectral_radius < 1)
     truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
-    pi = run_focus(truth, shot, shape, controller="pi")
-    kalman = run_focus(truth, shot, shape, controller="lqg")
+    pi = run_focus(truth, shot, shape, LoopOptions(controller="pi"))
+    kalman = run_focus(truth, shot, shape, LoopOptions(controller="lqg"))
     assert kalman.tau > 0.95 and abs(kalman.tau - pi.tau) < 0.02
     # without sensor noise the observer is designed for a floor of noise, not for none (a noise-free
     # design trusted the readings blindly and lost ~0.1 of tau on a drifted free-free beam)
-    noiseless = run_focus(truth, shot, shape, controller="lqg", snr_db=None)
+    noiseless = run_focus(truth, shot, shape, LoopOptions(controller="lqg"), Bench(snr_db=None))
     assert noiseless.tau > 0.95 and abs(noiseless.tau - kalman.tau) < 0.02
 
 
@@ -64,8 +65,8 @@ def test_feedback_holds_the_focus_while_the_resonances_ramp(sinc18):
 
     model, shape, shot = sinc18
     drifting = ramp(0.0, 0.8)
-    open_loop = run_focus(model, shot, shape, closed=False, drift=drifting)
-    closed = run_focus(model, shot, shape, closed=True, drift=drifting)
+    open_loop = run_focus(model, shot, shape, bench=Bench(drift=drifting), closed=False)
+    closed = run_focus(model, shot, shape, bench=Bench(drift=drifting), closed=True)
     assert open_loop.tau < 0.85
     assert closed.tau > open_loop.tau + 0.05
 
@@ -90,13 +91,14 @@ def test_loops_rest_on_modes_the_sensors_cannot_see():
     shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "20mm", "center": "19mm"}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        shot = plan(decompose(model, shape, 13), 0.025, sample_rate=500e3)
+        shot = plan(decompose(model, shape, 13), 0.025, PlanOptions(sample_rate=500e3))
     seen = np.abs(model.sensor_gains[shot.modes, 0]) > 1e-6 * np.abs(model.sensor_gains[:, 0]).max()
     assert 0 < seen.sum() < seen.size
     for sigma in (shot.focus_peak / 100, 0.0):
-        authority = loop_parts(shot, 20e3, sigma).authority.max(axis=1)
+        authority = loop_parts(shot, LoopOptions(control_rate=20e3), sigma).authority.max(axis=1)
         assert np.all(authority[~seen] == 0) and np.all(authority[seen] > 0)
-    taus = [run_focus(model, shot, shape, closed=closed, snr_db=40.0).tau for closed in (False, True)]
+    taus = [run_focus(model, shot, shape, bench=Bench(snr_db=40.0), closed=closed).tau for closed in (False, True)]
     assert taus[1] > taus[0] - 0.005
-    fields = [run_focus(model, shot, shape, closed=closed, snr_db=None).focus_field for closed in (False, True)]
+    fields = [run_focus(model, shot, shape, bench=Bench(snr_db=None), closed=closed).focus_field
+              for closed in (False, True)]
     assert np.max(np.abs(fields[1] - fields[0])) < 1e-6 * np.max(np.abs(fields[0]))

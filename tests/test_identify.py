@@ -12,6 +12,7 @@ from modalctl.identify.frf import FRF, SpatialAliasingWarning, Sweep, check_spat
 from modalctl.identify.survey import beam_wavelength, identify_device
 from modalctl.model.modes import ModelError
 from modalctl.model.scenes import load_scene
+from modalctl.options import SurveyOptions
 from modalctl.plugin.manager import identifiers
 
 X = np.linspace(0, 0.1, 41)
@@ -122,8 +123,8 @@ def survey():
     mass = truth.meta["density_kg_m3"] * truth.meta["width_m"] * truth.meta["thickness_m"]
     with warnings.catch_warnings():
         warnings.simplefilter("error", SpatialAliasingWarning)
-        return truth, points, identify_device(device, Sweep.design(100, 12e3, 4.0), points, mass, sparse=4,
-                                              wavelength=beam_wavelength(truth.meta, 12e3))
+        return truth, points, identify_device(device, Sweep.design(100, 12e3, 4.0), points, mass,
+                                              SurveyOptions(sparse=4), beam_wavelength(truth.meta, 12e3))
 
 
 def test_survey_identifies_the_hil_beam(survey):
@@ -146,8 +147,9 @@ def test_survey_identifies_the_hil_beam(survey):
 def test_focus_with_the_identified_model(survey):
     """The closed cycle: the HIL beam focused with its identified model does as well as with the truth."""
     from modalctl.model.shape import parse_params
+    from modalctl.options import PlanOptions, RunOptions
     from modalctl.plugin.manager import get_shape
-    from modalctl.run import run_open_loop
+    from modalctl.run import run
 
     truth, points, result = survey
     with warnings.catch_warnings():  # the scan's 2.5 mm step draws only the first 18 of the scene's 21 modes
@@ -159,7 +161,7 @@ def test_focus_with_the_identified_model(survey):
         shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "25mm", "center": "24mm"}))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            taus.append(run_open_loop(model, shape, SimDevice(truth), 0.025, modes=6).metrics["tau"])
+            taus.append(run(model, shape, SimDevice(truth), RunOptions(0.025, PlanOptions(modes=6))).metrics.tau)
     assert taus[1] > 0.95
     assert abs(taus[0] - taus[1]) < 0.02
 

@@ -3,18 +3,20 @@
 import numpy as np
 import pytest
 
-from modalctl.experiments.focus import run_focus
+from modalctl.experiments.focus import Bench, run_focus
 from modalctl.hil.lifted import PeriodMap
-from modalctl.hil.phasor_board import HILBoard
+from modalctl.hil.phasor_board import BoardSetup, HILBoard
 from modalctl.hil.scenario import Perturbation, perturb
 from modalctl.loops.shot import loop_parts
+from modalctl.options import LoopOptions
 
 FS = 500e3
 
 
 def _boards(model, plan, latency=0, noise=0.0, **kw):
-    parts = loop_parts(plan, 10e3, max(noise, 1e-9), 0.5, latency, "pi")
-    boards = [HILBoard(model, FS, noise=noise, latency=latency, seed=3, lifted=lifted, **kw) for lifted in (True, False)]
+    parts = loop_parts(plan, LoopOptions(control_rate=10e3, authority=0.5, latency=latency), max(noise, 1e-9))
+    boards = [HILBoard(model, FS, BoardSetup(noise=noise, latency=latency, seed=3, lifted=lifted, **kw))
+              for lifted in (True, False)]
     for board in boards:
         board.configure(parts.schedule)
         board.start()
@@ -81,7 +83,8 @@ def test_a_ramp_mid_shot_goes_back_to_samples(sinc18):
 def test_a_focus_shot_measures_the_same_either_way(sinc18):
     model, shape, plan = sinc18
     truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
-    shots = [run_focus(truth, plan, shape, control_rate=10e3, seed=2, lifted=lifted) for lifted in (True, False)]
+    shots = [run_focus(truth, plan, shape, LoopOptions(control_rate=10e3), Bench(seed=2, lifted=lifted))
+             for lifted in (True, False)]
     assert shots[0].board._map is not None and shots[1].board._map is None
     assert abs(shots[0].tau - shots[1].tau) < 1e-9
     assert abs(shots[0].margin_ratio - shots[1].margin_ratio) < 1e-9

@@ -16,13 +16,15 @@ from modalctl.loops.recorder import read_log
 from modalctl.loops.shot import loop_parts
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
+from modalctl.options import LoopOptions, PlanOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import plan
 from modalctl.plugin.manager import get_shape
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--quiet", "--no-plots",
-       "--json", "--drift", "1%", "--damping-error", "20%", "--snr", "40"]
+       "--json"]
+TRUTH = ["--drift", "1%", "--damping-error", "20%", "--snr", "40"]  # sim://'s own; the boards' emulators take it
 PERTURBATION = Perturbation(drift=0.01, damping_error=0.2, snr_db=40.0)
 
 
@@ -38,8 +40,8 @@ def shot(model):
     field = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        the_plan = plan(decompose(model, field, 9), 0.025, sample_rate=500e3)
-    return the_plan, loop_parts(the_plan, 20e3, 1e-4)
+        the_plan = plan(decompose(model, field, 9), 0.025, PlanOptions(sample_rate=500e3))
+    return the_plan, loop_parts(the_plan, LoopOptions(control_rate=20e3), 1e-4)
 
 
 def _metrics(path):
@@ -80,9 +82,9 @@ def test_program_messages_round_trip_and_bad_ones_are_refused(shot):
 def test_loops_on_the_board_measure_what_the_host_loops_measure(tmp_path, capsys):
     """sim://: the same PI loops at 20 kHz, once exchanging every period with the host, once loaded
     into the board with parametric references; both far above open loop."""
-    assert main([*RUN, "--loop", "closed", "--control-rate", "20kHz", "--out", str(tmp_path / "host")]) == 0
-    assert main([*RUN, "--loop", "board", "--control-rate", "20kHz", "--out", str(tmp_path / "board")]) == 0
-    assert main([*RUN, "--loop", "open", "--out", str(tmp_path / "open")]) == 0
+    assert main([*RUN, *TRUTH, "--loop", "closed", "--control-rate", "20kHz", "--out", str(tmp_path / "host")]) == 0
+    assert main([*RUN, *TRUTH, "--loop", "board", "--control-rate", "20kHz", "--out", str(tmp_path / "board")]) == 0
+    assert main([*RUN, *TRUTH, "--loop", "open", "--out", str(tmp_path / "open")]) == 0
     host, board, open_ = (_metrics(tmp_path / n) for n in ("host", "board", "open"))
     assert board["loop"]["on_board"] and board["loop"]["periods"] == host["loop"]["periods"]
     assert abs(board["tau"] - host["tau"]) < 0.01
@@ -98,7 +100,7 @@ def test_loops_on_a_board_over_the_wire_run_above_the_link_budget(model, tmp_pat
     """20 kHz is ten times what the link carries period by period; loaded into the board, the
     loops run there and the wire only carries the set-up and the log: the metrics are sim://'s."""
     run = [*RUN, "--loop", "board", "--control-rate", "20kHz"]
-    assert main([*run, "--out", str(tmp_path / "sim")]) == 0
+    assert main([*run, *TRUTH, "--out", str(tmp_path / "sim")]) == 0
     emulator = (SerialBoardEmulator(model, PERTURBATION) if link == "serial"
                 else CanBoardEmulator(model, PERTURBATION, channel=f"onboard-{tmp_path.name}"))
     with emulator as board:

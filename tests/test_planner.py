@@ -6,15 +6,21 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from modalctl.io.device import open_device
+from modalctl.hil.sim_device import SimDevice
 from modalctl.model.metrics import margin_ratio
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
+from modalctl.options import PlanOptions, RunOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.dispatch import DecouplingWarning, decoupling, dispatch, mobility
 from modalctl.plan.planner import MarginWarning, PlanError, gap_bounds, min_focus_time, plan
 from modalctl.plugin.manager import get_shape
-from modalctl.run import run_open_loop
+from modalctl.run import run
+
+
+def open_loop(model, shape, focus_time, **plan):
+    """An open-loop shot of ``shape`` on a perfect simulator of ``model``."""
+    return run(model, shape, SimDevice(model), RunOptions(focus_time, PlanOptions(**plan)))
 
 
 @pytest.fixture(scope="module")
@@ -53,13 +59,13 @@ def test_decoupling_leakage_is_the_mobility_ratio(beam):
 def test_too_fast_envelope_warns(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with pytest.warns(DecouplingWarning, match="Eq 2.30"):
-        plan(dec, 0.025, kappa=60.0)
+        plan(dec, 0.025, PlanOptions(kappa=60.0))
 
 
 def test_plan_reproduces_the_reduced_field_on_a_perfect_plant(beam):
     shape = sinc(beam, "18mm", "24mm")
-    shot = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, modes=9)
-    assert shot.metrics["tau"] == pytest.approx(shot.metrics["tau_model"], abs=5e-3)
+    shot = open_loop(beam, shape, 0.025, modes=9)
+    assert shot.metrics.tau == pytest.approx(shot.metrics.tau_model, abs=5e-3)
     measured = shot.coefficients()["measured"][:9]
     np.testing.assert_allclose(measured, shot.decomposition.coefficients[:9], atol=0.03 * np.max(np.abs(measured)))
 
@@ -70,7 +76,7 @@ def test_thesis_margin_case_kappa_one_fails_and_optimizer_meets_it(beam):
         warnings.simplefilter("ignore", DecouplingWarning)
         first = plan(dec, 0.025)
         with pytest.warns(MarginWarning, match="whole model predicts 0.7"):  # the fast turns leak (margin_case.md)
-            best = plan(dec, 0.025, margin=0.5)
+            best = plan(dec, 0.025, PlanOptions(margin=0.5, margin_on="kept"))
     assert first.info["predicted_margin_ratio"] > 0.6  # the thesis: about two thirds
     # independent check of the optimized plan: its modal field evaluated densely by numpy
     t = np.arange(0.021, 0.029, 1e-6)
@@ -87,12 +93,11 @@ def test_optimizer_plan_meets_the_margin_when_simulated(beam):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
         warnings.simplefilter("ignore", MarginWarning)
-        kept = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, modes=9, margin=0.5)
-        whole = run_open_loop(beam, shape, open_device("sim://", model=beam), 0.025, modes=9, margin=0.5,
-                              verify="whole")
-    assert kept.metrics["margin_ratio"] > 0.7 and kept.plan.correction is None
-    assert whole.metrics["margin_ratio"] <= 0.5 * 1.001 and whole.metrics["margin_ok"]
-    assert whole.metrics["tau"] > 0.99  # the focus itself held
+        kept = open_loop(beam, shape, 0.025, modes=9, margin=0.5, margin_on="kept")
+        whole = open_loop(beam, shape, 0.025, modes=9, margin=0.5, margin_on="whole")
+    assert kept.metrics.margin_ratio > 0.7 and kept.plan.correction is None
+    assert whole.metrics.margin_ratio <= 0.5 * 1.001 and whole.metrics.margin_ok
+    assert whole.metrics.tau > 0.99  # the focus itself held
     refinement = whole.plan.info["refinement"]
     assert refinement["ratio_before"] > 0.7 and refinement["focus_change"] < 1e-3
 
@@ -100,14 +105,14 @@ def test_optimizer_plan_meets_the_margin_when_simulated(beam):
 def test_voltage_limit_refusal_says_how_much(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with pytest.raises(PlanError, match="above the 1 V limit") as err:
-        plan(dec, 0.002, voltage_limit=1.0)
+        plan(dec, 0.002, PlanOptions(voltage_limit=1.0))
     assert err.value.needed > 1.0
 
 
 def test_unreachable_margin_is_refused_with_the_best_ratio(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with pytest.raises(PlanError, match="margin") as err:
-        plan(dec, 0.025, margin=0.1)
+        plan(dec, 0.025, PlanOptions(margin=0.1, margin_on="kept"))
     assert err.value.needed > 0.1 and err.value.limit == 0.1
 
 
@@ -124,10 +129,10 @@ def test_min_focus_time_is_the_shortest_within_the_limit(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
-        tf, best = min_focus_time(dec, 5.0, lower=5e-4, upper=0.02, rel_tol=0.02)
+        tf, best = min_focus_time(dec, PlanOptions(voltage_limit=5.0), lower=5e-4, upper=0.02, rel_tol=0.02)
         assert best.info["peak_voltage"] <= 5.0 * 1.001
         with pytest.raises(PlanError):
-            plan(dec, tf * 0.9, voltage_limit=5.0)
+            plan(dec, tf * 0.9, PlanOptions(voltage_limit=5.0))
 
 
 def test_cross_talk_compensation_puts_every_kept_mode_on_target():
@@ -138,10 +143,10 @@ def test_cross_talk_compensation_puts_every_kept_mode_on_target():
     shape = g.generate(model.grid, **parse_params(g, {"width": "20mm", "center": "-58mm"}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
-        raw = run_open_loop(model, shape, open_device("sim://", model=model), 0.025, modes=13, compensate=False)
-        fixed = run_open_loop(model, shape, open_device("sim://", model=model), 0.025, modes=13)
+        raw = open_loop(model, shape, 0.025, modes=13, compensate=False)
+        fixed = open_loop(model, shape, 0.025, modes=13)
     want = fixed.decomposition.coefficients[:13]
     scale = np.max(np.abs(want))
     assert np.max(np.abs(raw.coefficients()["measured"][:13] - want)) > 0.2 * scale
     np.testing.assert_allclose(fixed.coefficients()["measured"][:13], want, atol=1e-3 * scale)
-    assert fixed.metrics["tau"] == pytest.approx(fixed.metrics["tau_model"], abs=2e-3)
+    assert fixed.metrics.tau == pytest.approx(fixed.metrics.tau_model, abs=2e-3)

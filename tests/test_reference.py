@@ -26,7 +26,7 @@ def test_drive_reaches_target_in_an_independent_integration(kappa, brake):
     def drive(t):  # the closed forms on scalars: fast enough for an adaptive integrator
         if t <= TF:
             return rise(t - TF, c, W, Z, kappa, TF)[2]
-        return decay(t - TF, c, x0, a0, W, Z, brake, kappa * Z * W)[2]
+        return decay(t - TF, c, (x0, a0), W, Z, brake, kappa * Z * W)[2]
 
     sol = solve_ivp(lambda t, y: [y[1], drive(t) - 2 * Z * W * y[1] - W**2 * y[0]], [0, TF + 0.005], [0, 0],
                     method="DOP853", rtol=1e-11, atol=1e-15, dense_output=True)

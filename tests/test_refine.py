@@ -25,7 +25,7 @@ def test_the_searchs_gradient_is_the_plants_adjoint(monkeypatch):
 
     monkeypatch.setattr(refine_module, "minimize", capture)
     with pytest.raises(StopIteration):
-        refine_module.refine(model, voltages, 1000, fs, mask, margin=1e-6, before=1e-3, after=0.5e-3)
+        refine_module.refine(model, voltages, 1000, fs, mask, margin=1e-6, search=refine_module.Search(1e-3, 0.5e-3))
     fun, args = seen["fun"], seen["args"]
     z = 0.3 * rng.standard_normal(seen["x0"].size)
     value, grad = fun(z, *args)
@@ -45,7 +45,7 @@ def test_the_correction_only_adds_to_the_window_and_moves_the_focus_little():
     voltages = np.vstack([np.cos(model.omega[k] * (t - t[focus])) * envelope for k in range(8)])
     mask = np.zeros(model.grid.n, bool)
     mask[70:80] = True
-    found = refine_module.refine(model, voltages, focus, fs, mask, margin=0.0, iterations=30)
+    found = refine_module.refine(model, voltages, focus, fs, mask, margin=0.0, search=refine_module.Search(iterations=30))
     assert found.ratio < found.ratio_before
     assert found.focus_change < 1e-2
     assert found.correction.shape == (8, int(round(0.9e-3 * fs)))

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from modalctl.cli import main
-from modalctl.io.device import DeviceError, open_device, transports
+from modalctl.io.device import DeviceContext, DeviceError, open_device, transports
 from modalctl.model.scenes import load_scene
 from modalctl.plugin.manager import PluginError
 
@@ -118,7 +118,7 @@ def test_sim_device_lifecycle_and_transport_registry():
     with pytest.raises(PluginError, match="installed: can://, serial://, sim://"):
         open_device("usb://board0")
     model = load_scene("thesis-al-cc", 101)
-    device = open_device("sim://", model=model)
+    device = open_device("sim://", DeviceContext(model))
     with pytest.raises(DeviceError, match="configure before activate"):
         device.activate()
     caps = device.configure(1e6)
@@ -143,3 +143,69 @@ def test_scan_indices_find_the_nearest_scan_points_and_refuse_a_far_one():
     with pytest.raises(DeviceError, match="from the nearest scan point"):
         scan_indices(caps, np.r_[ours, [[0.06]]])  # 10 mm off the scanned beam
     assert scan_indices(Capabilities("bare", 1, 1, 1e6, None, False), ours) is None
+
+
+def test_a_transports_options_are_its_own(capsys, tmp_path):
+    """sim://'s truth options reach no other transport: given with a board's, they are refused,
+    before any port is opened, with exit 2 and their names."""
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--drift", "1%", "--finger", "1Ns/m",
+                       "--transport", "serial:///dev/does-not-exist", "--out", str(tmp_path))
+    assert code == 2
+    assert "--drift (sim://), --finger (sim://): not an option of serial://" in err
+
+
+def _bare_device(model):
+    """A Device subclass implementing only the abstract methods (the lifecycle's defaults inherited)."""
+    from modalctl.hil.sim_device import SimDevice
+    from modalctl.io.device import Device
+
+    inner = SimDevice(model)
+
+    class Bare(Device):
+        def configure(self, sample_rate):
+            self.capabilities = replace(inner.configure(sample_rate), phasor_mode=False)
+            return self.capabilities
+
+        def upload(self, voltages):
+            inner.activate()
+            inner.upload(voltages)
+
+        def trigger(self, progress=False):
+            return inner.trigger()
+
+        def scan(self, times, points=None):
+            return inner.scan(times, points)
+
+    return Bare("bare://")
+
+
+def test_the_device_contract_is_enough_for_a_shot_and_its_defaults_refuse_clearly():
+    """A device implementing only the abstract methods plays an open-loop shot through run (the
+    same tau as sim://); asked for a closed loop it is refused by its capabilities, not by a
+    traceback; and the contract cannot be instantiated half-written."""
+    from modalctl.io.device import Device
+    from modalctl.model.shape import parse_params
+    from modalctl.options import LoopOptions, PlanOptions, RunOptions
+    from modalctl.plugin.manager import get_shape
+    from modalctl.run import run as run_shot
+
+    class Half(Device):
+        def configure(self, sample_rate):
+            raise AssertionError
+
+    with pytest.raises(TypeError, match="abstract"):
+        Half("half://")
+    model = load_scene("thesis-al-cc", 211)
+    sinc = get_shape("sinc")
+    shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
+    options = RunOptions(0.025, PlanOptions(sample_rate=500e3))
+    bare = run_shot(model, shape, _bare_device(model), options)
+    sim = run_shot(model, shape, open_device("sim://", DeviceContext(model)), options)
+    assert bare.metrics.tau == pytest.approx(sim.metrics.tau, abs=1e-12) and bare.metrics.tau > 0.95
+    with pytest.raises(DeviceError, match="no phasor mode"):
+        run_shot(model, shape, _bare_device(model), replace(options, loop=LoopOptions()))
+    device = _bare_device(model)
+    with pytest.raises(DeviceError, match="no phasor mode"):
+        device.phasor_board(1.0, 20e3)
+    with device:  # a context manager that closes (the default close releases nothing)
+        assert device.url == "bare://"

@@ -3,21 +3,22 @@
 import numpy as np
 import pytest
 
-from modalctl.experiments.focus import run_focus, step_runtime
-from modalctl.hil.phasor_board import HILBoard
+from modalctl.experiments.focus import Bench, run_focus, step_runtime
+from modalctl.hil.phasor_board import BoardSetup, HILBoard
 from modalctl.hil.scenario import Perturbation, perturb
 from modalctl.loops.design import settling_time
 from modalctl.loops.recorder import Recorder, read_log
 from modalctl.loops.runtime import LifecycleError, State
 from modalctl.loops.shot import loop_parts
 from modalctl.loops.supervisor import Limits, Supervisor
+from modalctl.options import LoopOptions
 
 FS, RATE = 500e3, 20e3
 D = int(FS / RATE)
 
 
 def _step_runtime(model, mode, log=None):
-    return step_runtime(model, mode, control_rate=RATE, sample_rate=FS, log=log)
+    return step_runtime(model, mode, loop=LoopOptions(control_rate=RATE), sample_rate=FS, log=log)
 
 
 @pytest.mark.parametrize("mode", [1, 4])
@@ -59,7 +60,8 @@ def test_lifecycle_refuses_updates_out_of_order(sinc18):
 def test_watchdog_ramps_to_zero_within_one_period_and_keeps_the_log(sinc18, tmp_path):
     model, shape, shot = sinc18
     lost = 300
-    run = run_focus(perturb(model, Perturbation(drift=0.01)), shot, shape, fail_after=lost, log=tmp_path / "log")
+    run = run_focus(perturb(model, Perturbation(drift=0.01)), shot, shape, bench=Bench(fail_after=lost),
+                    log=tmp_path / "log")
     assert run.result.state == State.ERROR and run.result.reason.startswith("watchdog")
     applied = run.board.applied
     stop = (lost + 1) * D  # the first period without a measurement has just been played
@@ -76,7 +78,8 @@ def test_divergent_gain_is_caught_and_stopped(sinc18):
     envelope check stops the shot. (With the default authority, twice the planned drive, such a loop
     is held to a bounded oscillation instead: on this case tau 0.92, peak 6.8 V against 3.3 V.)"""
     model, shape, shot = sinc18
-    run = run_focus(perturb(model, Perturbation(drift=0.01)), shot, shape, gain_scale=30.0, authority=20.0)
+    run = run_focus(perturb(model, Perturbation(drift=0.01)), shot, shape, LoopOptions(authority=20.0),
+                    Bench(gain_scale=30.0))
     assert run.result.state == State.ERROR and run.result.reason.startswith("divergence")
     stop = run.result.periods * D
     assert np.all(run.board.applied[:, stop + 2 * D:] == 0)
@@ -89,8 +92,8 @@ def test_supervisor_keeps_voltage_and_slew_limits(sinc18):
     model, shape, shot = sinc18
     ff = shot.voltages()
     volts, slew = 1.02 * np.abs(ff).max(), 1.02 * np.abs(np.diff(ff, axis=1)).max() * shot.sample_rate
-    run = run_focus(perturb(model, Perturbation(drift=0.03)), shot, shape, voltage_limit=volts, slew_limit=slew,
-                    amplifier_clips=False, authority=2.0)
+    run = run_focus(perturb(model, Perturbation(drift=0.03)), shot, shape, LoopOptions(authority=2.0),
+                    Bench(voltage_limit=volts, slew_limit=slew, amplifier_clips=False))
     applied = run.board.applied
     assert np.abs(applied).max() <= volts * (1 + 1e-9)
     assert np.abs(np.diff(applied, axis=1)).max() * shot.sample_rate <= slew * (1 + 1e-9)
@@ -100,7 +103,7 @@ def test_supervisor_keeps_voltage_and_slew_limits(sinc18):
 def _played(model, schedule, commands):
     """The voltages (a, N) a board on ``model`` (by samples: its own modulation) plays when
     ``commands[n]`` (k,) is written after its period n, one period after the last command."""
-    board = HILBoard(model, FS, lifted=False)
+    board = HILBoard(model, FS, BoardSetup(lifted=False))
     board.configure(schedule)
     board.start()
     for command in commands:
@@ -116,7 +119,7 @@ def test_supervisor_factor_is_the_largest_the_samples_allow(sinc18, seed):
     keeps both limits on every sample of the period the scaled new commands play in and of the
     next, whether they are held there or dropped to zero; 0.1% more breaks one of them."""
     model, _, plan = sinc18
-    s = loop_parts(plan, RATE, 1e-9, 2.0, 0, "pi").schedule
+    s = loop_parts(plan, LoopOptions(control_rate=RATE), 1e-9).schedule
     ff = s.feedforward
     limits = Limits(1.05 * np.abs(ff).max(), 1.05 * np.abs(np.diff(ff, axis=1)).max() * FS)
     supervisor = Supervisor(limits, s, np.ones(s.carriers.size))
@@ -141,7 +144,7 @@ def test_supervisor_checks_commands_played_after_the_last_period(sinc18):
     feed-forward has ended: the factor there keeps the carriers' sum alone within the voltage
     limit, and reaches it."""
     model, _, plan = sinc18
-    s = loop_parts(plan, RATE, 1e-9, 2.0, 2, "pi").schedule
+    s = loop_parts(plan, LoopOptions(control_rate=RATE, latency=2), 1e-9).schedule
     limit = 1.05 * np.abs(s.feedforward).max()
     supervisor = Supervisor(Limits(limit), s, np.ones(s.carriers.size), lead=3)
     new = np.full(s.carriers.size, 40 * limit / np.abs(s.weights).sum()) + 0j

@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from modalctl.experiments.tracking import run_tracking, step
+from modalctl.experiments.tracking import TrackingOptions, run_tracking, step
 from modalctl.identify.trackers import LOST, TRACKING, UNEXCITED, RLSTracker
 from modalctl.loops.lockin import LockIn, Oscillators
 from modalctl.model.scenes import load_scene
@@ -28,7 +28,7 @@ def test_lockin_gives_amplitude_and_phase():
 def test_tracker_follows_a_step_of_one_mode(tracker):
     """Mode 9 alone, no noise: +1% at 20 ms; within 20 ms the estimate is within 0.02% and tracking."""
     truth = load_scene("thesis-al-cc", 211).select([8])
-    run = run_tracking(truth, [0], step(0.02, 0.01), 0.06, snr_db=None, tracker=tracker)
+    run = run_tracking(truth, [0], step(0.02, 0.01), 0.06, TrackingOptions(snr_db=None, tracker=tracker))
     error = run.estimates[0] / run.truth[0] - 1
     after = run.times >= 0.04
     assert np.all(np.abs(error[after]) < 2e-4)
@@ -53,7 +53,7 @@ def test_pole_tracker_learns_during_a_focus_shot(sinc18):
     below the focus peak): at the focus, modes 5, 6 and 7 are known within 0.1% (the slow low
     modes need longer than one shot)."""
     truth, _, shot = sinc18
-    run = run_tracking(truth, None, step(0.0, 0.01), 0.025, snr_db=40.0, plan=shot, tracker="pole")
+    run = run_tracking(truth, None, step(0.0, 0.01), 0.025, TrackingOptions(snr_db=40.0, tracker="pole"), plan=shot)
     error = run.estimates[:, -1] / run.truth[:, -1] - 1
     for label in (5, 6, 7):
         k = list(shot.modes + 1).index(label)
@@ -70,14 +70,16 @@ def test_tracked_model_plans_a_better_focus(sinc18):
     from modalctl.hil.scenario import Perturbation
     from modalctl.hil.sim_device import SimDevice
     from modalctl.identify.trackers import updated_model
-    from modalctl.run import run_open_loop
+    from modalctl.options import RunOptions
+    from modalctl.run import run
 
     model, shape, shot = sinc18
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        run = run_tracking(model, None, step(0.0, 0.01), 0.029, snr_db=40.0, plan=shot, tracker="pole")
-        taus = [run_open_loop(m, shape, SimDevice(model, Perturbation(drift=0.01)), 0.025).metrics["tau"]
-                for m in (model, updated_model(model, run.modes, run.tracker))]
+        tracked = run_tracking(model, None, step(0.0, 0.01), 0.029, TrackingOptions(snr_db=40.0, tracker="pole"),
+                               plan=shot)
+        taus = [run(m, shape, SimDevice(model, Perturbation(drift=0.01)), RunOptions(0.025)).metrics.tau
+                for m in (model, updated_model(model, tracked.modes, tracked.tracker))]
     assert taus[1] > taus[0] + 0.1
 
 

@@ -1,4 +1,4 @@
-"""Scenario sweeps on the HIL: one focus case per point, three ways of driving it.
+"""Scenario sweeps on the HIL: one focus case per point, several ways of driving it.
 
 A :class:`Case` is one point of a sweep: the scene and shape, the truth's departure from the
 model (drift, damping error, a finger, loop latency, sensor noise) and the method:
@@ -10,8 +10,10 @@ model (drift, damping error, a finger, loop latency, sensor noise) and the metho
 - ``learned``: a first closed-loop shot whose record updates the model's resonances and damping
   (:func:`modalctl.identify.updating.update`), then the plan remade on it and played closed loop.
 
-:func:`run_case` is a plain function of a picklable case, so any executor
-(:mod:`modalctl.experiments.executor`) can run a sweep's cases wherever it runs things.
+Every case is :func:`modalctl.run.run` on a ``sim://`` device, the path ``modalctl run`` takes: the
+field is measured by the simulated vibrometer, with its noise. :func:`run_case` is a plain function
+of a picklable case, so any executor (:mod:`modalctl.experiments.executor`) can run a sweep's cases
+wherever it runs things.
 """
 
 from __future__ import annotations
@@ -23,24 +25,20 @@ from functools import lru_cache
 
 import numpy as np
 
-from modalctl.hil.finger import Finger, FingerPlant, added_damping
-from modalctl.hil.scenario import Perturbation, perturb
-from modalctl.identify.trackers import updated_model
-from modalctl.identify.updating import update
-from modalctl.loops.schedule import HOLD
-from modalctl.loops.shot import AUTHORITY
+from modalctl.hil.finger import Finger, added_damping
+from modalctl.hil.scenario import Perturbation
+from modalctl.hil.sim_device import SimDevice
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
-from modalctl.plan.decompose import decompose
-from modalctl.plan.planner import plan
-from modalctl.plugin.manager import get_shape, get_tracker
-
-from .focus import run_focus
+from modalctl.options import LoopOptions, PlanOptions, RunOptions
+from modalctl.plan.planner import plan_shot
+from modalctl.plugin.manager import get_shape
+from modalctl.run import run
 
 __all__ = ["Case", "run_case", "METHODS"]
 
 METHODS = ("open", "closed", "tracked", "learned")
-LEARNING_SEED = 10007  # offset of a learning shot's noise seed
+LEARNING = {"open": None, "closed": None, "tracked": "tracker", "learned": "record"}
 
 
 @dataclass(frozen=True)
@@ -93,12 +91,19 @@ class Case:
     control_rate: float = 20e3
     sample_rate: float = 500e3
     controller: str = "pi"
-    authority: float = AUTHORITY
+    authority: float = LoopOptions.authority
     seed: int = 0
 
     def __post_init__(self):
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+
+    def options(self) -> RunOptions:
+        """The shot's options: the plan's, and the loops' unless open loop."""
+        plan = PlanOptions(modes=self.modes or "auto", margin=self.margin, sample_rate=self.sample_rate)
+        loop = None if self.method == "open" else LoopOptions(
+            control_rate=self.control_rate, controller=self.controller, authority=self.authority, latency=self.latency)
+        return RunOptions(self.focus_time, plan, loop, LEARNING[self.method])
 
 
 @lru_cache(maxsize=8)
@@ -108,51 +113,39 @@ def _model_shape(scene: str, points, shape: str, params: tuple):
     return model, generator.generate(model.grid, **parse_params(generator, dict(params)))
 
 
-def _plan(model, target, case: Case):
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        # a margin is held on the whole model, as modalctl run does by default
-        return plan(decompose(model, target, case.modes or "auto"), case.focus_time, margin=case.margin,
-                    sample_rate=case.sample_rate, verify="planned" if case.margin is None else "whole")
-
-
 @lru_cache(maxsize=8)
 def _nominal_plan(case: Case):
+    """The plan on the model, made once for every truth of a sweep."""
     model, target = _model_shape(case.scene, case.points, case.shape, case.params)
-    return _plan(model, target, case)
+    options = case.options()
+    return plan_shot(model, target, options.focus_time, options.plan)
 
 
 def run_case(case: Case) -> dict:
     """Play one case on the HIL; returns the case's fields plus ``tau``, ``margin_ratio``,
-    ``peak_voltage``, ``state`` (how the runtime ended), ``fault`` and ``seconds``."""
+    ``peak_voltage``, ``state`` (how the runtime ended), ``fault``, ``seconds`` and, after a
+    learning shot, ``first_shot_tau``."""
     start = time.perf_counter()
     model, target = _model_shape(case.scene, case.points, case.shape, case.params)
-    shot = _nominal_plan(replace(case, method="open", drift=0.0, damping_error=0.0, finger=0.0, latency=0, seed=0))
-    truth = perturb(model, Perturbation(drift=case.drift, damping_error=case.damping_error))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        planned = _nominal_plan(replace(case, method="open", drift=0.0, damping_error=0.0, finger=0.0, latency=0,
+                                        seed=0))
+        peak = int(np.argmax(np.abs(target.values)))
+        perturbation = Perturbation(drift=case.drift, damping_error=case.damping_error, snr_db=case.snr_db,
+                                    seed=case.seed, finger=case.finger,
+                                    finger_at=tuple(model.grid.points[peak]) if case.finger else None)
+        device = SimDevice(model, perturbation)
+        shot = run(model, target, device, case.options(), planned)
     added = 0.0
     if case.finger > 0:
-        finger = Finger(int(np.argmax(np.abs(target.values))), case.finger)
-        added = float(np.max(added_damping(truth, finger)[shot.modes] / truth.damping[shot.modes]))
-        truth = FingerPlant(truth, finger, case.sample_rate)
-    options = dict(control_rate=case.control_rate, snr_db=case.snr_db, latency=case.latency, seed=case.seed,
-                   controller=case.controller, authority=case.authority)
-    first = None
-    learning = {**options, "seed": case.seed + LEARNING_SEED}  # the first shot's noise is not the second's
-    if case.method == "tracked":
-        modes = shot.modes
-        tracker = get_tracker("pole").create(model.frequencies[modes], model.damping[modes], case.control_rate,
-                                             retune=np.inf)  # the carriers stay on the plan's during a shot
-        first = run_focus(truth, shot, target, tracker=tracker, **learning)
-        shot = _plan(updated_model(model, modes, tracker), target, case)
-    elif case.method == "learned":
-        first = run_focus(truth, shot, target, **learning)
-        board = first.board
-        shot = _plan(update(model, board.applied, board.sensed, case.sample_rate, hold=HOLD).model, target, case)
-    result = run_focus(truth, shot, target, closed=case.method != "open", **options)
-    row = {**asdict(case), "params": dict(case.params), "tau": result.tau, "margin_ratio": result.margin_ratio,
-           "peak_voltage": result.peak_voltage, "state": result.result.state.name.lower(),
-           "fault": result.result.reason, "finger_added_damping_max": added,
-           "seconds": time.perf_counter() - start}
-    if first is not None:
-        row["first_shot_tau"] = first.tau
+        modes = planned[1].modes
+        added = added_damping(device.truth, Finger(peak, case.finger))[modes] / device.truth.damping[modes]
+        added = float(np.max(added))
+    row = {**asdict(case), "params": dict(case.params), "tau": shot.metrics.tau,
+           "margin_ratio": shot.metrics.margin_ratio, "peak_voltage": shot.metrics.peak_voltage,
+           "state": "inactive" if shot.loop is None else shot.loop.state, "fault": shot.fault,
+           "finger_added_damping_max": added, "seconds": time.perf_counter() - start}
+    if shot.learning is not None:
+        row["first_shot_tau"] = shot.learning.tau
     return row

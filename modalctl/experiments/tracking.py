@@ -11,7 +11,7 @@ from the envelopes and retunes the carriers. The truth's resonances follow ``dri
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -23,7 +23,39 @@ from modalctl.model.propagate import Plant
 from modalctl.plan.dispatch import dispatch
 from modalctl.plugin.manager import get_tracker
 
-__all__ = ["TrackingRun", "run_tracking", "dither_envelopes", "step", "ramp"]
+__all__ = ["TrackingRun", "TrackingOptions", "run_tracking", "dither_envelopes", "step", "ramp"]
+
+
+@dataclass(frozen=True)
+class TrackingOptions:
+    """How a tracking run drives and reads the modes.
+
+    Attributes
+    ----------
+    sample_rate, control_rate : float
+        DAC and tracker rates (Hz).
+    snr_db : float or None
+        Sensor noise below the velocity the run is about (the held level, or a plan's focus peak).
+    velocity : float
+        Peak velocity each mode is held at on the grid (m/s).
+    dither_period : float
+        Shortest period of the envelopes' random telegraph (s); a slow mode's is half its time constant.
+    chunk : float
+        The truth's drift is applied between chunks of this length (s).
+    seed : int
+    tracker : str
+        Tracker plugin name; ``tracker_options`` go to its ``create``.
+    """
+
+    sample_rate: float = 500e3
+    control_rate: float = 20e3
+    snr_db: float | None = 40.0
+    velocity: float = 5e-3
+    dither_period: float = 2e-3
+    chunk: float = 1e-3
+    seed: int = 0
+    tracker: str = "pole"
+    tracker_options: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -56,30 +88,28 @@ def dither_envelopes(rng, periods: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: float = 500e3,
-                 control_rate: float = 20e3, snr_db: float | None = 40.0, velocity: float = 5e-3,
-                 dither_period: float = 2e-3, chunk: float = 1e-3, seed: int = 0, tracker: str = "pole",
-                 tracker_options: dict | None = None, plan=None) -> TrackingRun:
+def run_tracking(truth: ModalModel, modes, drift, duration: float, options: TrackingOptions = TrackingOptions(),
+                 plan=None) -> TrackingRun:
     """Track ``modes`` (positional) of ``truth`` for ``duration`` seconds while it drifts.
 
     Parameters
     ----------
     truth : ModalModel
         Starts as the model the tracker knows; its resonances then move by ``drift(t, k)``.
-    velocity : float
-        Peak velocity each mode is held at on the grid (m/s); the sensor noise is ``snr_db`` below
-        it (below the plan's focus peak when ``plan`` is given).
-    tracker : str
-        Tracker plugin name; ``tracker_options`` go to its ``create``.
+    options : TrackingOptions
     plan : modalctl.plan.planner.Plan, optional
         Drive the modes with this focus plan (its modal drives and actuator weights, sampled
         at ``sample_rate``) instead of dithered carriers: tracking during a focus shot.
     """
     import time
 
+    sample_rate, control_rate, snr_db, velocity = (options.sample_rate, options.control_rate, options.snr_db,
+                                                   options.velocity)
+    chunk, dither_period = options.chunk, options.dither_period
+
     modes = np.asarray(modes if plan is None else plan.modes, int)
     model = truth.select(modes)
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(options.seed)
     decimation = int(round(sample_rate / control_rate))
     n_chunk = int(round(chunk * sample_rate / decimation)) * decimation
     weights = dispatch(truth, modes, np.ones(modes.size)) if plan is None else plan.weights  # (a, k)
@@ -91,7 +121,8 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, sample_rate: 
     held = hold_gain(model.frequencies, sample_rate, "foh")
     leak = feedthrough(truth, modes, sensors, weights)  # the other modes' answer to each mode's drive
     lock_y, lock_f = LockIn(bands, sample_rate, decimation), LockIn(bands, sample_rate, decimation)
-    tracker = get_tracker(tracker).create(model.frequencies, model.damping, control_rate, **(tracker_options or {}))
+    tracker = get_tracker(options.tracker).create(model.frequencies, model.damping, control_rate,
+                                                  **options.tracker_options)
     periods = np.maximum(dither_period, 0.5 / (model.damping * model.omega))  # slow modes: slow dither
     total = int(duration * sample_rate) + n_chunk
     envelopes = dither_envelopes(rng, np.round(periods * sample_rate).astype(int), total)

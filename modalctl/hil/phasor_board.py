@@ -23,10 +23,14 @@ A period read during a ramp to zero is played sample by sample (the periods so f
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from modalctl.loops.lockin import Oscillators
+from modalctl.loops.onboard import BoardLog, BoardLoop
+from modalctl.loops.runtime import PhasorBoard
 from modalctl.loops.schedule import HOLD, Schedule, ramp_in
 from modalctl.model.modes import ModalModel
 from modalctl.model.propagate import Plant
@@ -34,23 +38,15 @@ from modalctl.model.propagate import Plant
 from .block import BlockLockIn, BlockPlant
 from .lifted import PeriodMap
 
-__all__ = ["HILBoard"]
+__all__ = ["HILBoard", "BoardSetup"]
 
 
-class HILBoard:
-    """The emulated board and structure.
+@dataclass(frozen=True)
+class BoardSetup:
+    """What the emulated board and its electronics add to the truth.
 
-    The period map serves periods of up to ``LIFTED_SAMPLES`` DAC samples: its build grows with
-    the period (~0.1 ms a sample), while a long period's Python pass by samples is small beside
-    its samples (2 kHz at 500 kHz: 250 samples a period, the whole shot by samples is quicker
-    than the map's build).
-
-    Parameters
+    Attributes
     ----------
-    truth : ModalModel or object with ``step``/``sensors``/``field``
-        The structure as it is (or a plant such as :class:`~modalctl.hil.finger.FingerPlant`).
-    sample_rate : float
-        DAC and ADC rate (Hz).
     noise : float
         Standard deviation of each sensor's white noise (m/s).
     voltage_limit : float or None
@@ -67,32 +63,63 @@ class HILBoard:
     amplifier_bandwidth : float or None
         First-order amplifier bandwidth (Hz).
     scan_noise : float
-        Standard deviation of the vibrometer's noise in :meth:`scan` (m/s).
+        Standard deviation of the vibrometer's noise in :meth:`HILBoard.scan` (m/s).
     seed : int
     lifted : bool
         Play a linear board a period per product (the same readings and records to round-off);
         False plays every period sample by sample.
     """
 
-    LIFTED_SAMPLES = 128
+    noise: float = 0.0
+    voltage_limit: float | None = None
+    latency: int = 0
+    drift: Callable | None = None
+    fail_after: int | None = None
+    watchdog: int = 3
+    amplifier_bandwidth: float | None = None
+    scan_noise: float = 0.0
+    seed: int = 0
+    lifted: bool = True
 
-    def __init__(self, truth, sample_rate: float, noise: float = 0.0, voltage_limit: float | None = None,
-                 latency: int = 0, drift=None, fail_after: int | None = None, watchdog: int = 3,
-                 amplifier_bandwidth: float | None = None, scan_noise: float = 0.0, seed: int = 0,
-                 lifted: bool = True):
-        if latency < 0:
-            raise ValueError(f"board: latency must be zero or more periods, got {latency}")
-        self.truth, self.voltage_limit, self.amplifier_bandwidth = truth, voltage_limit, amplifier_bandwidth
-        self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=voltage_limit,
-                           amplifier_bandwidth=amplifier_bandwidth) if isinstance(truth, ModalModel) else truth
-        self.scan_noise = float(scan_noise)
-        self.sample_rate, self.noise, self.latency = float(sample_rate), float(noise), int(latency)
-        self.drift, self.fail_after, self.watchdog = drift, fail_after, int(watchdog)
-        self.rng = np.random.default_rng(seed)
+    def __post_init__(self):
+        if self.latency < 0:
+            raise ValueError(f"board: latency must be zero or more periods, got {self.latency}")
+
+
+class HILBoard(PhasorBoard):
+    """The emulated board and structure.
+
+    The period map serves periods of up to ``LIFTED_SAMPLES`` DAC samples: its build grows with
+    the period (~0.1 ms a sample), while a long period's Python pass by samples is small beside
+    its samples (2 kHz at 500 kHz: 250 samples a period, the whole shot by samples is quicker
+    than the map's build).
+
+    Parameters
+    ----------
+    truth : ModalModel or object with ``step``/``sensors``/``field``
+        The structure as it is (or a plant such as :class:`~modalctl.hil.finger.FingerPlant`).
+    sample_rate : float
+        DAC and ADC rate (Hz).
+    setup : BoardSetup
+        Noise, rails, latency, faults.
+    """
+
+    LIFTED_SAMPLES = 128
+    runs_loops = True
+
+    def __init__(self, truth, sample_rate: float, setup: BoardSetup = BoardSetup()):
+        self.truth, self.setup = truth, setup
+        self.voltage_limit, self.amplifier_bandwidth = setup.voltage_limit, setup.amplifier_bandwidth
+        self.plant = Plant(truth, sample_rate, hold=HOLD, voltage_limit=setup.voltage_limit,
+                           amplifier_bandwidth=setup.amplifier_bandwidth) if isinstance(truth, ModalModel) else truth
+        self.scan_noise = float(setup.scan_noise)
+        self.sample_rate, self.noise, self.latency = float(sample_rate), float(setup.noise), int(setup.latency)
+        self.drift, self.fail_after, self.watchdog = setup.drift, setup.fail_after, int(setup.watchdog)
+        self.rng = np.random.default_rng(setup.seed)
         self.schedule: Schedule | None = None
         self._base = self.plant.model.frequencies.copy()
-        self.linear = lifted and isinstance(truth, ModalModel) and amplifier_bandwidth is None \
-            and voltage_limit is None and drift is None
+        self.linear = setup.lifted and isinstance(truth, ModalModel) and setup.amplifier_bandwidth is None \
+            and setup.voltage_limit is None and setup.drift is None
         self._map: PeriodMap | None = None
 
     # -- set-up ------------------------------------------------------------------------------
@@ -220,7 +247,7 @@ class HILBoard:
         self.pending, self._pending_commands = np.array(phasors, complex), None
         self.idle = 0
 
-    def run_loops(self, loops, each_period=None):
+    def run_loops(self, loops: BoardLoop, each_period=None) -> BoardLog:
         """Start the shot and close its loops on the board itself (:class:`modalctl.loops.onboard.BoardLoop`),
         every period (``each_period(n)`` after each); returns the loops' :class:`~modalctl.loops.onboard.BoardLog`."""
         s = self.schedule

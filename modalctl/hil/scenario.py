@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from modalctl.model.modes import ModalModel
+from modalctl.model.shape import Shape
 
 __all__ = ["Perturbation", "perturb", "step", "ramp"]
 
@@ -75,6 +76,26 @@ class Perturbation:
                              "give a fixed drift with the finger")
         if self.amplifier_bandwidth and (self.finger or self.moving):
             raise ValueError("the amplifier's bandwidth is not simulated with a finger or a drift during the shot")
+
+    @classmethod
+    def from_options(cls, options: dict, model: ModalModel, target: Shape | None = None) -> "Perturbation":
+        """The perturbation the simulator's command-line options ask for (by dest, parsed to SI; see
+        :func:`modalctl.plugins.transports.modalctl_add_options`); a finger rests on the target's
+        peak unless placed. ValueError names what is wrong."""
+        finger, at = options.get("finger", 0.0), options.get("finger_at")
+        if at is not None and not finger:
+            raise ValueError("--finger-at places a finger: give its damping too (--finger, e.g. 0.5Ns/m)")
+        if finger and at is None:
+            if target is None:
+                raise ValueError("--finger needs --finger-at here (no target to rest it on)")
+            at = tuple(model.grid.points[int(np.argmax(np.abs(target.values)))])
+        step, step_time = options.get("drift_step", (0.0, 0.0))
+        return cls(drift=options.get("drift", 0.0), drift_spread=options.get("drift_spread", 0.0),
+                   damping_error=options.get("damping_error", 0.0), snr_db=options.get("snr"),
+                   amplifier_bandwidth=options.get("amplifier_bandwidth"), voltage_limit=options.get("rails"),
+                   seed=options.get("seed", 0), drift_rate=options.get("drift_rate", 0.0), drift_step=step,
+                   drift_step_time=step_time, finger=finger, finger_at=at,
+                   scan_repeats=options.get("scan_repeats", 1))
 
     @property
     def moving(self) -> bool:

@@ -8,8 +8,9 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 from tqdm.auto import tqdm
 
-from modalctl.io.device import Capabilities, Capture, DeviceError
-from modalctl.model.modes import ModalModel
+from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError
+from modalctl.model.modes import ModalModel, ModelError
+from modalctl.model.scenes import load_scene
 
 from .finger import Finger, FingerPlant
 from .plant import HOLDS, Plant, truncation
@@ -21,7 +22,7 @@ CHUNK = 8192  # samples per plant step (one progress-bar tick)
 DRIFT_STEP = 50e-6  # s: resonances moving during a shot are retuned this often (the loops' period at 20 kHz)
 
 
-class SimDevice:
+class SimDevice(Device):
     """A simulated amplifier board on a simulated structure, with a scanning vibrometer.
 
     Parameters
@@ -43,10 +44,12 @@ class SimDevice:
                  tol: float = 1e-4, url: str = "sim://"):
         if hold not in HOLDS:
             raise DeviceError(f"{url}: hold must be one of {HOLDS}, got {hold!r}")
-        self.url, self.model, self.perturbation, self.hold, self.tol = url, model, perturbation, hold, tol
+        super().__init__(url)
+        self.model, self.perturbation, self.hold, self.tol = model, perturbation, hold, tol
         self.truth = perturb(model, perturbation)
         self.finger = _finger(model, perturbation, url)
-        self.state, self.sample_rate, self.info, self.capabilities = "unconfigured", None, {}, None
+        self.sample_rate = None
+        self.info["truth"] = perturbation.describe()
         self._noise_sigma = None
         self._voltages = self._modal = self._board = None
         self._boards = 0  # phasor boards made so far
@@ -54,11 +57,10 @@ class SimDevice:
         self._rng = np.random.default_rng(perturbation.seed + 1)
 
     @classmethod
-    def from_url(cls, url: str, model: ModalModel | None = None, perturbation: Perturbation | None = None,
-                 **_ignored) -> "SimDevice":
-        """``sim://?hold=zoh&tol=1e-4``; the structure comes from ``model`` (the scene)."""
-        if model is None:
-            raise DeviceError(f"{url}: the simulator needs the structure's model (pass model=...)")
+    def from_url(cls, url: str, context: DeviceContext) -> "SimDevice":
+        """``sim://?hold=zoh&tol=1e-4``. The structure is the context's model, or the scene its
+        ``truth`` option names (the same actuators and sensors, other modes); the other options
+        (those of :func:`modalctl.plugins.transports.modalctl_add_options`) make its perturbation."""
         query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
         unknown = set(query) - {"hold", "tol"}
         if unknown:
@@ -67,7 +69,9 @@ class SimDevice:
             tol = float(query.get("tol", 1e-4))
         except ValueError:
             raise DeviceError(f"{url}: tol must be a number, got {query['tol']!r}") from None
-        return cls(model, perturbation or Perturbation(), query.get("hold", "zoh"), tol, url)
+        structure = _structure(context)
+        perturbation = Perturbation.from_options(context.options, structure, context.target)
+        return cls(structure, perturbation, query.get("hold", "zoh"), tol, url)
 
     def configure(self, sample_rate: float) -> Capabilities:
         """Set the DAC/ADC rate (Hz) and report what the board can do."""
@@ -76,16 +80,9 @@ class SimDevice:
         self.sample_rate, self.state = float(sample_rate), "inactive"
         self.capabilities = Capabilities("modalctl HIL board", self.model.actuator_gains.shape[1],
                                          self.model.sensor_gains.shape[1], self.max_sample_rate,
-                                         self.perturbation.voltage_limit, True, self.model.grid.points)
+                                         self.perturbation.voltage_limit, True, self.model.grid.points,
+                                         phasor_mode=True)
         return self.capabilities
-
-    def activate(self) -> None:
-        if self.state == "unconfigured":
-            raise DeviceError(f"{self.url}: configure before activate")
-        self.state = "active"
-
-    def deactivate(self) -> None:
-        self.state = "inactive" if self.state != "unconfigured" else self.state
 
     def upload(self, voltages: np.ndarray) -> None:
         """Load one shot of waveforms, shape (channels, n), in volts."""
@@ -121,8 +118,8 @@ class SimDevice:
             kept, dropped = np.arange(self.truth.n_modes), 0.0
             plant = FingerPlant(self.truth, self.finger, self.sample_rate, p.voltage_limit, self.hold)
         self._kept = kept
-        self.info = {"modes_simulated": int(kept.size), "modes_available": int(self.truth.n_modes),
-                     "truncation_bound_m_s": dropped, "truncation_tol": self.tol}
+        self.info.update({"modes_simulated": int(kept.size), "modes_available": int(self.truth.n_modes),
+                          "truncation_bound_m_s": dropped, "truncation_tol": self.tol})
         chunk = max(1, int(round(DRIFT_STEP * self.sample_rate))) if p.moving else CHUNK
         chunks = range(0, u.shape[1], chunk)
         bar = tqdm(chunks, desc="HIL shot", unit="chunk", disable=not progress or len(chunks) < 4, leave=False)
@@ -137,12 +134,13 @@ class SimDevice:
         self._noise_sigma = self._sigma(self._field_peak()) / np.sqrt(self.perturbation.scan_repeats)
         self._played = plant.sensors(self._modal)
 
-    def phasor_board(self, level: float, control_rate: float, latency: int = 0, drift=None):
+    def phasor_board(self, level: float, control_rate: float, latency: int = 0):
         """The board in phasor mode (closed loop) on the same truth, for a shot whose field peaks
         near ``level`` (m/s): sensor and vibrometer noise ``snr_db`` below it (the vibrometer's
-        averaged over ``scan_repeats``), the same rails and amplifier. Returns an
-        :class:`~modalctl.hil.phasor_board.HILBoard` at the configured sample rate."""
-        from .phasor_board import HILBoard
+        averaged over ``scan_repeats``), the same rails and amplifier, the resonances moving as the
+        perturbation says. Returns an :class:`~modalctl.hil.phasor_board.HILBoard` at the
+        configured sample rate."""
+        from .phasor_board import BoardSetup, HILBoard
 
         if self.sample_rate is None:
             raise DeviceError(f"{self.url}: configure before asking for the phasor mode")
@@ -151,10 +149,10 @@ class SimDevice:
         truth = self.truth if self.finger is None else FingerPlant(self.truth, self.finger, self.sample_rate,
                                                                    p.voltage_limit)
         self._boards += 1  # each shot its own noise
-        self._board = HILBoard(truth, self.sample_rate, noise=sigma, voltage_limit=p.voltage_limit,
-                               latency=latency, drift=p.schedule() if drift is None else drift,
-                               amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma / np.sqrt(p.scan_repeats),
-                               seed=p.seed + self._boards)
+        self._board = HILBoard(truth, self.sample_rate, BoardSetup(
+            noise=sigma, voltage_limit=p.voltage_limit, latency=latency, drift=p.schedule(),
+            amplifier_bandwidth=p.amplifier_bandwidth, scan_noise=sigma / np.sqrt(p.scan_repeats),
+            seed=p.seed + self._boards))
         return self._board
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:
@@ -201,3 +199,20 @@ def _finger(model: ModalModel, p: Perturbation, url: str) -> Finger | None:
         raise DeviceError(f"{url}: the finger at {np.round(at * 1e3, 3).tolist()} mm is off the structure "
                           f"({np.round(low * 1e3, 3).tolist()} to {np.round(high * 1e3, 3).tolist()} mm)")
     return Finger(int(np.argmin(np.linalg.norm(grid.points - at, axis=1))), p.finger)
+
+
+def _structure(context: DeviceContext) -> ModalModel:
+    """The structure to simulate: the scene of the ``truth`` option, or the model planned on."""
+    name, model = context.options.get("truth"), context.model
+    if name is None:
+        if model is None:
+            raise DeviceError("sim://: the simulator needs the structure's model (a scene, a model file or --truth)")
+        return model
+    truth = load_scene(name)
+    if model is not None:
+        for what in ("actuator", "sensor"):
+            ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))
+            if ours != theirs:
+                raise ModelError(f"--truth {name} has {theirs} {what}s, the model {ours}: the truth must be the "
+                                 f"same structure as the one planned on (its modes may differ)")
+    return truth

@@ -19,15 +19,14 @@ import numpy as np
 from modalctl.io.device import Device
 from modalctl.model.modes import Grid, ModalModel, quadrature_weights
 from modalctl.model.projection import crosstalk, orthonormalize_model
+from modalctl.options import SurveyOptions
 from modalctl.plugin.manager import get_identifier
 
 from .acquire import measure_frf
 from .estimators import Modes, actuator_gains, constants_of, to_model
 from .frf import FRF, Sweep, bending_wavelength, check_spatial_step
 
-__all__ = ["Survey", "identify_device", "identify_frf", "WEAK_DRIVE"]
-
-WEAK_DRIVE = 0.1  # a mode the primary actuator drives below this fraction of the best one is rescanned
+__all__ = ["Survey", "identify_device", "identify_frf"]
 
 
 @dataclass
@@ -78,8 +77,7 @@ def _grid(points: np.ndarray, mass_per_length: float) -> Grid:
 
 
 def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_length: float,
-                    method: str = "sdof", primary: int = 0, sparse: int = 5, averages: int = 2,
-                    orthogonalize: bool = True, threshold_db: float = 3.0, wavelength: float | None = None,
+                    options: SurveyOptions = SurveyOptions(), wavelength: float | None = None,
                     progress: bool = False) -> Survey:
     """Identify the structure behind ``device`` on the scan points ``points``.
 
@@ -92,20 +90,13 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
         Scan indices of the measurement grid, ordered along the beam.
     mass_per_length : float
         Of the structure (kg/m): scales the mass-normalized shapes, hence the gains.
-    method : str
-        Identifier plugin name (``peaks``, ``sdof``, ...).
-    primary : int
-        The actuator swept over the full grid.
-    sparse : int
-        Every ``sparse``-th point is measured with every actuator.
-    averages : int
-        Shots per point.
-    orthogonalize : bool
-        Apply Gram-Schmidt to the identified shapes (thesis 3.1.3.3).
+    options : SurveyOptions
+        The identifier, the primary actuator, the sparse grid, averages, Gram-Schmidt.
     wavelength : float, optional
         Shortest bending wavelength in the band (m) for the spatial-step check (Eq 3.15).
     """
-    identifier = get_identifier(method)
+    identifier = get_identifier(options.method)
+    primary, sparse, averages = options.primary, options.sparse, options.averages
     caps = device.configure(sweep.sample_rate)
     if not 0 <= primary < caps.channels:
         raise ValueError(f"identify: primary actuator {primary}: the device has {caps.channels} "
@@ -124,13 +115,13 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
     acquisition += time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    poles = identifier.identify(FRF.stack(list(sparse_frf.values())), threshold_db=threshold_db)
+    poles = identifier.identify(FRF.stack(list(sparse_frf.values())), threshold_db=options.threshold_db)
     good = poles.only_resolved()
     drive = np.zeros((good.n_modes, caps.channels))
     for k in range(good.n_modes):
         for a, frf in sparse_frf.items():
             drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k)[0] ** 2))
-    weak = drive[:, primary] < WEAK_DRIVE * drive.max(axis=1)
+    weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
     chooser = np.where(weak, np.argmax(drive, axis=1), primary)
     compute += time.perf_counter() - t0
 
@@ -163,7 +154,7 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
         else:
             model = actuator_gains(model, sparse_frf[a], few)
     before = crosstalk(model.shapes, model.grid.mass)
-    if orthogonalize:
+    if options.orthogonalize:
         model = orthonormalize_model(model)
     after = crosstalk(model.shapes, model.grid.mass)
     compute += time.perf_counter() - t0

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RLSTracker", "PoleTracker", "updated_model", "TRACKING",
+__all__ = ["RLSTracker", "PoleTracker", "TrackerTuning", "updated_model", "TRACKING",
            "UNEXCITED", "LOST", "TrackerFactory"]
 
 TRACKING, UNEXCITED, LOST = "tracking", "unexcited", "lost"
@@ -45,6 +45,35 @@ class TrackerFactory:
     create: object
 
 
+@dataclass(frozen=True)
+class TrackerTuning:
+    """How a tracker weighs and judges what it learns.
+
+    Attributes
+    ----------
+    memory : float
+        Forgetting time constant (s), at least: the estimates follow changes over about this
+        long. A mode whose own time constant ``1 / (zeta w)`` is longer gets ``settle`` times
+        that instead (its response carries no faster information).
+    settle : float
+    retune : float
+        Retune a carrier when the estimate is off by this fraction of ``zeta f`` (``inf``: never).
+    lost_error : float
+        A mode is lost when the RMS prediction error exceeds this fraction of its RMS response,
+        or when its estimate leaves the model's resonance by more than ``max_drift`` (relative).
+    min_drive : float
+        A mode driven below this fraction of its largest drive so far is unexcited (frozen).
+    max_drift : float
+    """
+
+    memory: float = 2e-3
+    settle: float = 0.5
+    retune: float = 0.1
+    lost_error: float = 0.3
+    min_drive: float = 1e-3
+    max_drift: float = 0.05
+
+
 class RLSTracker:
     """Per-mode recursive least squares on the demodulated envelopes.
 
@@ -54,20 +83,17 @@ class RLSTracker:
         The model's resonances (Hz) and damping ratios: the first carriers and estimates.
     control_rate : float
         Envelope sample rate (Hz).
-    memory : float
-        Forgetting time constant (s), at least: the estimates follow changes over about this
-        long. A mode whose own time constant ``1 / (zeta w)`` is longer gets ``settle`` times
-        that instead (its response carries no faster information).
-    settle : float
-    retune : float
-        Retune a carrier when the estimate is off by this fraction of ``zeta f``.
-    lost_error : float
-        A mode is lost when the RMS prediction error exceeds this fraction of its RMS response,
-        or when its estimate leaves the model's resonance by more than ``max_drift`` (relative).
+    tuning : TrackerTuning
     """
 
-    def __init__(self, frequencies, damping, control_rate: float, memory: float = 2e-3, settle: float = 0.5,
-                 retune: float = 0.1, lost_error: float = 0.3, min_drive: float = 1e-3, max_drift: float = 0.05):
+    @classmethod
+    def create(cls, frequencies, damping, control_rate: float, **tuning) -> "RLSTracker":
+        """The tracker plugins' factory: ``tuning`` names :class:`TrackerTuning`'s fields."""
+        return cls(frequencies, damping, control_rate, TrackerTuning(**tuning))
+
+    def __init__(self, frequencies, damping, control_rate: float, tuning: TrackerTuning = TrackerTuning()):
+        memory, settle, retune = tuning.memory, tuning.settle, tuning.retune
+        lost_error, min_drive, max_drift = tuning.lost_error, tuning.min_drive, tuning.max_drift
         self.frequencies = np.array(frequencies, float)
         self.damping = np.array(damping, float)
         self.carriers = self.frequencies.copy()

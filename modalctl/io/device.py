@@ -1,24 +1,38 @@
-"""The device interface the runtime talks to, and opening a device by URL.
+"""The device contract, its command-line options, and opening a device by URL.
 
 A device is an amplifier board with sensing, real or simulated, reached through a transport
-plugin chosen by the URL scheme (``sim://``, ``serial://``, ``can://`` or a third party's). Its lifecycle
-follows ros2_control's hardware interface: ``configure`` (learn capabilities, set the rate),
-``activate``, the shots, ``deactivate``. Open-loop shots are the thesis's set-up: upload the
-waveforms, trigger, capture the sensors; a laser-vibrometer ``scan`` gives the field on the grid.
+plugin chosen by the URL scheme (``sim://``, ``serial://``, ``can://`` or a third party's). What a
+device must implement is :class:`Device` (an abstract base class with defaults, as python-can's
+``BusABC``); its lifecycle follows ros2_control's hardware interface: ``configure`` (learn
+capabilities, set the rate), ``activate``, the shots, ``deactivate``, ``close``. Open-loop shots
+are the thesis's set-up: upload the waveforms, trigger, capture the sensors; a laser-vibrometer
+``scan`` gives the field on the grid. Closed-loop shots go through the device's phasor board
+(:class:`modalctl.loops.runtime.PhasorBoard`).
+
+A transport declares its own command-line options (hook ``modalctl_add_options``, as pytest's
+``pytest_addoption``) in a group of its scheme (:class:`TransportOptions`), and its factory gets
+them back, parsed, in its :class:`DeviceContext`: the simulator owns ``--drift``, ``--finger``...,
+and a board's transport never sees them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Protocol
+import argparse
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, Callable
 from urllib.parse import urlsplit
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from modalctl.loops.runtime import PhasorBoard
+from modalctl.model.modes import ModalModel
+from modalctl.model.shape import Shape
 from modalctl.plugin.manager import PluginError, plugin_manager
 
-__all__ = ["DeviceError", "Capabilities", "Capture", "Device", "transports", "open_device", "scan_indices"]
+__all__ = ["DeviceError", "Capabilities", "Capture", "Device", "PhasorBoard", "DeviceContext", "TransportOptions",
+           "TransportFactory", "transports", "add_transport_options", "open_device", "scan_indices"]
 
 
 class DeviceError(RuntimeError):
@@ -43,6 +57,8 @@ class Capabilities:
         True when the device also measures the field on the grid (a scanning vibrometer, or the simulator).
     scan_points : ndarray, shape (n, d), optional
         Coordinates (m) of the points ``scan`` can measure, by index.
+    phasor_mode : bool
+        True when the device has a phasor board for closed loops (:meth:`Device.phasor_board`).
     """
 
     name: str
@@ -52,6 +68,7 @@ class Capabilities:
     voltage_limit: float | None
     can_scan: bool
     scan_points: np.ndarray | None = None
+    phasor_mode: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,27 +80,143 @@ class Capture:
     voltages: np.ndarray
 
 
-class Device(Protocol):
-    """What the runtime needs of a device (see the module docstring for the lifecycle)."""
+class Device(ABC):
+    """What the host needs of a device; transports subclass it.
 
-    url: str
-    capabilities: Capabilities | None  # from the last configure
+    Subclasses implement :meth:`configure`, :meth:`upload`, :meth:`trigger` and, when
+    ``Capabilities.can_scan``, :meth:`scan`; for closed loops (``Capabilities.phasor_mode``)
+    :meth:`phasor_board`. The lifecycle's other steps have defaults that keep the state.
 
-    def configure(self, sample_rate: float) -> Capabilities: ...
+    Attributes
+    ----------
+    url : str
+        Where the device was opened.
+    capabilities : Capabilities or None
+        From the last :meth:`configure`.
+    info : dict
+        What the device says of itself for the shot's report (JSON-ready).
+    """
 
-    def activate(self) -> None: ...
+    url: str = ""
+    capabilities: Capabilities | None = None
+    info: dict
 
-    def upload(self, voltages: np.ndarray) -> None: ...
+    def __init__(self, url: str):
+        self.url, self.capabilities, self.info = url, None, {}
+        self.state = "unconfigured"
 
-    def trigger(self, progress: bool = False) -> Capture: ...
+    @abstractmethod
+    def configure(self, sample_rate: float) -> Capabilities:
+        """Set the DAC/ADC rate (Hz); return (and keep in ``capabilities``) what the device can do."""
 
-    def scan(self, times: np.ndarray, points=None) -> np.ndarray: ...
+    def activate(self) -> None:
+        """Ready the outputs for shots."""
+        if self.capabilities is None:
+            raise DeviceError(f"{self.url}: configure before activate")
+        self.state = "active"
 
-    def deactivate(self) -> None: ...
+    @abstractmethod
+    def upload(self, voltages: np.ndarray) -> None:
+        """Load one open-loop shot's waveforms, shape (channels, n), in volts."""
+
+    @abstractmethod
+    def trigger(self, progress: bool = False) -> Capture:
+        """Play the uploaded waveforms and bring back the synchronized record."""
+
+    def scan(self, times: np.ndarray, points=None) -> np.ndarray:
+        """The last shot's velocity (n_points, nt) at ``times`` (s) by the scanning vibrometer (m/s);
+        ``points``: indices into ``capabilities.scan_points`` (default all)."""
+        raise DeviceError(f"{self.url}: this device cannot scan the field")
+
+    def phasor_board(self, level: float, control_rate: float, latency: int = 0) -> PhasorBoard:
+        """The board in phasor mode for one closed-loop shot whose field peaks near ``level`` (m/s),
+        at ``control_rate`` (Hz), its commands used ``latency`` periods late."""
+        raise DeviceError(f"{self.url}: this device has no phasor mode, so it cannot run a closed loop")
+
+    def deactivate(self) -> None:
+        """Outputs off until the next activate."""
+        if self.state == "active":
+            self.state = "inactive"
+
+    def close(self) -> None:
+        """Release the port or bus (nothing to release by default)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
 
 
-def transports(manager=None) -> dict:
-    """Installed transports by URL scheme: ``{scheme: factory(url, **context) -> Device}``."""
+@dataclass(frozen=True)
+class DeviceContext:
+    """What a transport's factory gets beside the URL.
+
+    Attributes
+    ----------
+    model : ModalModel or None
+        The model the shot is planned on: the structure a simulator simulates unless its own
+        options say otherwise.
+    target : Shape or None
+        The shot's target, when there is one (the simulator rests a finger on its peak).
+    options : dict
+        The transport's own command-line options (those it added in its scheme's group), parsed
+        to SI; absent options have their defaults.
+    """
+
+    model: ModalModel | None = None
+    target: Shape | None = None
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+class TransportOptions:
+    """The command-line options of every installed transport, each scheme's in its own group; what
+    the ``modalctl_add_options`` hook receives.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The command's parser (``modalctl run``, ``emulate``, ``identify``).
+    """
+
+    def __init__(self, parser: argparse.ArgumentParser):
+        self.parser = parser
+        self.owners: dict[str, str] = {}  # option's dest -> its scheme
+        self._groups: dict[str, _SchemeGroup] = {}
+
+    def group(self, scheme: str, title: str) -> "_SchemeGroup":
+        """The argument group of ``scheme``'s options (made on first use); ``add_argument`` as argparse's."""
+        if scheme not in self._groups:
+            self._groups[scheme] = _SchemeGroup(self, scheme, self.parser.add_argument_group(title))
+        return self._groups[scheme]
+
+    def of(self, args: argparse.Namespace, scheme: str) -> dict[str, Any]:
+        """``scheme``'s options as parsed, by dest."""
+        return {dest: getattr(args, dest) for dest, owner in self.owners.items() if owner == scheme}
+
+    def misplaced(self, args: argparse.Namespace, scheme: str) -> list[str]:
+        """Options of other schemes given a value other than their default (``--name`` each)."""
+        return [f"--{dest.replace('_', '-')} ({owner}://)" for dest, owner in self.owners.items()
+                if owner != scheme and getattr(args, dest) != self.parser.get_default(dest)]
+
+
+class _SchemeGroup:
+    """An argparse group that records which scheme each option belongs to."""
+
+    def __init__(self, options: TransportOptions, scheme: str, group):
+        self._options, self._scheme, self._group = options, scheme, group
+
+    def add_argument(self, *names, **kwargs):
+        action = self._group.add_argument(*names, **kwargs)
+        self._options.owners[action.dest] = self._scheme
+        return action
+
+
+TransportFactory = Callable[[str, DeviceContext], Device]
+
+
+def transports(manager=None) -> dict[str, TransportFactory]:
+    """Installed transports by URL scheme: ``{scheme: factory(url, context) -> Device}``."""
     manager = manager or plugin_manager()
     found: dict = {}
     for group in manager.hook.modalctl_transports():
@@ -94,14 +227,20 @@ def transports(manager=None) -> dict:
     return dict(sorted(found.items()))
 
 
-def open_device(url: str, manager=None, **context) -> Device:
-    """Open the device at ``url``; ``context`` passes what a transport may use (the simulator takes
-    ``model`` and ``perturbation``); the error lists the installed schemes."""
+def add_transport_options(parser: argparse.ArgumentParser, manager=None) -> TransportOptions:
+    """Every installed transport's command-line options on ``parser``, each scheme's in its group."""
+    options = TransportOptions(parser)
+    (manager or plugin_manager()).hook.modalctl_add_options(options=options)
+    return options
+
+
+def open_device(url: str, context: DeviceContext = DeviceContext(), manager=None) -> Device:
+    """Open the device at ``url``; the error lists the installed schemes."""
     scheme = urlsplit(url).scheme
     found = transports(manager)
     if scheme not in found:
         raise PluginError(f"no transport for {url!r}; installed: {', '.join(s + '://' for s in found)}")
-    return found[scheme](url, **context)
+    return found[scheme](url, context)
 
 
 def scan_indices(caps: Capabilities, positions: np.ndarray, url: str = "device"):

@@ -20,17 +20,19 @@ from __future__ import annotations
 
 import enum
 import time
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Protocol
 
 import numpy as np
 
-from .controller import Controller
+from .controller import Controller, LoopDesign
+from .lockin import hold_gain
+from .onboard import BoardLog, BoardLoop
 from .recorder import Recorder
-from .schedule import Schedule
-from .supervisor import Supervisor
+from .schedule import HOLD, Schedule
+from .supervisor import Limits, Supervisor
 
-__all__ = ["State", "LifecycleError", "PhasorBoard", "Runtime", "RunResult", "log_fields"]
+__all__ = ["State", "LifecycleError", "PhasorBoard", "LoopParts", "Runtime", "RunResult", "log_fields"]
 
 
 class State(enum.IntEnum):
@@ -44,24 +46,63 @@ class LifecycleError(RuntimeError):
     """A transition the lifecycle does not allow (e.g. update before activate)."""
 
 
-class PhasorBoard(Protocol):
-    """A board in phasor mode: per-mode commands down, per-mode demodulated measurements up."""
+class PhasorBoard(ABC):
+    """A board in phasor mode: per-mode commands down, per-mode demodulated measurements up.
 
+    Subclasses implement the runtime's five calls (:meth:`configure`, :meth:`start`, :meth:`read`,
+    :meth:`write`, :meth:`ramp_down`) and the shot's records (:attr:`sensed`, :attr:`applied`).
+    A board that can close the loops itself sets ``runs_loops`` and implements :meth:`run_loops`.
+
+    Attributes
+    ----------
+    noise : float
+        Standard deviation of each sensor's noise the controllers should expect (m/s); 0 when unknown.
+    runs_loops : bool
+        Whether :meth:`run_loops` is implemented.
+    """
+
+    noise: float = 0.0
+    runs_loops: bool = False
+
+    @abstractmethod
     def configure(self, schedule: Schedule) -> None:
         """Carriers, lock-in corners, sensor weights and the feed-forward waveform for one shot."""
 
+    @abstractmethod
     def start(self) -> None:
         """Arm and trigger: the feed-forward starts, the first period begins."""
 
+    @abstractmethod
     def read(self) -> np.ndarray | None:
         """Envelopes (k,) complex at the end of the period just played, or None if nothing came."""
 
+    @abstractmethod
     def write(self, commands: np.ndarray) -> None:
         """Per-mode command envelopes (k,) complex for the next period; the board maps them to its
         channels with the schedule's weights and ramps each channel's phasors to them."""
 
+    @abstractmethod
     def ramp_down(self, seconds: float) -> None:
         """Bring every output to zero within ``seconds`` and hold it there."""
+
+    def play_out(self) -> None:
+        """Play the rest of the shot after the last period (the ring-down its records include);
+        nothing by default, for boards that play it by themselves."""
+
+    @property
+    @abstractmethod
+    def sensed(self) -> np.ndarray:
+        """What the sensors measured during the shot (s, n), m/s, at the DAC rate."""
+
+    @property
+    @abstractmethod
+    def applied(self) -> np.ndarray:
+        """What the amplifiers applied during the shot (a, n), V, at the DAC rate."""
+
+    def run_loops(self, loops: BoardLoop) -> BoardLog:
+        """Load ``loops`` (:class:`~modalctl.loops.onboard.BoardLoop`), start the configured shot and let
+        the board close them itself every period; the loops' log."""
+        raise NotImplementedError(f"{type(self).__name__} cannot run loops itself")
 
 
 @dataclass
@@ -88,39 +129,66 @@ def log_fields(k: int, a: int) -> dict:
             "phasor_sum": ("<f8", (a,), "V"), "compute": ("<f8", (), "s")}
 
 
+@dataclass
+class LoopParts:
+    """The controller's side of a shot.
+
+    Attributes
+    ----------
+    schedule : Schedule
+    controller : Controller
+        The per-mode controller (from a plugin).
+    design : LoopDesign
+    authority : ndarray, shape (k, n)
+        Largest feedback command per mode and period.
+    leak : ndarray, shape (k,)
+        Each loop's command leaking into its own reading through the other modes.
+    noise : ndarray, shape (k,)
+        Envelope noise the loops expect.
+    limits : Limits
+        What the supervisor enforces.
+    lead : int
+        Periods from a measurement to the period its command plays in (1 plus the latency).
+    """
+
+    schedule: Schedule
+    controller: Controller
+    design: LoopDesign
+    authority: np.ndarray
+    leak: np.ndarray
+    noise: np.ndarray
+    limits: Limits
+    lead: int = 1
+
+
 class Runtime:
     """One shot under feedback.
 
     Parameters
     ----------
     board : PhasorBoard
-    schedule : Schedule
-        The planner's references for the shot.
-    controller : Controller
+    parts : LoopParts
+        The planner's references for the shot (its schedule), the controller, each loop's
+        authority per period and its leak (what each mode's reading picks up from its own command
+        through the other modes, :func:`modalctl.loops.sensing.feedthrough`, removed from the error).
     supervisor : Supervisor
-    leak : ndarray, shape (k,)
-        What each mode's reading picks up from its own command through the other modes
-        (:func:`modalctl.loops.sensing.feedthrough`), removed from the error.
-    authority : ndarray, shape (k, n)
-        Largest feedback command of each mode in each period.
     recorder : Recorder, optional
     tracker : optional
-        A tracker (:mod:`modalctl.identify.trackers`) that learns from the envelopes during the shot.
-    held : ndarray, shape (k,)
-        The DAC hold's gain at the carriers (what the tracker is told the structure receives).
+        A tracker (:mod:`modalctl.identify.trackers`) that learns from the envelopes during the
+        shot; it is told the drive the structure receives through the DAC's hold.
     """
 
-    def __init__(self, board: PhasorBoard, schedule: Schedule, controller: Controller, supervisor: Supervisor,
-                 leak: np.ndarray, authority: np.ndarray, recorder: Recorder | None = None,
-                 tracker=None, held: np.ndarray | None = None):
-        self.board, self.schedule, self.controller, self.supervisor = board, schedule, controller, supervisor
-        self.leak = np.asarray(leak)
+    def __init__(self, board: PhasorBoard, parts: LoopParts, supervisor: Supervisor,
+                 recorder: Recorder | None = None, tracker=None):
+        schedule = parts.schedule
+        self.board, self.schedule, self.controller, self.supervisor = board, schedule, parts.controller, supervisor
+        self.leak = np.asarray(parts.leak)
         # one contiguous row per period: the loop reads them period by period
         self._reference, self._authority = (np.ascontiguousarray(np.asarray(x).T)
-                                            for x in (schedule.reference, authority))
+                                            for x in (schedule.reference, parts.authority))
         self._gains = np.abs(schedule.weights)
         self.recorder, self.tracker = recorder, tracker
-        self.held = np.ones(schedule.carriers.size) if held is None else held
+        self.held = hold_gain(schedule.carriers, schedule.control_rate * schedule.decimation, HOLD)
         self.state = State.UNCONFIGURED
         self.reason: str | None = None
         self.period = 0

@@ -10,12 +10,12 @@ from modalctl.model.metrics import focus_contrast, nrmse, tau, tau_norm
 from modalctl.model.modes import ModalModel
 from modalctl.model.projection import orthonormalize_model, project, reconstruct
 from modalctl.model.shape import Shape
+from modalctl.options import DEFAULT_TAU
 
 from .reduction import smallest_set
 
 __all__ = ["Decomposition", "decompose"]
 
-DEFAULT_TAU = 0.98
 
 
 @dataclass(frozen=True, eq=False)

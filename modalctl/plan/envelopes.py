@@ -112,7 +112,7 @@ def _symbolic(problem: Problem, kappa, brake, instants):
             vel[k, pre.tolist()], drv[k, pre.tolist()] = v, f
         if post.size:
             x0, a0 = focus_state(c, w, z, kappa[k], problem.focus_time, ops=casadi)
-            v, _, f = decay(casadi.DM(tau[post]).T, c, x0, a0, w, z, brake[k], kappa[k] * z * w, ops=casadi)
+            v, _, f = decay(casadi.DM(tau[post]).T, c, (x0, a0), w, z, brake[k], kappa[k] * z * w, ops=casadi)
             vel[k, post.tolist()], drv[k, post.tolist()] = v, f
     return vel, drv
 

@@ -18,17 +18,19 @@ import numpy as np
 
 from modalctl.model.metrics import margin_ratio, tau
 from modalctl.model.modes import ModalModel
+from modalctl.model.projection import reconstruct
 from modalctl.model.propagate import Plant
+from modalctl.model.shape import Shape
+from modalctl.options import PlanOptions
 
-from .decompose import Decomposition
+from .decompose import Decomposition, decompose
 from .dispatch import DecouplingWarning, decoupling, dispatch
 from .envelopes import Problem, solve
 from .reference import modal_response
-from .refine import refine
+from .refine import Search, refine
 
-__all__ = ["PlanError", "MarginWarning", "Plan", "plan", "min_focus_time", "gap_bounds"]
+__all__ = ["PlanError", "MarginWarning", "Plan", "plan", "plan_shot", "min_focus_time", "gap_bounds"]
 
-DEFAULT_AFTER = 4e-3  # post-transient window (s): the thesis's figures show T_F +- 4 ms
 CHECK_BEFORE = 4e-3  # the margin is checked densely from T_F - 4 ms; earlier, by a bound (see Plan)
 CHECK_POINTS_PER_PERIOD = 16
 
@@ -190,50 +192,30 @@ def _controllable(dec: Decomposition, modes, coefficients) -> None:
                         f"actuator, or choose modes without it (--modes)")
 
 
-def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
-         voltage_limit: float | None = None, kappa=1.0, brake: bool = True, after: float = DEFAULT_AFTER,
-         sample_rate: float = 1e6, gap_fraction: float = 0.5, decoupling_threshold: float = 0.1,
-         verify: str = "planned", compensate: bool = True, progress: bool = False) -> Plan:
+def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptions(),
+         progress: bool = False) -> Plan:
     """Plan the drive that builds the decomposition's reduced field at ``focus_time``.
 
     Parameters
     ----------
     dec : Decomposition
-        Target, model and kept modes.
+        Target, model and kept modes (``options.modes`` is the decomposition's business).
     focus_time : float
         T_F (s), counted from the start of the shot.
-    margin : float, optional
-        Transient margin (0.5 in the thesis): the envelope rates are optimized so that the
-        off-target field never exceeds ``margin`` times the focus peak, at the least peak voltage.
-    voltage_limit : float, optional
-        Largest voltage on any actuator (V).
-    kappa : float or array_like
-        Envelope rates when no margin is asked (and the optimizer's starting point).
-    brake : bool
-        Let the optimizer damp modes actively after the focus (free decay alone cannot hold the
-        thesis margin case: its best is about 0.6).
-    after : float
-        Post-transient window kept in the shot and checked by the margin (s).
-    sample_rate : float
-        DAC rate (Hz).
-    gap_fraction : float
-        Envelopes stay inside this fraction of the gap to the nearest mode (Eq 2.30).
-    compensate : bool
-        Correct the kept modes' commanded targets for the cross-talk of their drives (each
-        drive also moves the other kept modes), so that on the model every kept mode reaches
-        its target at T_F exactly (see :func:`cross_talk_matrix`).
-    verify : {"planned", "whole"}
-        Where the margin must hold: on the field of the kept modes' references (the thesis's
-        criterion, chapter 5), or also on the field the voltages drive on every mode of
-        ``dec.model`` (the exact plant): the voltages are then corrected near T_F until it does
-        (:mod:`modalctl.plan.refine`; seconds to a minute), or the plan is refused with the best ratio.
-        Either way the whole-model ratio is reported in ``info``.
+    options : PlanOptions
+        With a ``margin`` the envelope rates are optimized so that the off-target field of the kept
+        modes' references never exceeds it times the focus peak, at the least peak voltage; with
+        ``margin_on="whole"`` the voltages are then corrected near T_F until the field they drive on
+        every mode of ``dec.model`` (the exact plant) holds it too (:mod:`modalctl.plan.refine`;
+        seconds to a minute), or the plan is refused with the best ratio. Either way the
+        whole-model ratio is reported in ``info``. ``compensate`` corrects the commanded targets
+        for the cross-talk of the kept modes' drives (see :func:`cross_talk_matrix`).
     progress : bool
-        A progress bar while the voltages are corrected (``verify="whole"``).
+        A progress bar while the voltages are corrected.
     """
-    if verify not in ("planned", "whole"):
-        raise PlanError(f"verify must be 'planned' or 'whole', got {verify!r}")
     start = _time.perf_counter()
+    margin, voltage_limit = options.margin, options.voltage_limit
+    after, sample_rate = options.after, options.sample_rate
     model = dec.model
     if not focus_time > 0:
         raise PlanError(f"focus time must be positive, got {focus_time!r} s")
@@ -244,7 +226,7 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
     targets = dec.coefficients[modes]
     _controllable(dec, modes, dec.coefficients)
     m = modes.size
-    kappa = np.broadcast_to(np.asarray(kappa, float), (m,)).copy()
+    kappa = np.broadcast_to(np.asarray(options.kappa, float), (m,)).copy()
     if np.any(kappa <= 0):
         raise PlanError("kappa must be positive (a zero rate never starts from rest)")
     brake_rates = np.ones(m)
@@ -254,7 +236,7 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
     proto = Plan(model, modes, targets, kappa, brake_rates, focus_time, focus_time + after, sample_rate, weights,
                  dec.shape.target_mask, reference, info)
     if margin is not None:
-        kappa, brake_rates, result = _optimize(proto, margin, voltage_limit, brake, gap_fraction)
+        kappa, brake_rates, result = _optimize(proto, options)
         info["optimizer"] = {"status": result.status, "rounds": result.rounds, "seconds": result.seconds,
                              "history": result.history}
         weights = dispatch(model, modes, kappa)
@@ -265,9 +247,9 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
     ratio, worst = final.predicted_margin()
     info["predicted_margin_ratio"] = ratio
     info["ratio_bound_before_window"] = final.early_bound()
-    if compensate and modes.size > 1:
+    if options.compensate and modes.size > 1:
         final = _compensate(final)
-    if margin is not None and verify == "whole":
+    if margin is not None and options.margin_on == "whole":
         final = _refine(final, margin, voltage_limit, progress)
     peak_v = float(np.max(np.abs(final.voltages())))
     info["peak_voltage"] = peak_v
@@ -276,7 +258,7 @@ def plan(dec: Decomposition, focus_time: float, *, margin: float | None = None,
                         f"focus time, lower the amplitude or add actuators", peak_v, voltage_limit)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DecouplingWarning)
-        dcp = decoupling(model, modes, kappa, weights, targets, decoupling_threshold)
+        dcp = decoupling(model, modes, kappa, weights, targets, options.decoupling_threshold)
     for w in caught:
         warnings.warn(w.message, DecouplingWarning, stacklevel=2)
     info["decoupling_worst"] = {"into_mode": model.labels[dcp.worst[0]], "from_mode": model.labels[dcp.worst[1]],
@@ -334,9 +316,11 @@ def _compensate(the_plan: Plan) -> Plan:
     return replace(the_plan, targets=commanded)
 
 
-def _optimize(proto: Plan, margin: float, voltage_limit, brake: bool, gap_fraction: float):
+def _optimize(proto: Plan, options: PlanOptions):
+    """Envelope rates and brakes that hold ``options.margin`` on the kept modes' references."""
     model, modes = proto.model, proto.modes
-    hi = gap_bounds(model, modes, gap_fraction)
+    margin, voltage_limit, brake = options.margin, options.voltage_limit, options.brake
+    hi = gap_bounds(model, modes, options.gap_fraction)
     kappa_bounds = np.column_stack([np.minimum(0.5, hi), np.maximum(hi, 0.5)])
     brake_bounds = np.column_stack([np.ones(modes.size), np.maximum(hi, 1.0) if brake else np.ones(modes.size)])
     outside = ~proto.target_mask
@@ -366,7 +350,7 @@ def _refine(the_plan: Plan, margin: float, voltage_limit, progress: bool) -> Pla
         return the_plan
     found = refine(the_plan.model, the_plan.voltages(), int(round(the_plan.focus_time * the_plan.sample_rate)),
                    the_plan.sample_rate, the_plan.target_mask, margin * (1 - REFINE_AIM), voltage_limit,
-                   progress=progress)
+                   Search(progress=progress))
     the_plan.info["refinement"] = {"ratio_before": found.ratio_before, "ratio": found.ratio,
                                    "focus_change": found.focus_change, "seconds": found.seconds,
                                    "plant_runs": 2 * found.evaluations,
@@ -384,9 +368,10 @@ def _refine(the_plan: Plan, margin: float, voltage_limit, progress: bool) -> Pla
 REFINE_AIM = 0.005  # the correction aims this fraction below the margin (the check is on a finer grid)
 
 
-def min_focus_time(dec: Decomposition, voltage_limit: float, *, margin: float | None = None,
-                   lower: float = 1e-3, upper: float = 0.2, rel_tol: float = 0.02, **kwargs) -> tuple[float, Plan]:
-    """Shortest focus time whose plan meets the voltage limit (and the margin), by bisection.
+def min_focus_time(dec: Decomposition, options: PlanOptions, lower: float = 1e-3, upper: float = 0.2,
+                   rel_tol: float = 0.02) -> tuple[float, Plan]:
+    """Shortest focus time (s) between ``lower`` and ``upper`` whose plan meets ``options``' voltage
+    limit (and margin), by bisection to ``rel_tol``.
 
     Returns the focus time (s) and its plan; raises :class:`PlanError` when even ``upper`` fails.
     """
@@ -394,7 +379,7 @@ def min_focus_time(dec: Decomposition, voltage_limit: float, *, margin: float | 
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", DecouplingWarning)
-                return plan(dec, tf, margin=margin, voltage_limit=voltage_limit, **kwargs)
+                return plan(dec, tf, options)
         except PlanError:
             return None
 
@@ -410,3 +395,29 @@ def min_focus_time(dec: Decomposition, voltage_limit: float, *, margin: float | 
         else:
             hi, best = mid, found
     return hi, best
+
+
+def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanOptions = PlanOptions(),
+              progress: bool = False) -> tuple[Decomposition, Plan]:
+    """Decompose ``shape`` on ``model``, keep the modes it needs and plan its focus.
+
+    When the margin fails on an automatic mode set (``options.modes == "auto"``), the next strongest
+    modes are added, up to ``options.added_modes``: the margin is part of what a scene needs, and
+    more modes give the optimizer more freedom to cancel the off-target field (the thesis's second
+    remedy, chapter 5).
+    """
+    modes = list(options.modes) if isinstance(options.modes, tuple) else options.modes
+    dec = decompose(model, shape, modes, tau_min=options.tau_min)
+    grow = options.modes == "auto" and options.margin is not None
+    for added in range(options.added_modes + 1):
+        try:
+            return dec, plan(dec, focus_time, options, progress)
+        except PlanError as exc:
+            left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
+            if not grow or exc.limit != options.margin or left.size == 0 or added == options.added_modes:
+                raise
+            chosen = np.sort(np.append(dec.modes_used, left[np.argmax(np.abs(dec.coefficients[left]))]))
+            dec = replace(dec, modes_used=chosen, reconstruction=reconstruct(dec.coefficients[chosen],
+                                                                             dec.model.shapes[chosen]),
+                          rule=dec.rule + f", plus modes for the {options.margin:g} margin")
+    raise AssertionError("unreachable: the last attempt returns or raises")

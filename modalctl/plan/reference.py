@@ -82,16 +82,18 @@ def rise(tau, c, omega, zeta, kappa, focus_time, ops=np, derivatives=False):
     return velocity, displacement, drive
 
 
-def decay(tau, c, x0, a0, omega, zeta, brake, rise_rate, ops=np):
+def decay(tau, c, start, omega, zeta, brake, rise_rate, ops=np):
     """Velocity, displacement and drive for ``tau >= 0``, continuous with the rise at T_F.
 
     ``x = e^{-beta tau} (E cos w_d tau + F sin w_d tau) + G e^{-beta2 tau} sin w_d tau`` matches the
-    displacement ``x0``, velocity ``c`` and acceleration ``a0`` of the rise at T_F, so the drive
+    displacement and acceleration ``start = (x0, a0)`` (:func:`focus_state`) and the velocity ``c``
+    of the rise at T_F, so the drive
     has no step there (a step would ring every other mode of the structure). In envelope terms
     the envelope turns smoothly from rising at ``rise_rate`` (1/s) to decaying at ``beta``: the
     blend term dies at ``beta2 = beta + BLEND (rise_rate + beta)`` and overshoots by about
     ``1 / BLEND`` of the target just after T_F. ``brake`` = 1 then decays freely (zero drive).
     """
+    x0, a0 = start
     beta = brake * zeta * omega
     wd = omega * ops.sqrt(1 - zeta**2)
     beta2 = beta + BLEND * (rise_rate + beta)
@@ -138,6 +140,6 @@ def modal_response(t, c, omega, zeta, kappa, brake, focus_time):
         velocity[:, rising], _, drive[:, rising] = rise(tau[None, rising], c, omega, zeta, kappa, focus_time)
     if decaying.any():
         x0, a0 = focus_state(c, omega, zeta, kappa, focus_time)
-        velocity[:, decaying], _, drive[:, decaying] = decay(tau[None, decaying], c, x0, a0, omega, zeta, brake,
+        velocity[:, decaying], _, drive[:, decaying] = decay(tau[None, decaying], c, (x0, a0), omega, zeta, brake,
                                                              kappa * zeta * omega)
     return velocity, drive

@@ -27,9 +27,8 @@ from tqdm.auto import tqdm
 from modalctl.model.modes import ModalModel
 from modalctl.model.propagate import Plant
 
-__all__ = ["Refinement", "refine"]
+__all__ = ["Refinement", "Search", "refine"]
 
-BEFORE, AFTER = 0.3e-3, 0.6e-3  # correction window around T_F (s): where the fast turns are
 #: p-norm continuation (p a power of two) and the off-target grid points watched (None: all):
 #: a sample of the grid while the search moves far, every point to finish (between sampled
 #: points the field would be pushed up)
@@ -65,9 +64,28 @@ class Refinement:
     evaluations: int
 
 
+@dataclass(frozen=True)
+class Search:
+    """Where and how long the correction is searched.
+
+    Attributes
+    ----------
+    before, after : float
+        Correction window around T_F (s): where the envelopes' fast turns are.
+    iterations : int
+        L-BFGS-B iterations at most per sharpening of the p-norm.
+    progress : bool
+        A progress bar of the iterations, with the ratio reached.
+    """
+
+    before: float = 0.3e-3
+    after: float = 0.6e-3
+    iterations: int = 250
+    progress: bool = False
+
+
 def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rate: float, target_mask,
-           margin: float, voltage_limit: float | None = None, before: float = BEFORE, after: float = AFTER,
-           iterations: int = 250, progress: bool = False) -> Refinement:
+           margin: float, voltage_limit: float | None = None, search: Search = Search()) -> Refinement:
     """Find the correction of ``voltages`` (a, n) that brings the whole model's margin ratio to ``margin``.
 
     Parameters
@@ -83,12 +101,7 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
         Ratio aimed at; the search stops once every sample meets it.
     voltage_limit : float, optional
         Largest |voltage| (V).
-    before, after : float
-        Correction window around T_F (s).
-    iterations : int
-        L-BFGS-B iterations at most per sharpening of the p-norm.
-    progress : bool
-        A progress bar of the iterations, with the ratio reached.
+    search : Search
     """
     begin = _time.perf_counter()
     voltages = np.asarray(voltages, float)
@@ -96,8 +109,8 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
     backward = Plant(replace(model, actuator_gains=np.eye(model.n_modes)), sample_rate)
     outside = np.flatnonzero(~np.asarray(target_mask, bool))
     every = model.shapes[:, outside]
-    start = max(0, focus_index - int(round(before * sample_rate)))
-    width = min(voltages.shape[1], focus_index + int(round(after * sample_rate))) - start
+    start = max(0, focus_index - int(round(search.before * sample_rate)))
+    width = min(voltages.shape[1], focus_index + int(round(search.after * sample_rate))) - start
     focus = focus_index - start
     base = plant.simulate(voltages)[:, start:]  # every mode, from the window on
     focus_field = model.shapes.T @ base[:, focus]
@@ -139,7 +152,8 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
 
     best = np.zeros(a * width)
     ratio_before = ratio_of(base)
-    bar = tqdm(total=iterations * len(STAGES), desc="margin on the whole model", unit="step", disable=not progress,
+    bar = tqdm(total=search.iterations * len(STAGES), desc="margin on the whole model", unit="step",
+               disable=not search.progress,
                leave=False)
     for p, points in STAGES:
         if ratio_of(response(best)) <= margin:
@@ -158,7 +172,7 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
                 raise StopIteration
 
         result = minimize(objective, best, args=(p, watched), jac=True, method="L-BFGS-B", bounds=bounds,
-                          callback=check, options={"maxiter": iterations, "maxcor": 30})
+                          callback=check, options={"maxiter": search.iterations, "maxcor": 30})
         r = ratio_of(response(result.x), watched)
         if r < best_ratio:
             best, best_ratio = result.x, r

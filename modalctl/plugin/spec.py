@@ -15,7 +15,8 @@ from typing import Any, Callable, TypeVar, cast
 
 import pluggy
 
-__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports", "modalctl_identifiers",
+__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports", "modalctl_add_options",
+           "modalctl_identifiers",
            "modalctl_trackers", "modalctl_controllers"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
@@ -52,9 +53,25 @@ def modalctl_transports():
     Returns
     -------
     dict of str to callable
-        ``{scheme: factory}``; ``factory(url, **context)`` returns an object implementing
-        :class:`modalctl.io.device.Device`. ``context`` may carry what a transport needs beyond
-        the URL (the simulator takes ``model`` and ``perturbation``); ignore what you do not use.
+        ``{scheme: factory}``; ``factory(url, context)`` returns a :class:`modalctl.io.device.Device`.
+        ``context`` is a :class:`modalctl.io.device.DeviceContext`: the model the shot is planned
+        on, its target, and the transport's own command-line options (see
+        :func:`modalctl_add_options`), parsed.
+    """
+
+
+@hookspec
+def modalctl_add_options(options):
+    """Add this plugin's transports' command-line options (as pytest's ``pytest_addoption``).
+
+    Parameters
+    ----------
+    options : modalctl.io.device.TransportOptions
+        ``options.group(scheme, title)`` is an argument group with argparse's ``add_argument``;
+        what is added there reaches that scheme's factory in ``context.options`` and is refused,
+        with a message, when given with another transport. ``modalctl run``, ``emulate`` and
+        ``identify`` carry these options. Use :func:`modalctl.units.quantity_type` for values with
+        units.
     """
 
 

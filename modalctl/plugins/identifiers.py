@@ -20,6 +20,6 @@ def modalctl_identifiers():
 @hookimpl
 def modalctl_trackers():
     return [TrackerFactory("rls", "per-mode recursive least squares on the lock-in envelopes, "
-                                  "carriers retuned to the estimates", RLSTracker),
+                                  "carriers retuned to the estimates", RLSTracker.create),
             TrackerFactory("pole", "per-mode recursive least squares on the pole, gain from the model: "
-                                   "learns from any drive, a focus envelope included", PoleTracker)]
+                                   "learns from any drive, a focus envelope included", PoleTracker.create)]

@@ -96,9 +96,6 @@ class CanDevice(ProtocolDevice):
         self._watching = False
         self._can = can
 
-    @classmethod
-    def from_url(cls, url: str, **_context) -> "CanDevice":
-        return cls(url)
 
     def _frame(self, identifier: int, data: bytes):
         return self._can.Message(arbitration_id=identifier, data=data, is_fd=True, bitrate_switch=True,

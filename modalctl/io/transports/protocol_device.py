@@ -19,13 +19,15 @@ import time
 import numpy as np
 
 from modalctl.io import protocol as p
-from modalctl.io.device import Capabilities, Capture, DeviceError
+from modalctl.io.device import Capabilities, Capture, Device, DeviceError
+from modalctl.loops.onboard import BoardLog, BoardLoop
+from modalctl.loops.runtime import PhasorBoard
 from modalctl.loops.schedule import Schedule
 
 __all__ = ["ProtocolDevice", "ProtocolPhasorBoard"]
 
 
-class ProtocolDevice:
+class ProtocolDevice(Device):
     """The device side common to every transport.
 
     Parameters
@@ -40,15 +42,14 @@ class ProtocolDevice:
     capture_samples = 8000  # samples per capture request: one block per row, asked again alone if lost
 
     def __init__(self, url: str, timeout: float, nodes=(1,)):
-        self.url, self.timeout = url, float(timeout)
+        super().__init__(url)
+        self.timeout = float(timeout)
         self.nodes = list(nodes)  # boards reached through this device, in channel order
         self.layout: dict = {}  # node -> (its channels, its sensors) as global index arrays
         self.seq, self.corrupted = 0, 0
         self.warnings: list[str] = []  # what boards reported without stopping (overruns)
         self._queue: list = []
         self.scans = self.samples = 0
-        self.info: dict = {}
-        self.capabilities = None
         self.sample_rate = None
 
     # -- what a transport provides -----------------------------------------------------------
@@ -154,7 +155,7 @@ class ProtocolDevice:
         self.info = {"board": first.name, "boards": len(self.nodes), "snr_db": first.snr_db,
                      "link": self.link_description()}
         self.capabilities = Capabilities(first.name, channels, sensors, fastest, min(limits) if limits else None,
-                                         first.scans > 0)
+                                         first.scans > 0, phasor_mode=True)
         self._snr = None if np.isnan(first.snr_db) else float(first.snr_db)
         self.scans = first.scans
         return self.capabilities
@@ -162,13 +163,6 @@ class ProtocolDevice:
     def sensing(self) -> list[int]:
         """The nodes that have sensors."""
         return [n for n in self.nodes if self.layout[n][1].size]
-
-    def activate(self) -> None:
-        if self.capabilities is None:
-            raise DeviceError(f"{self.url}: configure before activate")
-
-    def deactivate(self) -> None:
-        pass
 
     def upload(self, voltages) -> None:
         """Load one open-loop shot, (channels, n) V: a configuration with no modes, then the waveforms."""
@@ -255,14 +249,14 @@ class ProtocolDevice:
             raise DeviceError(f"{self.url}: {int(np.sum(filled < columns))} of {rows.size} rows never arrived whole")
         return out
 
-    def phasor_board(self, level: float, control_rate: float, latency: int = 0, drift=None):
-        if drift is not None:
-            raise DeviceError(f"{self.url}: a drift during the shot is a simulator scenario; give it to the emulator")
+    def phasor_board(self, level: float, control_rate: float, latency: int = 0) -> "ProtocolPhasorBoard":
         return ProtocolPhasorBoard(self, level)  # the link budget is checked with the shot's modes
 
 
-class ProtocolPhasorBoard:
+class ProtocolPhasorBoard(PhasorBoard):
     """The runtime's board (:class:`modalctl.loops.runtime.PhasorBoard`) over a :class:`ProtocolDevice`."""
+
+    runs_loops = True
 
     def __init__(self, device: "ProtocolDevice", level: float):
         self.device, self.level = device, float(level)
@@ -310,11 +304,9 @@ class ProtocolPhasorBoard:
         self.period = period + 1
         return total
 
-    def run_loops(self, loops):
+    def run_loops(self, loops: BoardLoop) -> BoardLog:
         """Load the shot's loops into the board (Program), start it, wait for the whole shot and
         bring back the loops' log (:class:`modalctl.loops.onboard.BoardLog`)."""
-        from modalctl.loops.onboard import BoardLog
-
         d = self.device
         if len(d.nodes) > 1:
             raise DeviceError(f"{d.url}: loops on the board need one board with every channel and sensor")
@@ -345,9 +337,6 @@ class ProtocolPhasorBoard:
 
     def play_out(self) -> None:
         """The board plays the rest of the shot when it is scanned or captured."""
-
-    def scan(self, times, points=None):
-        return self.device.scan(times, points)
 
     @property
     def sensed(self) -> np.ndarray:

@@ -55,9 +55,6 @@ class SerialDevice(ProtocolDevice):
             raise DeviceError(f"{url}: cannot open {self.path}: {exc}") from None
         self.deframer = p.Deframer()
 
-    @classmethod
-    def from_url(cls, url: str, **_context) -> "SerialDevice":
-        return cls(url)
 
     def _write(self, message: p.Message, node: int) -> None:
         self.port.write(p.frame(message))

@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from modalctl.io.device import open_device, transports
 from modalctl.hil.scenario import Perturbation
 from modalctl.hil.serial_board import SerialBoardEmulator
-from modalctl.plugin.manager import plugin_manager
+from modalctl.io.device import open_device, transports
 from modalctl.model.scenes import load_scene
+from modalctl.plugin.manager import plugin_manager
 
 
 def test_the_entry_point_registers_the_scheme():

@@ -3,19 +3,20 @@
 MyBoard speaks modalctl's board protocol (``docs/protocol.md``) over USB serial at 2 Mbaud, so
 the plugin reuses the serial transport and adds what is particular to the board: its URL scheme,
 its line speed, and a check that the device that answers is a MyBoard. A board with its own
-protocol would implement the device interface itself (``modalctl.io.device.Device``: configure,
-activate, upload, trigger, scan, deactivate, and ``phasor_board`` for closed loops).
+protocol would subclass the device contract itself (``modalctl.io.device.Device``: configure,
+upload, trigger, scan, and ``phasor_board`` for closed loops; the lifecycle's other steps have
+defaults).
 """
 
 from __future__ import annotations
 
 from urllib.parse import urlsplit
 
-from modalctl.io.device import DeviceError
+from modalctl.io.device import DeviceContext, DeviceError
 from modalctl.io.transports.serial import SerialDevice
 from modalctl.plugin.spec import hookimpl
 
-__all__ = ["MyBoard", "modalctl_transports"]
+__all__ = ["MyBoard", "open_myboard", "modalctl_transports"]
 
 BAUD = 2_000_000
 
@@ -37,10 +38,6 @@ class MyBoard(SerialDevice):
         super().__init__(f"serial://{parts.path}?{query}")
         self.url, self.expected_name = url, expected_name
 
-    @classmethod
-    def from_url(cls, url: str, **_context) -> "MyBoard":
-        return cls(url)
-
     def configure(self, sample_rate: float):
         caps = super().configure(sample_rate)
         if self.expected_name.lower() not in caps.name.lower():
@@ -48,6 +45,12 @@ class MyBoard(SerialDevice):
         return caps
 
 
+def open_myboard(url: str, context: DeviceContext) -> MyBoard:
+    """The transport's factory: MyBoard needs nothing beyond the URL (``context`` carries the model
+    planned on and this transport's own command-line options, were it to declare some)."""
+    return MyBoard(url)
+
+
 @hookimpl
 def modalctl_transports():
-    return {"myboard": MyBoard.from_url}
+    return {"myboard": open_myboard}

@@ -1,0 +1,240 @@
+"""What a user chooses for a shot, and its default: every default of modalctl lives here.
+
+Options travel as frozen dataclasses, never as keyword dictionaries: :class:`PlanOptions` for the
+planner, :class:`LoopOptions` for the per-mode loops, :class:`RunOptions` for a shot end to end
+(:func:`modalctl.run.run`), :class:`SurveyOptions` for identifying a device. The command line
+takes its defaults from these classes, so a default is written once. Each field says its unit (SI)
+and, where a default was chosen by a measurement, which one.
+
+A foundation module: it imports nothing of modalctl, and every layer may import it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "PlanOptions", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
+
+#: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
+#: focus peak, before and after the focus.
+THESIS_MARGIN = 0.5
+
+#: The least tau an automatic mode set must reach (``modes="auto"``).
+DEFAULT_TAU = 0.98
+
+#: How a learning shot teaches the model before the reported shot: from its record (output-error
+#: fit of every resonance and damping, :mod:`modalctl.identify.updating`) or from a pole tracker
+#: that follows each kept mode during it (:mod:`modalctl.identify.trackers`).
+LEARN_FROM = ("record", "tracker")
+
+
+class _Options:
+    """What every options class can do."""
+
+    def but(self, **changes):
+        """A copy with ``changes`` (field names and their new values)."""
+        return replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class PlanOptions(_Options):
+    """How the planner chooses the modes, the references and the voltages.
+
+    Attributes
+    ----------
+    modes : "auto", "all", int or tuple of int
+        ``"auto"``: the smallest set meeting ``tau_min`` (more modes are added, up to
+        ``added_modes``, when the margin fails on it); ``"all"``; an int N: the N lowest modes; a
+        tuple: those positional indices.
+    tau_min : float
+        The accuracy ``"auto"`` must reach.
+    added_modes : int
+        Modes ``"auto"`` may add for the margin (the thesis's second remedy, chapter 5).
+    margin : float or None
+        Transient margin to plan for (``THESIS_MARGIN`` is the thesis's); None plans without one.
+    margin_on : {"whole", "kept"}
+        Where the margin must hold: on the field the voltages drive on every mode of the model
+        (the voltages are corrected near the focus until it does), or on the kept modes'
+        references only (the thesis's criterion).
+    voltage_limit : float or None
+        Largest voltage on any actuator (V); the device's rails also apply.
+    kappa : float
+        Envelope rate in units of each mode's ``zeta w`` without a margin (the thesis's 1), and the
+        optimizer's start with one.
+    brake : bool
+        Let the envelope optimizer brake modes after the focus (free decay alone cannot hold the
+        thesis's margin case: its best is about 0.6).
+    after : float
+        Post-transient window kept in the shot and checked by the margin (s); the thesis's figures
+        show T_F +- 4 ms.
+    sample_rate : float
+        DAC rate of the voltages (Hz).
+    gap_fraction : float
+        Envelopes stay inside this fraction of the gap to the nearest mode (Eq 2.30).
+    decoupling_threshold : float
+        A drive leaking more than this share of the strongest target into another mode is warned of.
+    compensate : bool
+        Correct the commanded targets for the cross-talk of the kept modes' drives, so that on the
+        model every kept mode reaches its target at T_F exactly.
+    """
+
+    modes: str | int | tuple = "auto"
+    tau_min: float = DEFAULT_TAU
+    added_modes: int = 4
+    margin: float | None = None
+    margin_on: str = "whole"
+    voltage_limit: float | None = None
+    kappa: float = 1.0
+    brake: bool = True
+    after: float = 4e-3
+    sample_rate: float = 1e6
+    gap_fraction: float = 0.5
+    decoupling_threshold: float = 0.1
+    compensate: bool = True
+
+    def __post_init__(self):
+        if self.margin_on not in ("whole", "kept"):
+            raise ValueError(f"margin_on must be 'whole' or 'kept', got {self.margin_on!r}")
+        if self.margin is not None and not 0 < self.margin <= 1:
+            raise ValueError(f"margin must lie in (0, 1], got {self.margin!r}")
+
+
+
+@dataclass(frozen=True)
+class LoopOptions(_Options):
+    """How the per-mode loops track the planner's references.
+
+    Attributes
+    ----------
+    control_rate : float
+        Loop rate (Hz); it must divide the DAC rate.
+    controller : str
+        Controller plugin (``pi``, ``lqg`` or a third party's).
+    on_board : bool
+        Load the loops into the board, which closes them itself (no exchange per period, so no
+        link budget), instead of one exchange with the host per period.
+    authority : float
+        Largest feedback command of a mode, as a fraction of its planned drive at that moment. A
+        mode 3% off its carrier answers it several times less and needs that much more drive:
+        ``benchmarks/authority.py`` (five structures; perfect truth, 1-3% drift, a finger) found 2
+        within 0.01 of the best tau in 25 of 25 cases, 0.5 in 14 (3% drift on thesis-al-cc: 0.929
+        against 0.710), 4 no better; the peak voltage a median 1.10 times the open loop's.
+    latency : int
+        Extra control periods the board takes to use a command (the loops are designed for them).
+    slew_limit : float or None
+        Largest output slope the supervisor allows (V/s).
+    watchdog : int
+        Periods without a measurement before the supervisor stops the shot.
+    drift : float
+        Relative resonance error the controller should expect.
+    lockin_fraction, lockin_image : float
+        Each mode's lock-in corner: this fraction of the gap to its nearest mode, at most
+        ``lockin_image`` times its frequency. The reference goes through the same lock-in as the
+        measurement, so the neighbours' leakage is predicted, not an error: the filter only keeps
+        the loops apart and can be wider than a tracker's (0.4 of the spacing). On thesis-al-cc
+        with 1% drift, widening it from 0.4 and 0.2 to 1.0 and 0.5 raised the crossovers 2-3x and
+        tau from 0.93 to 0.96.
+    leak_limit : float
+        A loop closes only where its reading sees its own mode more than the others' answer to its
+        drive (:func:`~modalctl.loops.sensing.leak_ratio`): the runtime removes that leak as a static
+        gain, and were that removal wholly off, a leak of half the own path keeps the loop's gain
+        within [0.5, 1.5] of its design and its phase within 30 degrees, inside the 6 dB and 50
+        degree margins. Beyond it the sensors sit near a node of the mode (thesis-rython-pp's
+        mid-span sensor and its even modes: ratios of 1e14) and the loops chased the others' leak on
+        a perfect model and diverged; with the limit they play the open loop's shot to 1e-8.
+        plate-glass rests 3 of 17 loops (ratios 0.56-1.07) at no cost.
+    """
+
+    control_rate: float = 20e3
+    controller: str = "pi"
+    on_board: bool = False
+    authority: float = 2.0
+    latency: int = 0
+    slew_limit: float | None = None
+    watchdog: int = 1
+    drift: float = 0.01
+    lockin_fraction: float = 1.0
+    lockin_image: float = 0.5
+    leak_limit: float = 0.5
+
+    def __post_init__(self):
+        if not self.control_rate > 0:
+            raise ValueError(f"control_rate must be positive, got {self.control_rate!r} Hz")
+        if self.authority < 0 or self.latency < 0 or self.watchdog < 1:
+            raise ValueError("authority and latency must be zero or more, watchdog at least one period")
+
+
+
+@dataclass(frozen=True)
+class RunOptions(_Options):
+    """A shot end to end (:func:`modalctl.run.run`).
+
+    Attributes
+    ----------
+    focus_time : float
+        T_F (s), counted from the start of the shot.
+    plan : PlanOptions
+    loop : LoopOptions or None
+        The per-mode loops; None plays the feed-forward alone (open loop, the thesis's set-up).
+    learn : {"record", "tracker"} or None
+        Play a first closed-loop shot that teaches the model (see :data:`LEARN_FROM`), plan again on
+        what it learned, and report the second shot.
+    log : Path or None
+        Where a closed loop records every control period (``.json`` + ``.bin``; a learning shot's
+        beside it, ``<log>-learning``).
+    progress : bool
+        Progress bars on long work.
+    """
+
+    focus_time: float
+    plan: PlanOptions = field(default_factory=PlanOptions)
+    loop: LoopOptions | None = None
+    learn: str | None = None
+    log: Path | None = None
+    progress: bool = False
+
+    def __post_init__(self):
+        if not self.focus_time > 0:
+            raise ValueError(f"focus time must be positive, got {self.focus_time!r} s")
+        if self.learn is not None and self.learn not in LEARN_FROM:
+            raise ValueError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
+        if self.learn is not None and self.loop is None:
+            raise ValueError("a learning shot runs closed loop: give the loop's options too")
+
+    @property
+    def closed(self) -> bool:
+        """Whether the shot runs under per-mode feedback."""
+        return self.loop is not None
+
+
+@dataclass(frozen=True)
+class SurveyOptions(_Options):
+    """How a device's structure is identified from FRFs (:func:`modalctl.identify.survey.identify_device`).
+
+    Attributes
+    ----------
+    method : str
+        Identifier plugin (``sdof``, ``peaks`` or a third party's).
+    primary : int
+        The actuator swept over the whole grid; a mode it drives below ``weak_drive`` of the best
+        actuator's drive is rescanned with that one.
+    sparse : int
+        Every ``sparse``-th point is measured with every actuator.
+    averages : int
+        Shots per point (coherence needs at least two).
+    orthogonalize : bool
+        Apply Gram-Schmidt to the identified shapes (thesis 3.1.3.3).
+    threshold_db : float
+        A peak must stand this much above the valleys around it.
+    weak_drive : float
+        See ``primary``.
+    """
+
+    method: str = "sdof"
+    primary: int = 0
+    sparse: int = 5
+    averages: int = 2
+    orthogonalize: bool = True
+    threshold_db: float = 3.0
+    weak_drive: float = 0.1
