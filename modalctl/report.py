@@ -352,7 +352,8 @@ def plot_learning(learned, labels, path) -> Path:
         bottom.errorbar(pos[mask], 100 * change[mask], yerr=z_error[mask] if fitted else None, fmt="o",
                         color=colour, capsize=3)
     bottom.axhline(100 * learned.common_damping_change, color="C3", lw=1,
-                   label=f"common change {100 * learned.common_damping_change:+.0f}%")
+                   label=f"{'common change' if fitted else 'median change of the tracked modes'} "
+                         f"{100 * learned.common_damping_change:+.0f}%")
     bottom.axhline(0, color="k", lw=0.5)
     bottom.set_ylabel("damping change (%)")
     bottom.legend(frameon=False, fontsize=8)
