@@ -8,8 +8,9 @@ the margin case with the optimizer's plan for 0.5) is planned on the model and p
 at 500 kHz four ways (:mod:`modalctl.experiments.sweep`): feed-forward alone; with the per-mode PI loops
 at 20 kHz; with tracking (a first closed-loop shot teaches the pole tracker, the plan is remade on
 what it learned, the second shot is reported); and learned (a first closed-loop shot's record
-updates the model, :mod:`modalctl.identify.updating`, the plan is remade on it, the second shot is reported). tau and the margin ratio are measured
-on the truth's whole field. Beside them, the same plan open loop on a perfect truth (no drift,
+updates the model, :mod:`modalctl.identify.updating`, the plan is remade on it, the second shot is
+reported). Every case is :func:`modalctl.run.run` on ``sim://``: tau and the margin ratio are measured
+as modalctl run measures them (the simulated vibrometer's scan, its noise included). Beside them, the same plan open loop on a perfect truth (no drift,
 damping error or noise): what the kept modes allow, the ceiling the loops work towards. The
 cases run through the local process pool (`modalctl.experiments.executor`).
 """
@@ -114,7 +115,7 @@ def report(data: dict, path) -> None:
     recovered = data["median_share_recovered"]
     md = ["# Open loop, closed loop, with tracking, with a learned model: the thesis table on a perturbed truth", "",
           f"Command: `python benchmarks/closed_loop.py`. Truth: {data['truth']}; DAC 500 kHz, loops 20 kHz. "
-          "tau and the margin ratio on the truth's whole field; the thesis's measured tau (open loop, real beam) "
+          "tau and the margin ratio measured as `modalctl run` measures (the simulated vibrometer at the plan's check instants, its noise included); the thesis's measured tau (open loop, real beam) "
           "beside.", "",
           "| experiment | thesis tau | tau perfect truth | tau open | tau closed (PI) | tau closed (LQG) | tau tracked | "
           "tau learned | margin open | margin closed | margin tracked | margin learned | peak V closed |",

@@ -36,7 +36,8 @@ def main() -> None:
     path = write_json("closed_maps", {"rows": rows, "wall_seconds": wall, "finger_added_damping_max": added})
     md = ["# Where each method fails: drift and a finger", "",
           "Command: `python benchmarks/closed_maps.py`. sinc 18 mm at 24 mm, T_F 25 ms, damping +20%, SNR 40 dB; "
-          "tau (margin ratio) on the truth's whole field. Picture: `closed_maps.png`.", "",
+          "tau (margin ratio) measured as `modalctl run` measures (the simulated vibrometer at the plan's check "
+          "instants, its noise included). Picture: `closed_maps.png`.", "",
           "Finger at the focus point: the largest added damping of a kept mode, relative to its own, is "
           + ", ".join(f"{f:g} N s/m: x{1 + a:.1f}" for f, a in sorted(added.items())) + ".", "",
           table, f"{len(rows)} cases in {wall:.0f} s on the local process pool.", ""]
