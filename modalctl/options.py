@@ -14,7 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "PlanOptions", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "ConvexOptions", "PlanOptions", "LoopOptions", "RunOptions", "SurveyOptions",
+           "LEARN_FROM"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
@@ -38,11 +39,59 @@ class _Options:
 
 
 @dataclass(frozen=True)
+class ConvexOptions(_Options):
+    """The convex planner's basis and program (:mod:`modalctl.plan.convex`).
+
+    Attributes
+    ----------
+    early, late : float
+        Spacing of each kept mode's envelope bumps (Hann, twice as wide) on its carrier: before the
+        late window, and from it to the end of the shot (s).
+    late_window : float
+        How long before T_F the late bumps start (s).
+    hat : float
+        Spacing of every channel's hats (triangles twice as wide) near T_F (s): the fast turn of
+        the envelopes there, which the margin needs.
+    hat_before, hat_after : float
+        The hats' window around T_F (s).
+    aim : float
+        The program holds ``aim`` times the margin (and the voltage and slew limits) on the rows it
+        has; the check on every sample then passes in fewer rounds.
+    rounds : int
+        Constraint-generation rounds at most.
+    solver : str
+        QP solver: ``daqp`` (dense dual active set, chosen by ``benchmarks/margin_planner.py``),
+        ``clarabel`` (interior point) or ``osqp`` (ADMM).
+    robust_focus : float
+        With a robust band, the focus each drifted truth must still reach at the target's peak, as
+        a share of the planned one (its margin is then held below that share of the margin).
+    energy_bound : float
+        The margin program gives up once its least energy provably exceeds this many times the
+        least energy of the focus alone (a dual bound: DAQP's ``fval_bound``); the margin plans
+        measured need 2-4 times, an unreachable margin climbs without end.
+    """
+
+    early: float = 3e-3
+    late: float = 0.5e-3
+    late_window: float = 4e-3
+    hat: float = 20e-6
+    hat_before: float = 0.3e-3
+    hat_after: float = 0.6e-3
+    aim: float = 0.99
+    rounds: int = 40
+    solver: str = "daqp"
+    robust_focus: float = 0.9
+    energy_bound: float = 1000.0
+
+
+@dataclass(frozen=True)
 class PlanOptions(_Options):
     """How the planner chooses the modes, the references and the voltages.
 
     Attributes
     ----------
+    planner : str
+        Planner plugin: ``envelope`` (the thesis's method) or ``convex``.
     modes : "auto", "all", int or tuple of int
         ``"auto"``: the smallest set meeting ``tau_min`` (more modes are added, up to
         ``added_modes``, when the margin fails on it); ``"all"``; an int N: the N lowest modes; a
@@ -59,6 +108,11 @@ class PlanOptions(_Options):
         references only (the thesis's criterion).
     voltage_limit : float or None
         Largest voltage on any actuator (V); the device's rails also apply.
+    slew_limit : float or None
+        Largest slope of any actuator's voltage (V/s) the plan may use (the convex planner).
+    robust_drift : float
+        Hold the margin on every truth whose resonances lie within this relative band of the
+        model's (the convex planner: its program on drifted copies of the model); 0 for none.
     kappa : float
         Envelope rate in units of each mode's ``zeta w`` without a margin (the thesis's 1), and the
         optimizer's start with one.
@@ -76,15 +130,19 @@ class PlanOptions(_Options):
         A drive leaking more than this share of the strongest target into another mode is warned of.
     compensate : bool
         Correct the commanded targets for the cross-talk of the kept modes' drives, so that on the
-        model every kept mode reaches its target at T_F exactly.
+        model every kept mode reaches its target at T_F exactly (the envelope planner).
+    convex : ConvexOptions
     """
 
+    planner: str = "envelope"
     modes: str | int | tuple = "auto"
     tau_min: float = DEFAULT_TAU
     added_modes: int = 4
     margin: float | None = None
     margin_on: str = "whole"
     voltage_limit: float | None = None
+    slew_limit: float | None = None
+    robust_drift: float = 0.0
     kappa: float = 1.0
     brake: bool = True
     after: float = 4e-3
@@ -92,8 +150,11 @@ class PlanOptions(_Options):
     gap_fraction: float = 0.5
     decoupling_threshold: float = 0.1
     compensate: bool = True
+    convex: ConvexOptions = field(default_factory=ConvexOptions)
 
     def __post_init__(self):
+        if self.robust_drift < 0:
+            raise ValueError(f"robust_drift must be zero or more, got {self.robust_drift!r}")
         if self.margin_on not in ("whole", "kept"):
             raise ValueError(f"margin_on must be 'whole' or 'kept', got {self.margin_on!r}")
         if self.margin is not None and not 0 < self.margin <= 1:

@@ -59,8 +59,10 @@ class ShotMetrics:
         V, on any actuator.
     modes_used : list of int
         Mode labels.
-    kappa, brake : list of float
-        Each kept mode's envelope rate and post-focus decay (units of ``zeta w``).
+    kappa, brake : list of float or None
+        Each kept mode's envelope rate and post-focus decay (units of ``zeta w``), for envelope plans.
+    planner : str
+        The planner that made the plan.
     focus_time_s, sample_rate_hz : float
     plan_seconds, sim_seconds : float
         Wall time of the plan, and of the device's part (play and measure).
@@ -74,6 +76,8 @@ class ShotMetrics:
         What the device said of itself.
     optimizer : dict or None
         The envelope optimizer's status, rounds and time, when it ran.
+    program : dict or None
+        The convex planner's program: solver, status, rounds, rows, columns, seconds.
     """
 
     tau: float
@@ -86,19 +90,21 @@ class ShotMetrics:
     worst_off_target: dict
     peak_voltage: float
     modes_used: list
-    kappa: list
-    brake: list
+    kappa: list | None
+    brake: list | None
+    planner: str
     focus_time_s: float
     sample_rate_hz: float
     plan_seconds: float
     sim_seconds: float
     predicted_margin_ratio: float
     whole_model_margin_ratio: float
-    decoupling_worst: dict
+    decoupling_worst: dict | None
     decoupling_warnings: list
     device: str
     device_info: dict
     optimizer: dict | None = None
+    program: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -254,7 +260,8 @@ class ShotResult:
 
     def to_dict(self) -> dict:
         """JSON-ready metrics: the shot's, ``loop`` and ``learning_shot`` when there are."""
-        out = {key: value for key, value in asdict(self.metrics).items() if value is not None or key != "optimizer"}
+        out = {key: value for key, value in asdict(self.metrics).items()
+               if value is not None or key not in ("optimizer", "program")}
         if self.loop is not None:
             out["loop"] = asdict(self.loop)
         if self.learning is not None:
@@ -391,12 +398,18 @@ def _metrics(dec, the_plan, capture, scan, device, options, sim_seconds) -> Shot
         worst_off_target={"x_m": model.grid.points[worst[0]].tolist() if worst[0] >= 0 else None, "t_s": worst[1]},
         peak_voltage=float(np.max(np.abs(capture.voltages))),
         modes_used=[int(model.labels[k]) for k in the_plan.modes],
-        kappa=the_plan.kappa.tolist(), brake=the_plan.brake.tolist(), focus_time_s=the_plan.focus_time,
+        kappa=_listed(the_plan.kappa), brake=_listed(the_plan.brake), planner=info.get("planner", "envelope"),
+        focus_time_s=the_plan.focus_time,
         sample_rate_hz=the_plan.sample_rate, plan_seconds=info["plan_seconds"], sim_seconds=sim_seconds,
         predicted_margin_ratio=info["predicted_margin_ratio"],
         whole_model_margin_ratio=info["whole_model_margin_ratio"], decoupling_worst=info["decoupling_worst"],
         decoupling_warnings=info["decoupling_warnings"], device=device.url, device_info=device.info,
-        optimizer=None if optimizer is None else {k: optimizer[k] for k in ("status", "rounds", "seconds")})
+        optimizer=None if optimizer is None else {k: optimizer[k] for k in ("status", "rounds", "seconds")},
+        program=None if "program" not in info else {k: v for k, v in info["program"].items() if k != "history"})
+
+
+def _listed(values) -> list | None:
+    return None if values is None else np.asarray(values).tolist()
 
 
 def _loop_metrics(played: _Played, the_plan: Plan, loop: LoopOptions, sim_seconds: float) -> LoopMetrics:

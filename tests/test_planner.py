@@ -13,7 +13,8 @@ from modalctl.model.shape import parse_params
 from modalctl.options import PlanOptions, RunOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.dispatch import DecouplingWarning, decoupling, dispatch, mobility
-from modalctl.plan.planner import MarginWarning, PlanError, gap_bounds, min_focus_time, plan
+from modalctl.plan.envelope import gap_bounds, planned_field
+from modalctl.plan.planner import MarginWarning, PlanError, min_focus_time, plan
 from modalctl.plugin.manager import get_shape
 from modalctl.run import run
 
@@ -80,7 +81,7 @@ def test_thesis_margin_case_kappa_one_fails_and_optimizer_meets_it(beam):
     assert first.info["predicted_margin_ratio"] > 0.6  # the thesis: about two thirds
     # independent check of the optimized plan: its modal field evaluated densely by numpy
     t = np.arange(0.021, 0.029, 1e-6)
-    ratio, _ = margin_ratio(best.field(t), t, 0.025, best.target_mask, best.focus_peak)
+    ratio, _ = margin_ratio(planned_field(best, t), t, 0.025, best.target_mask, best.focus_peak)
     assert ratio <= 0.5 * 1.02
     assert np.all(best.kappa <= gap_bounds(beam, best.modes) + 1e-9)
 

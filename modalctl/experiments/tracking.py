@@ -140,7 +140,7 @@ def run_tracking(truth: ModalModel, modes, drift, duration: float, options: Trac
         if plan is None:
             force = level[:, None] * envelope * np.cos(phases)  # intended modal drive (k, n)
         else:
-            force = plan.modal((start + np.arange(n_chunk) + 0.5) / sample_rate)[1]
+            force = plan.forces((start + np.arange(n_chunk) + 0.5) / sample_rate)
         velocity_modal = plant.step(weights @ force)
         measured = plant.sensors(velocity_modal)
         if snr_db is not None:

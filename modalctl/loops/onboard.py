@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modalctl.plan.drive import EnvelopeDrive
 from modalctl.plan.reference import modal_response
 
 from .lockin import LockIn, Oscillators
@@ -127,9 +128,14 @@ def board_loop(plan, parts) -> BoardLoop:
     (:class:`modalctl.loops.shot.LoopParts`, PI controller)."""
     if not hasattr(parts.design, "kp"):
         raise ValueError("a board runs PI loops: design the shot with the pi controller")
+    drive = plan.drive
+    if not isinstance(drive, EnvelopeDrive):
+        raise ValueError(f"loops on the board follow envelope plans (the board recomputes each reference from its "
+                         f"target, rate and brake), not a {plan.info.get('planner', 'this')} plan: plan with "
+                         f"--planner envelope, or run the loops on the host (--loop closed)")
     sensing = parts.schedule.sensors @ plan.model.sensor_gains[plan.modes].T
     return BoardLoop(float(plan.focus_time), plan.model.damping[plan.modes].astype(float),
-                     np.asarray(plan.targets, float), np.asarray(plan.kappa, float), np.asarray(plan.brake, float),
+                     np.asarray(drive.targets, float), np.asarray(drive.kappa, float), np.asarray(drive.brake, float),
                      sensing, np.asarray(parts.design.kp, float), np.asarray(parts.design.ki, float),
                      parts.authority.max(axis=1), np.asarray(parts.leak, complex))
 

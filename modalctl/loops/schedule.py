@@ -98,8 +98,9 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
         raise ValueError(f"the control rate {control_rate:g} Hz must divide the DAC rate {fs:g} Hz")
     n = plan.times.size // decimation
     t = plan.times[:n * decimation]
-    drive = plan.modal(t + 0.5 / fs)[1]  # (k, N) modal forces, held as the DAC holds them
-    volts = plan.voltages(drive)  # on the actuators, with any correction of the plan
+    own = plan.drive.forces(t + 0.5 / fs)  # (k, N) the kept modes' own forces, held as the DAC holds them
+    volts = plan.voltages(own)  # on the actuators, with what the channels add and any correction
+    drive = plan.forces(t + 0.5 / fs, own)  # the whole modal force each kept mode receives
     carriers = plan.model.frequencies[plan.modes]
     phasors = Oscillators(carriers, fs).phasors(t.size)
     expected = Plant(plan.model, fs, hold=HOLD)

@@ -1,6 +1,6 @@
 """Correct a plan's voltages near the focus so that the margin holds on the whole model.
 
-The envelope optimizer (:mod:`modalctl.plan.envelopes`) holds the margin on the kept modes' references;
+The envelope optimizer (:mod:`modalctl.plan.kappa`) holds the margin on the kept modes' references;
 near T_F their envelopes turn fast, and fast turns also ring the modes the plan left out and leak
 among the kept ones (more kept modes than actuators cannot keep them apart). This step adds a
 correction to every actuator's voltage, sample by sample, over a window around T_F, found by

@@ -14,9 +14,8 @@ from modalctl.model.shape import ShapeGenerator
 
 from . import spec as hookspecs
 
-__all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "identifiers", "get_identifier",
-           "trackers", "get_tracker", "controllers", "get_controller",
-           "plugin_table"]
+__all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "planners", "get_planner",
+           "identifiers", "get_identifier", "trackers", "get_tracker", "controllers", "get_controller", "plugin_table"]
 
 ENTRY_POINT_GROUP = "modalctl"
 
@@ -58,6 +57,16 @@ def _by_name(groups, kind: str) -> dict:
                 raise PluginError(f"{kind} {item.name!r} is provided by two plugins")
             found[item.name] = item
     return dict(sorted(found.items()))
+
+
+def planners(manager: pluggy.PluginManager | None = None) -> dict:
+    """All installed planners (:class:`modalctl.plan.planner.Planner`) by name."""
+    return _by_name((manager or plugin_manager()).hook.modalctl_planners(), "planner")
+
+
+def get_planner(name: str, manager: pluggy.PluginManager | None = None):
+    """The planner called ``name``; the error lists the installed ones."""
+    return _pick(planners(manager), name, "planner")
 
 
 def identifiers(manager: pluggy.PluginManager | None = None) -> dict:

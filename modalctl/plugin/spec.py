@@ -15,9 +15,8 @@ from typing import Any, Callable, TypeVar, cast
 
 import pluggy
 
-__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_transports", "modalctl_add_options",
-           "modalctl_identifiers",
-           "modalctl_trackers", "modalctl_controllers"]
+__all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_planners", "modalctl_transports",
+           "modalctl_add_options", "modalctl_identifiers", "modalctl_trackers", "modalctl_controllers"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _spec = pluggy.HookspecMarker("modalctl")
@@ -43,6 +42,20 @@ def modalctl_shapes():
     iterable of modalctl.model.shape.ShapeGenerator
         Objects with ``name``, ``summary``, ``params`` and ``generate(grid, **params)``.
         Names must be unique across installed plugins.
+    """
+
+
+@hookspec
+def modalctl_planners():
+    """Return the planners this plugin provides (the hierarchy's high level).
+
+    Returns
+    -------
+    iterable of modalctl.plan.planner.Planner
+        Objects with ``name``, ``summary`` and ``plan(dec, focus_time, options, progress)``
+        returning a :class:`modalctl.plan.planner.Plan` (or raising
+        :class:`modalctl.plan.planner.PlanError`); ``options`` is a
+        :class:`modalctl.options.PlanOptions`. Names must be unique across installed plugins.
     """
 
 
