@@ -37,8 +37,11 @@ from modalctl.model.propagate import Plant
 
 from .block import BlockLockIn, BlockPlant
 from .lifted import PeriodMap
+from .scenario import scan_noise
 
 __all__ = ["HILBoard", "BoardSetup"]
+
+SCAN_STREAM = 1  # the scan's noise: a stream of the board's seed apart from its sensors' noise
 
 
 @dataclass(frozen=True)
@@ -274,9 +277,12 @@ class HILBoard(PhasorBoard):
         """Velocity (n_points, nt) of the shot at the samples nearest to ``times`` (s), as a
         scanning vibrometer repeating it would see it (m/s); ``points``: grid indices (default all)."""
         idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self.velocity.shape[1] - 1)
-        shapes = self.plant.model.shapes if points is None else self.plant.model.shapes[:, np.atleast_1d(points)]
-        field = shapes.T @ self.velocity[:, idx]
-        return field + self.scan_noise * self.rng.standard_normal(field.shape) if self.scan_noise else field
+        shapes = self.plant.model.shapes
+        rows = slice(None) if points is None else np.atleast_1d(points)
+        field = shapes[:, rows].T @ self.velocity[:, idx]
+        if not self.scan_noise:
+            return field
+        return field + scan_noise((self.setup.seed, SCAN_STREAM), idx, shapes.shape[1], self.scan_noise)[rows]
 
     def _play(self, n: int, target: np.ndarray, measure: bool = True) -> np.ndarray | None:
         s, start = self.schedule, self.sample

@@ -10,7 +10,7 @@ import numpy as np
 from modalctl.model.modes import ModalModel
 from modalctl.model.shape import Shape
 
-__all__ = ["Perturbation", "perturb", "step", "ramp"]
+__all__ = ["Perturbation", "perturb", "step", "ramp", "scan_noise"]
 
 
 @dataclass(frozen=True)
@@ -144,3 +144,19 @@ def step(at: float, size: float):
 def ramp(start: float, rate: float):
     """``drift(t, k)``: every resonance drifts at ``rate`` (relative per second) from ``start`` (s)."""
     return lambda t, k: np.full(k, rate * max(t - start, 0.0))
+
+
+def scan_noise(key: tuple[int, ...], samples: np.ndarray, points: int, sigma: float) -> np.ndarray:
+    """The bench vibrometer's noise (points, len(samples)) on one shot's record at these sample
+    indices (m/s, standard deviation ``sigma``).
+
+    Each sample's noise is drawn from a generator keyed by ``key`` (the shot) and the sample's
+    index, so the vibrometer's record of a shot is one record: a scan reads the same noise however
+    the host batches its requests (a transport asks a few thousand instants at a time).
+    """
+    samples = np.asarray(samples, int)
+    unique, where = np.unique(samples, return_inverse=True)
+    drawn = np.empty((points, unique.size))
+    for j, index in enumerate(unique):
+        drawn[:, j] = np.random.default_rng((*key, int(index))).standard_normal(points)
+    return sigma * drawn[:, where.reshape(-1)]

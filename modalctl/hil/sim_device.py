@@ -14,7 +14,7 @@ from modalctl.model.scenes import load_scene
 
 from .finger import Finger, FingerPlant
 from .plant import HOLDS, Plant, truncation
-from .scenario import Perturbation, perturb
+from .scenario import Perturbation, perturb, scan_noise
 
 __all__ = ["SimDevice"]
 
@@ -53,6 +53,7 @@ class SimDevice(Device):
         self._noise_sigma = None
         self._voltages = self._modal = self._board = None
         self._boards = 0  # phasor boards made so far
+        self._shots = 0  # open-loop shots played so far (each its own scan noise)
         self._kept = np.arange(model.n_modes)
         self._rng = np.random.default_rng(perturbation.seed + 1)
 
@@ -130,6 +131,7 @@ class SimDevice(Device):
                 plant.retune(base * (1 + p.shift((i + chunk / 2) / self.sample_rate)))  # the chunk's middle
             played.append(plant.step(u[:, i:i + chunk]))
         self._modal = np.hstack(played)
+        self._shots += 1
         self.info["clipped_samples"] = plant.clipped
         self._noise_sigma = self._sigma(self._field_peak()) / np.sqrt(self.perturbation.scan_repeats)
         self._played = plant.sensors(self._modal)
@@ -166,9 +168,11 @@ class SimDevice(Device):
             raise DeviceError(f"{self.url}: no shot to scan")
         idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._modal.shape[1] - 1)
         shapes = self.truth.shapes[self._kept]
-        shapes = shapes if points is None else shapes[:, np.atleast_1d(points)]
-        field = shapes.T @ self._modal[:, idx]
-        return field + self._noise_sigma * self._rng.standard_normal(field.shape)
+        rows = slice(None) if points is None else np.atleast_1d(points)
+        field = shapes[:, rows].T @ self._modal[:, idx]
+        if not self._noise_sigma:
+            return field
+        return field + scan_noise((self.perturbation.seed, self._shots), idx, shapes.shape[1], self._noise_sigma)[rows]
 
     def modal_truth(self) -> tuple[np.ndarray, np.ndarray]:
         """Simulation-only: the simulated modes (positional in the model) and their velocities (k, n)."""
