@@ -80,7 +80,8 @@ def test_the_focus_state_is_the_decompositions(case, margin_plan):
     scale = np.abs(want).max()
     assert np.max(np.abs(velocity - want)) < 1e-8 * scale
     assert np.max(np.abs(displacement[dec.modes_used] * model.omega[dec.modes_used])) < 1e-8 * scale
-    np.testing.assert_allclose(model.shapes.T @ velocity, dec.reconstruction, atol=1e-8 * np.abs(dec.reconstruction).max())
+    np.testing.assert_allclose(model.shapes.T @ velocity, dec.reconstruction,
+                               atol=1e-8 * np.abs(dec.reconstruction).max())
 
 
 def test_the_margin_holds_on_every_sample_of_the_whole_model(case, margin_plan):
@@ -108,14 +109,17 @@ def test_a_margin_below_the_focus_own_side_lobes_is_refused_with_the_reachable_r
 
 
 def test_a_margin_out_of_reach_within_a_voltage_limit_is_refused_with_a_ratio_that_is_reachable(case):
-    """0.5 needs about 9 V on this case: under 6 V it is refused with the smallest ratio the
-    least-ratio program reaches; that ratio is honest, because a plan asked for 2% above it is
-    found within 6 V and holds it on every sample of the independently simulated plant."""
+    """0.5 needs about 9 V on this case: under 6 V it is refused with the smallest ratio a drive
+    within 6 V reaches (bisection on the margin); that ratio is honest, because a plan asked for
+    2% above it is found within 6 V and holds it on every sample of the independently simulated
+    plant, and the margin it refused lies between 0.5 and it."""
     model, shape, dec = case
     with pytest.raises(PlanError, match="cannot be held within voltage 6 V") as refused:
         plan(dec, TF, convex(voltage_limit=6.0))
     reached = refused.value.needed
-    assert 0.5 < reached < 0.6 and refused.value.certificate["status"] == "infeasible"
+    certificate = refused.value.certificate
+    assert 0.5 < reached < 0.6 and certificate["status"] == "infeasible"
+    assert 0.5 <= certificate["largest_refused"] <= reached
     above = plan(dec, TF, convex(voltage_limit=6.0, margin=reached * 1.02))
     volts = above.voltages()
     assert np.abs(volts).max() <= 6.0 * (1 + 1e-9)

@@ -32,10 +32,11 @@ voltage is held by the voltage limit when one is given.
 
 **Infeasibility** is a result. The field at T_F is fixed by the focus state, so the focus's own
 side lobes there bound every drive's ratio from below: a margin under them is refused with that
-proof. Otherwise, once the margin program fails (infeasible, or its least energy provably past
-``ConvexOptions.energy_bound`` times the focus's own: DAQP's dual bound), a second program
-minimizes the ratio itself within the limits (plus a small energy term that keeps its cutting
-planes bounded); the ratio its drive reaches, above the margin, is the answer.
+proof (with ``ConvexOptions.leak`` the left-out modes may move at T_F, and the bound is theirs
+less). Otherwise, once the margin program fails (infeasible, or its least energy provably past
+``ConvexOptions.energy_bound`` times the focus's own: DAQP's dual bound), a bisection on the
+margin program finds the smallest margin a drive within the limits holds: that drive's ratio,
+above the margin, is the answer, with the largest margin refused beside it.
 
 Solver: DAQP (a dual active-set method for dense QPs, warm-started from each round's multipliers),
 chosen by ``benchmarks/margin_planner.py``; Clarabel and OSQP can be asked for
@@ -64,7 +65,6 @@ __all__ = ["ConvexPlanner", "Basis", "Responses", "Program", "Solution", "plan_c
 
 SOLVERS = ("daqp", "clarabel", "osqp")  # HiGHS's QP: "Non-convex" on free columns, >10 min when boxed
 CHUNK = 2048  # samples of the field scanned at once (the whole shot's field at once is hundreds of MB)
-RATIO_ENERGY = 1e-3  # the least-ratio program's weight on energy, relative to the ratio (keeps its drive bounded)
 
 
 class ConvexPlanner(Planner):
@@ -75,6 +75,14 @@ class ConvexPlanner(Planner):
 
     def plan(self, dec, focus_time, options, progress=False):
         return plan_convex(dec, focus_time, options, progress)
+
+    def feasible(self, dec, focus_time, options):
+        """The margin program alone, without the refusal's bisection."""
+        if not focus_time > 0:
+            return False
+        modes = np.asarray(dec.modes_used, int)
+        program = Program(dec.model, modes, dec.coefficients[modes], dec.shape.target_mask, focus_time, options)
+        return program.solve().holds(program.margin, options)
 
 
 @dataclass(frozen=True, eq=False)
@@ -293,6 +301,13 @@ class Solution:
     status: str
     history: list = field(default_factory=list)
 
+    def holds(self, margin: float, options: PlanOptions) -> bool:
+        """Solved, and within ``margin`` on every plant and within the voltage and slew limits on
+        every sample."""
+        within = [(self.peak_voltage, options.voltage_limit), (self.peak_slew, options.slew_limit)]
+        return (self.status == "optimal" and max([self.ratio, *self.robust_ratios]) <= margin * (1 + 1e-4)
+                and all(limit is None or value <= limit * (1 + 1e-9) for value, limit in within))
+
 
 @dataclass
 class _Rows:
@@ -347,35 +362,49 @@ class Program:
         self.peak = float(np.max(np.abs(self.focus_field)))
         self.peak_point = int(np.argmax(np.abs(self.focus_field)))
         outside = self.focus_field[~np.asarray(target_mask, bool)]
-        self.focus_lobes = float(np.abs(outside).max()) / self.peak if outside.size else 0.0  # every drive's floor
+        lobes = float(np.abs(outside).max()) / self.peak if outside.size else 0.0
+        if options.convex.leak is not None:  # the left-out modes' own share at T_F, at most
+            lobes -= options.convex.leak * (model.n_modes - self.modes.size)
+        self.focus_lobes = max(lobes, 0.0)  # every drive's ratio is at least this
         self.plants = [model] + [_drifted(model, s) for s in _drifts(options.robust_drift)]
         self.responses = [Responses(m, self.basis, self.fs, self.focus_time) for m in self.plants]
         self.seconds = {"tables": _time.perf_counter() - tic, "solve": 0.0, "check": 0.0, "rows": 0.0}
-        self.cuts = {}  # every margin row found so far, over its bound: the least-ratio program starts from them
+        self.cuts = {}  # every margin row found so far, per unit margin: later solves start from them
+        self.limit_cuts = {}  # and every voltage and slew row
 
     # -- rows ------------------------------------------------------------------------------------
     def equality(self) -> tuple[np.ndarray, np.ndarray]:
-        """``A x = b``: every mode's velocity at T_F, the kept modes' displacement (times their
-        resonance, in velocity units) zero; rows scaled by the largest target."""
+        """``A x = b``: the kept modes' velocity at T_F (their targets) and displacement (times
+        their resonance, in velocity units) zero, and, without a ``leak``, every other mode's
+        velocity zero; rows scaled by the largest target."""
         nominal = self.responses[0]
         scale = np.max(np.abs(self.targets))
+        still = np.arange(self.model.n_modes) if self.options.convex.leak is None else self.modes
         displacement = nominal.displacement(self.focus)[self.modes] * self.model.omega[self.modes, None]
-        a = np.vstack([nominal.velocity(self.focus), displacement]) / scale
-        b = np.r_[self.velocity_at_focus, np.zeros(self.modes.size)] / scale
+        a = np.vstack([nominal.velocity(self.focus)[still], displacement]) / scale
+        b = np.r_[self.velocity_at_focus[still], np.zeros(self.modes.size)] / scale
         return a, b
 
-    def _floors(self, rows: _Rows) -> None:
-        """Each drifted copy still reaches ``robust_focus`` of the focus at the target's peak."""
-        share = self.options.convex.robust_focus
+    def _fixed_rows(self, rows: _Rows) -> None:
+        """The rows every round has: with a ``leak``, each left-out mode's share of the field at T_F
+        within it; with a robust band, each drifted copy still reaching ``robust_focus`` of the
+        focus at the target's peak."""
+        opts = self.options.convex
+        if opts.leak is not None:
+            left = np.setdiff1d(np.arange(self.model.n_modes), self.modes)
+            reach = np.abs(self.model.shapes[left]).max(axis=1)
+            velocity = self.responses[0].velocity(self.focus)[left]
+            for k, row in zip(left, velocity * reach[:, None] / (opts.leak * self.peak)):
+                rows.add(("leak", int(k)), row, -1.0, 1.0)
         sign = np.sign(self.focus_field[self.peak_point])
         for s, responses in enumerate(self.responses[1:], start=1):
             row = sign * (self.model.shapes[:, self.peak_point] @ responses.velocity(self.focus))
-            rows.add(("floor", s), row / (share * self.peak), 1.0, np.inf)
+            rows.add(("floor", s), row / (opts.robust_focus * self.peak), 1.0, np.inf)
 
-    def _margin_bound(self, plant: int) -> float:
-        """The off-target bound on ``plant``: the margin of the focus peak (of its floor, drifted)."""
+    def _margin_bound(self, plant: int, margin: float) -> float:
+        """The off-target bound on ``plant``: ``margin`` of the focus peak (of its floor, drifted)."""
         share = 1.0 if plant == 0 else self.options.convex.robust_focus
-        return self.margin * self.peak * share
+        return margin * self.peak * share
 
     # -- the check ---------------------------------------------------------------------------------
     def play(self, x: np.ndarray) -> tuple[np.ndarray, list]:
@@ -397,23 +426,22 @@ class Program:
             top[n] = np.abs(shapes.T @ velocity[:, n]).max(axis=0)
         return top
 
-    def _new_margin_rows(self, rows: _Rows, velocities: list, tops: list, level: float, as_ratio: bool) -> int:
-        """Rows at every lobe above ``aim * level`` of the margin's bound, at each time-local peak
-        above it, on every plant; returns how many were added. A row holds ``|w| <= aim * bound``,
-        or, ``as_ratio``, ``|w| <= r * bound`` with ``r`` the program's last variable."""
+    def _new_margin_rows(self, rows: _Rows, velocities: list, tops: list, margin: float) -> int:
+        """Rows ``|w| <= aim * bound`` at every lobe above it, at each time-local peak above it, on
+        every plant; returns how many were added (each is also kept in :attr:`cuts`)."""
         aim = self.options.convex.aim
         added = 0
         shapes = self.model.shapes[:, self.outside]
         for s, (velocity, top) in enumerate(zip(velocities, tops)):
-            bound = self._margin_bound(s)
+            bound = self._margin_bound(s, margin)
             peaks = _local_peaks(top)
-            over = peaks[top[peaks] > aim * level * bound]
+            over = peaks[top[peaks] > aim * bound]
             if over.size == 0:
                 continue
             fields = np.abs(shapes.T @ velocity[:, over])  # (n_out, peaks)
             for c, n in enumerate(over):
                 lobes = _local_peaks(fields[:, c])
-                lobes = lobes[fields[lobes, c] > aim * level * bound]
+                lobes = lobes[fields[lobes, c] > aim * bound]
                 if lobes.size == 0:
                     lobes = np.array([int(np.argmax(fields[:, c]))])
                 velocity_rows = self.responses[s].velocity(int(n))
@@ -421,16 +449,12 @@ class Program:
                     key = (s, int(i), int(n))
                     if key in rows.keys:
                         continue
-                    row = shapes[:, i] @ velocity_rows
-                    self.cuts[key] = row / bound
-                    if as_ratio:
-                        _add_ratio_rows(rows, key, row / bound)
-                    else:
-                        rows.add(key, row / (aim * bound), -1.0, 1.0)
+                    self.cuts[key] = shapes[:, i] @ velocity_rows / self._margin_bound(s, 1.0)
+                    rows.add(key, self.cuts[key] / (aim * margin), -1.0, 1.0)
                     added += 1
         return added
 
-    def _new_limit_rows(self, rows: _Rows, volts: np.ndarray, extra: int) -> int:
+    def _new_limit_rows(self, rows: _Rows, volts: np.ndarray) -> int:
         """Voltage and slew rows at the time-local peaks that break the limits; returns how many."""
         opts, aim = self.options, self.options.convex.aim
         added = 0
@@ -447,36 +471,31 @@ class Program:
                 row = self.basis.voltage_rows(channel, np.array([n + step]), self.fs, self.focus_time)[0]
                 if step:
                     row = row - self.basis.voltage_rows(channel, np.array([n]), self.fs, self.focus_time)[0]
-                before = len(rows)
-                rows.add((kind, channel, int(n)), np.r_[row / (aim * limit), np.zeros(extra)], -1.0, 1.0)
-                added += len(rows) > before
+                key = (kind, channel, int(n))
+                if key not in rows.keys:
+                    self.limit_cuts[key] = row / (aim * limit)
+                    rows.add(key, self.limit_cuts[key], -1.0, 1.0)
+                    added += 1
         return added
 
     # -- the solve ---------------------------------------------------------------------------------
-    def solve(self, minimize_ratio: bool = False) -> Solution:
-        """Least energy under the margin (or, ``minimize_ratio``, the least ratio within the limits),
-        by constraint generation. Returns the last iterate and how far it got."""
+    def solve(self, margin: float | None = None) -> Solution:
+        """The least-energy drive under ``margin`` (default: the options'; inf: none) and the
+        limits, by constraint generation from every row an earlier solve found. Returns the last
+        iterate and how far it got."""
         opts = self.options.convex
+        margin = self.margin if margin is None else float(margin)
         start = _time.perf_counter()
         a_eq, b_eq = self.equality()
-        energy = self.basis.energy(self.fs)
-        extra = 1 if minimize_ratio else 0  # the ratio's variable, in units of the margin
-        hessian = np.r_[energy * (RATIO_ENERGY if minimize_ratio else 1.0), np.full(extra, RATIO_ENERGY)]
-        linear = np.r_[np.zeros(energy.size), np.ones(extra)]
-        a_eq = np.hstack([a_eq, np.zeros((a_eq.shape[0], extra))])
         rows = _Rows()
-        if len(self.plants) > 1:
-            floors = _Rows()
-            self._floors(floors)
-            for key, row, lo, hi in zip(floors.keys, floors.a, floors.lower, floors.upper):
-                rows.add(key, np.r_[row, np.zeros(extra)], lo, hi)
-        if minimize_ratio:  # the ratio is not negative; the margin rows found so far, as ratio rows
-            rows.add(("ratio",), np.r_[np.zeros(self.basis.size), 1.0], 0.0, np.inf)
-            for key, row in self.cuts.items():
-                _add_ratio_rows(rows, key, row)
-        qp = _QP(hessian, linear, a_eq, b_eq, rows)
-        bound = np.inf if minimize_ratio else opts.energy_bound * qp.least_energy()
-        history, status, x, duals = [], "not solved", np.zeros(self.basis.size + extra), None
+        self._fixed_rows(rows)
+        for key, cut in self.cuts.items() if np.isfinite(margin) else ():  # true of every program of this
+            rows.add(key, cut / (opts.aim * margin), -1.0, 1.0)  # focus: start from them
+        for key, cut in self.limit_cuts.items():
+            rows.add(key, cut, -1.0, 1.0)
+        qp = _QP(self.basis.energy(self.fs), np.zeros(self.basis.size), a_eq, b_eq, rows)
+        bound = opts.energy_bound * qp.least_energy()
+        history, status, x, duals = [], "not solved", np.zeros(self.basis.size), None
         for round_ in range(1, opts.rounds + 1):
             tic = _time.perf_counter()
             x, status, duals = _solve_qp(opts.solver, qp, bound, duals)
@@ -484,41 +503,48 @@ class Program:
             if status != "optimal":
                 break
             tic = _time.perf_counter()
-            volts, velocities = self.play(x[:self.basis.size])
-            level = float(x[-1]) if minimize_ratio else 1.0
-            floor = 0.5 * opts.aim * level * self.margin * self.peak * opts.robust_focus
-            tops = [self.off_target(v, floor) for v in velocities]
-            ratios = [float(top.max()) / (self.peak * (1.0 if s == 0 else opts.robust_focus))
-                      for s, top in enumerate(tops)]  # each against its own bound, in units of the margin
+            volts, velocities = self.play(x)
+            tops = [self.off_target(v, 0.5 * opts.aim * self._margin_bound(s, margin))
+                    for s, v in enumerate(velocities)]
+            ratios = [float(top.max()) / self._margin_bound(s, 1.0) for s, top in enumerate(tops)]
             self.seconds["check"] += _time.perf_counter() - tic
             history.append({"round": round_, "ratio": ratios[0], "peak_voltage": float(np.abs(volts).max()),
                             "rows": len(rows)})
             tic = _time.perf_counter()
-            within = self._new_limit_rows(rows, volts, extra) == 0
-            if minimize_ratio:  # rows where the field rises halfway from the ratio the program reached to the top
-                reached, top = float(x[-1]), max(ratios) / self.margin
-                if top <= reached * (1 + 1e-3) and within:
-                    break
-                self._new_margin_rows(rows, velocities, tops, max(reached, 0.5 * (reached + top)) / opts.aim, True)
-            else:
-                if max(ratios) <= self.margin and within:
-                    break
-                self._new_margin_rows(rows, velocities, tops, 1.0, False)
+            within = self._new_limit_rows(rows, volts) == 0
+            if max(ratios) <= margin and within:
+                break
+            self._new_margin_rows(rows, velocities, tops, margin)
             self.seconds["rows"] += _time.perf_counter() - tic
-        volts, velocities = self.play(x[:self.basis.size])
+        return self._solution(x, status, history, len(rows), start)
+
+    def _solution(self, x, status, history, rows, start) -> Solution:
+        volts, velocities = self.play(x)
         peaks = [float(np.max(np.abs(self.model.shapes.T @ v[:, self.focus]))) for v in velocities]
         ratios = [float(self.off_target(v, 0.25 * p).max()) / p if p > 0 else np.inf
                   for v, p in zip(velocities, peaks)]  # each plant's ratio over its own focus peak
         self.seconds["total"] = _time.perf_counter() - start + self.seconds["tables"]
         slew = float(np.abs(np.diff(volts, axis=1)).max() * self.fs) if volts.shape[1] > 1 else 0.0
-        return Solution(x, ratios[0], ratios[1:], float(np.abs(volts).max()), slew, len(history), len(rows),
+        return Solution(x, ratios[0], ratios[1:], float(np.abs(volts).max()), slew, len(history), rows,
                         dict(self.seconds), status, history)
 
-
-def _add_ratio_rows(rows: _Rows, key: tuple, row: np.ndarray) -> None:
-    """``-r <= row x <= r`` (``row`` over the margin's bound, ``r`` the last variable), as two rows."""
-    rows.add(key, np.r_[row, -1.0], -np.inf, 0.0)
-    rows.add(key + ("lower",), np.r_[row, 1.0], 0.0, np.inf)
+    def smallest_ratio(self, low: float, rel_tol: float = 0.01) -> tuple[Solution | None, float]:
+        """The smallest margin a drive within the limits (and ``energy_bound``) holds, by bisection
+        on the margin program from ``low`` (refused there) to the least-energy drive's own ratio.
+        Returns that drive's solution (None when no drive reaches the focus within the limits)
+        and the largest margin refused."""
+        free = self.solve(np.inf)
+        if not free.holds(np.inf, self.options):
+            return None, low
+        best, high = free, max([free.ratio, *free.robust_ratios])
+        while high - low > rel_tol * high:
+            middle = 0.5 * (low + high)
+            found = self.solve(middle)
+            if found.holds(middle, self.options):
+                best, high = found, min(middle, max([found.ratio, *found.robust_ratios]))
+            else:
+                low = middle
+        return best, min(low, high)
 
 
 def _drifts(band: float) -> list:
@@ -660,12 +686,10 @@ def plan_convex(dec: Decomposition, focus_time: float, options: PlanOptions = Pl
             "program": _summary(program, solution)}
     if solution.status != "optimal":  # infeasible, or a solver that gave up on an infeasible program
         raise _refusal(program, options, solution)
-    over = margin is not None and (solution.ratio > margin * 1.0001 or
-                                   any(r > margin * 1.0001 for r in solution.robust_ratios))
-    if over:
+    if not solution.holds(program.margin, options):
         raise PlanError(f"the convex program stopped after {solution.rounds} rounds at a ratio of "
-                        f"{solution.ratio:.4f} (the {margin:g} margin not yet held on every sample): raise "
-                        f"ConvexOptions.rounds", solution.ratio, margin)
+                        f"{solution.ratio:.4f} and {solution.peak_voltage:.1f} V (the margin or the limits not "
+                        f"yet held on every sample): raise ConvexOptions.rounds", solution.ratio, margin)
     drive = program.basis.drive(solution.x[:program.basis.size], focus_time, options.sample_rate)
     info.update({"predicted_margin_ratio": solution.ratio, "whole_model_margin_ratio": solution.ratio,
                  "robust_margin_ratios": solution.robust_ratios, "peak_voltage": solution.peak_voltage,
@@ -677,7 +701,8 @@ def plan_convex(dec: Decomposition, focus_time: float, options: PlanOptions = Pl
 
 def _summary(program: Program, solution: Solution) -> dict:
     basis = program.basis
-    return {"solver": program.options.convex.solver, "status": solution.status, "rounds": solution.rounds,
+    return {"solver": program.options.convex.solver, "robust_drift": program.options.robust_drift,
+            "status": solution.status, "rounds": solution.rounds,
             "rows": solution.rows, "columns": basis.size, "seconds": solution.seconds,
             "bumps": [int(f.offsets.size) for f in basis.bumps],
             "hats": 0 if basis.hats is None else int(basis.hats.offsets.size), "history": solution.history}
@@ -687,38 +712,36 @@ def _refusal(program: Program, options: PlanOptions, failed: Solution) -> PlanEr
     """The margin program did not solve: say why, with proof where there is one.
 
     Every drive that builds the focus has the focus's own side lobes at T_F: a margin below them is
-    out of reach whatever the limits (exact). Otherwise the least-ratio program (the ratio plus
-    ``RATIO_ENERGY`` times the drive's relative energy, within the limits) gives the smallest ratio
-    it reaches: above the margin, the margin is refused with it; at or below, the solver failed.
+    out of reach whatever the limits (exact). Otherwise the smallest margin a drive within the
+    limits and the energy bound holds, by bisection on the margin program, says whether the margin
+    was out of reach (the answer above it) or the solver failed (at or below it).
     """
-    best = program.solve(minimize_ratio=True)
+    margin, lobes, solver = options.margin, program.focus_lobes, options.convex.solver
+    best, refused = program.smallest_ratio(max(margin, lobes))
     limits = ", ".join(f"{name} {value:g} {unit}" for name, value, unit in
                        (("voltage", options.voltage_limit, "V"), ("slew", options.slew_limit, "V/s"))
                        if value is not None) or "no voltage limit"
-    solver, margin, lobes = options.convex.solver, options.margin, program.focus_lobes
-    reached = best.ratio if best.status == "optimal" else None
-    certificate = {"solver": solver, "margin_program": failed.status, "least_ratio_program": best.status,
-                   "margin": margin, "focus_lobes": lobes, "smallest_ratio": reached, "limits": limits,
-                   "rounds": failed.rounds + best.rounds, "rows": best.rows}
+    reached = None if best is None else max([best.ratio, *best.robust_ratios])
+    certificate = {"solver": solver, "margin_program": failed.status, "margin": margin, "focus_lobes": lobes,
+                   "smallest_ratio": reached, "largest_refused": refused, "limits": limits,
+                   "energy_bound": options.convex.energy_bound,
+                   "peak_voltage_at_smallest": None if best is None else best.peak_voltage}
+    if best is None:
+        certificate["status"] = "infeasible"
+        return PlanError(f"no drive on this basis reaches the focus within {limits}, even without the margin: "
+                         f"lengthen the focus time or raise the limits", None, margin, certificate)
     if lobes > margin:
         certificate["status"] = "infeasible"
         return PlanError(f"the {margin:g} margin cannot be held: the focus's own side lobes at T_F are "
-                         f"{lobes:.3f} of its peak, on every drive that builds it (smallest ratio reached: "
-                         f"{_ratio_words(reached)})", reached if reached is not None else lobes, margin, certificate)
-    if reached is None:
-        certificate["status"] = "infeasible"
-        return PlanError(f"no drive on this basis reaches the focus within {limits} (the program is "
-                         f"{best.status} even without the margin): lengthen the focus time or raise the limits",
-                         None, margin, certificate)
-    if reached <= margin:
+                         f"{lobes:.3f} of its peak, on every drive that builds it (the smallest ratio a drive "
+                         f"within {limits} reaches: {reached:.3f})", reached, margin, certificate)
+    if reached <= margin * (1 + 1e-4):
         certificate["status"] = "solver failure"
         return PlanError(f"{solver} failed on the margin program ({failed.status}) though a drive within "
-                         f"{limits} reaches {reached:.3f} <= {margin:g}: try another solver (ConvexOptions.solver, "
-                         f"one of {', '.join(SOLVERS)})", reached, margin, certificate)
+                         f"{limits} reaches {reached:.3f}: try another solver (ConvexOptions.solver, one of "
+                         f"{', '.join(SOLVERS)})", reached, margin, certificate)
     certificate["status"] = "infeasible"
-    return PlanError(f"the {margin:g} margin cannot be held within {limits}: the smallest ratio the least-ratio "
-                     f"program reaches is {reached:.3f} ({best.rows} rows, {solver})", reached, margin, certificate)
-
-
-def _ratio_words(ratio) -> str:
-    return "none, the least-ratio program did not solve" if ratio is None else f"{ratio:.3f}"
+    return PlanError(f"the {margin:g} margin cannot be held within {limits}: the smallest ratio a drive reaches "
+                     f"is {reached:.3f} ({refused:.3f} refused: infeasible, or past "
+                     f"{options.convex.energy_bound:g} times the focus's own least energy)", reached, margin,
+                     certificate)

@@ -145,12 +145,13 @@ class Plan:
         """``max |w(x, T_F)|`` of the planned field (m/s)."""
         return float(np.max(np.abs(self.reference)))
 
-    def check_times(self) -> np.ndarray:
-        """Instants of the dense margin check (s): from ``T_F - 4 ms`` to the end of the shot,
-        16 per period of the fastest kept mode (a sampled sine's peak is then missed by < 2%)."""
+    def check_times(self, whole_shot: bool = False) -> np.ndarray:
+        """Instants of the dense margin check (s): from ``T_F - 4 ms`` (``whole_shot``: from the
+        start) to the end of the shot, 16 per period of the fastest kept mode (a sampled sine's
+        peak is then missed by < 2%)."""
         f_max = np.max(self.model.frequencies[self.modes])
-        return np.arange(max(0.0, self.focus_time - CHECK_BEFORE), self.duration,
-                         1 / (CHECK_POINTS_PER_PERIOD * f_max))
+        start = 0.0 if whole_shot else max(0.0, self.focus_time - CHECK_BEFORE)
+        return np.arange(start, self.duration, 1 / (CHECK_POINTS_PER_PERIOD * f_max))
 
     def whole_model_margin(self) -> float:
         """Margin ratio of the field the voltages drive on every mode of the model (the exact
@@ -203,6 +204,17 @@ class Planner(ABC):
         """The plan that builds ``dec``'s reduced field at ``focus_time`` (s) under ``options``
         (margin, voltage and slew limits...); :class:`PlanError` when none meets them."""
 
+    def feasible(self, dec: Decomposition, focus_time: float, options: PlanOptions) -> bool:
+        """Whether :meth:`plan` would find a plan (bisections ask this many times); by default by
+        planning. A planner whose refusal costs more than its answer (a certificate) says it cheaper."""
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", DecouplingWarning)
+                self.plan(dec, focus_time, options)
+        except PlanError:
+            return False
+        return True
+
 
 def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptions(),
          progress: bool = False) -> Plan:
@@ -218,31 +230,24 @@ def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptio
 def min_focus_time(dec: Decomposition, options: PlanOptions, lower: float = 1e-3, upper: float = 0.2,
                    rel_tol: float = 0.02) -> tuple[float, Plan]:
     """Shortest focus time (s) between ``lower`` and ``upper`` whose plan meets ``options``' voltage
-    limit (and margin), by bisection to ``rel_tol``: for the convex planner, whose refusal is a
-    proof for its basis, the exact bound of that basis.
+    limit (and margin), by bisection to ``rel_tol`` on the planner's :meth:`Planner.feasible`: for
+    the convex planner, the exact bound of its basis.
 
     Returns the focus time (s) and its plan; raises :class:`PlanError` when even ``upper`` fails.
     """
-    def attempt(tf):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", DecouplingWarning)
-                return plan(dec, tf, options)
-        except PlanError:
-            return None
-
-    best = attempt(upper)
-    if best is None:
+    planner = get_planner(options.planner)
+    if not planner.feasible(dec, upper, options):
         raise PlanError(f"no focus time up to {upper * 1e3:g} ms meets the limits")
     lo, hi = lower, upper
     while hi - lo > rel_tol * hi:
         mid = 0.5 * (lo + hi)
-        found = attempt(mid)
-        if found is None:
-            lo = mid
+        if planner.feasible(dec, mid, options):
+            hi = mid
         else:
-            hi, best = mid, found
-    return hi, best
+            lo = mid
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DecouplingWarning)
+        return hi, plan(dec, hi, options)
 
 
 def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanOptions = PlanOptions(),

@@ -18,12 +18,18 @@ class _Lazy(Planner):
         self._planner = None
 
     def plan(self, dec, focus_time, options, progress=False):
+        return self._loaded().plan(dec, focus_time, options, progress)
+
+    def feasible(self, dec, focus_time, options):
+        return self._loaded().feasible(dec, focus_time, options)
+
+    def _loaded(self) -> Planner:
         if self._planner is None:
             import importlib
 
             module, cls = self._where
             self._planner = getattr(importlib.import_module(module), cls)()
-        return self._planner.plan(dec, focus_time, options, progress)
+        return self._planner
 
 
 @hookimpl
