@@ -86,7 +86,7 @@ def timescales() -> dict:
 
     from modalctl.loops.shot import loop_parts
     from modalctl.model.scenes import load_scene
-    from modalctl.options import LoopOptions, PlanOptions
+    from modalctl.options import THESIS_PLAN, LoopOptions
     from modalctl.plan.decompose import decompose
     from modalctl.plan.planner import plan
 
@@ -98,7 +98,7 @@ def timescales() -> dict:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             shot = plan(decompose(model, target(model, shape, center=f"{centres[0]}m", **params), modes or "auto"),
-                        tf, PlanOptions(sample_rate=500e3))
+                        tf, THESIS_PLAN.but(sample_rate=500e3))
         design = loop_parts(shot, LoopOptions(control_rate=20e3)).design
         rise = 1e3 / (shot.kappa * model.damping[shot.modes] * model.omega[shot.modes])
         rise_and_loops = found.setdefault(scene, ([], []))

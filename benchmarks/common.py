@@ -105,9 +105,9 @@ def target(model, shape: str, **params):
 
 def open_loop(model, shape, device, focus_time: float, **plan):
     """An open-loop shot through :func:`modalctl.run.run`, the path ``modalctl run`` takes, with the
-    plan options ``plan`` (:class:`modalctl.options.PlanOptions`' fields); its
-    :class:`modalctl.run.ShotResult`."""
-    from modalctl.options import PlanOptions, RunOptions
+    plan options ``plan`` (:class:`modalctl.options.PlanOptions`' fields, over the thesis's method
+    :data:`modalctl.options.THESIS_PLAN`); its :class:`modalctl.run.ShotResult`."""
+    from modalctl.options import THESIS_PLAN, RunOptions
     from modalctl.run import run
 
-    return run(model, shape, device, RunOptions(focus_time, PlanOptions(**plan)))
+    return run(model, shape, device, RunOptions(focus_time, THESIS_PLAN.but(**plan)))

@@ -44,7 +44,7 @@ from modalctl.experiments.focus import Bench, run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
 from modalctl.loops.realtime import keep_memory  # noqa: E402
 from modalctl.model.scenes import load_scene  # noqa: E402
-from modalctl.options import LoopOptions, PlanOptions  # noqa: E402
+from modalctl.options import THESIS_PLAN, LoopOptions  # noqa: E402
 from modalctl.plan.decompose import decompose  # noqa: E402
 from modalctl.plan.planner import plan  # noqa: E402
 
@@ -101,7 +101,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     model = load_scene("thesis-al-cc", 211)
     shape = target(model, "sinc", width="18mm", center="24mm")
-    shot = plan(decompose(model, shape, "auto"), 0.025, PlanOptions(sample_rate=FS))
+    shot = plan(decompose(model, shape, "auto"), 0.025, THESIS_PLAN.but(sample_rate=FS))
     truth = perturb(model, Perturbation(drift=0.01, damping_error=0.2))
     open_tau = [run_focus(truth, shot, shape, bench=Bench(seed=s), closed=False).tau for s in SEEDS]
     discrete = control.sample_system(state_space(truth), 1 / FS, "zoh")

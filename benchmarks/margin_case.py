@@ -23,7 +23,7 @@ from modalctl.hil.sim_device import SimDevice
 from modalctl.model.metrics import margin_ratio
 from modalctl.model.propagate import Plant
 from modalctl.model.scenes import load_scene, thesis_tables
-from modalctl.options import PlanOptions
+from modalctl.options import THESIS_PLAN
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import PlanError, plan
 from modalctl.report import plot_spacetime
@@ -101,7 +101,7 @@ def main() -> None:
         plot_spacetime(shot, RESULTS / f"margin_{slug}.png")
     floor, at = steady_floor(model, shape, case["modes_used"], tf)
     dec16 = decompose(model, target(model, "sinc", width="10mm", center="24mm"), 16)
-    plan16 = median_seconds(lambda: plan(dec16, tf, PlanOptions()), 5)
+    plan16 = median_seconds(lambda: plan(dec16, tf, THESIS_PLAN), 5)
     data = {"case": "al_sinc18_p4_margin", "margin": margin, "rows": rows, "plan_seconds_16_modes_median": plan16,
             "steady_envelope_floor": {"ratio": floor, "t_minus_tf_s": at},
             "strongest_unplanned_modes": [{"mode": int(m), "hz": f, "off_target_share": v} for m, f, v in culprits],

@@ -26,7 +26,7 @@ from modalctl.experiments.focus import Bench, run_focus  # noqa: E402
 from modalctl.hil.scenario import Perturbation, perturb  # noqa: E402
 from modalctl.loops.supervisor import Supervisor  # noqa: E402
 from modalctl.model.scenes import load_scene  # noqa: E402
-from modalctl.options import LoopOptions, PlanOptions  # noqa: E402
+from modalctl.options import THESIS_PLAN, LoopOptions  # noqa: E402
 from modalctl.plan.decompose import decompose  # noqa: E402
 from modalctl.plan.planner import plan  # noqa: E402
 
@@ -68,7 +68,7 @@ def main() -> None:
     warnings.simplefilter("ignore")
     model = load_scene("thesis-al-cc", 211)
     shape = target(model, "sinc", width="18mm", center="24mm")
-    shot = plan(decompose(model, shape, "auto"), 0.025, PlanOptions(sample_rate=FS))
+    shot = plan(decompose(model, shape, "auto"), 0.025, THESIS_PLAN.but(sample_rate=FS))
     peak = float(np.abs(shot.voltages()).max())
     rows = []
     for drift in DRIFTS:

@@ -89,14 +89,14 @@ def focus_shot(truth, tracker: str) -> dict:
     the error of each planned mode's estimate at the focus."""
     import warnings
 
-    from modalctl.options import PlanOptions
+    from modalctl.options import THESIS_PLAN
     from modalctl.plan.decompose import decompose
     from modalctl.plan.planner import plan
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         shot = plan(decompose(truth, target(truth, "sinc", width="18mm", center="24mm"), "auto"), 0.025,
-                    PlanOptions(sample_rate=500e3))
+                    THESIS_PLAN.but(sample_rate=500e3))
     run = run_tracking(truth, None, step(0.0, 0.01), 0.025, TrackingOptions(snr_db=40.0, tracker=tracker), plan=shot)
     error = run.estimates[:, -1] / run.truth[:, -1] - 1
     rows = [{"mode": int(k + 1), "error_at_focus": float(e), "status": str(s)}
@@ -113,7 +113,7 @@ def shot_to_shot(truth) -> list[dict]:
     from modalctl.hil.scenario import Perturbation
     from modalctl.hil.sim_device import SimDevice
     from modalctl.identify.trackers import updated_model
-    from modalctl.options import PlanOptions
+    from modalctl.options import THESIS_PLAN
     from modalctl.plan.decompose import decompose
     from modalctl.plan.planner import plan
 
@@ -122,7 +122,7 @@ def shot_to_shot(truth) -> list[dict]:
     for label, drift in (("+1% every mode", 0.01), ("-2% every mode", -0.02)):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            shot = plan(decompose(truth, shape, "auto"), 0.025, PlanOptions(sample_rate=500e3))
+            shot = plan(decompose(truth, shape, "auto"), 0.025, THESIS_PLAN.but(sample_rate=500e3))
             run = run_tracking(truth, None, step(0.0, drift), 0.029, TrackingOptions(snr_db=40.0, tracker="pole"),
                                plan=shot)
             drifted = Perturbation(drift=drift, snr_db=40, seed=2)

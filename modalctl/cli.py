@@ -18,11 +18,11 @@ from modalctl.loops.realtime import keep_memory
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.scenes import SCENES, UnknownScene, load_scene
 from modalctl.model.shape import ParamError, parse_params
-from modalctl.options import LEARN_FROM, LoopOptions, PlanOptions, RunOptions, SurveyOptions
+from modalctl.options import LEARN_FROM, THESIS_PLAN, LoopOptions, PlanOptions, RunOptions, SurveyOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import PlanError
 from modalctl.plan.reduction import ReductionError
-from modalctl.plugin.manager import PluginError, get_controller, get_shape, plugin_table, shape_generators
+from modalctl.plugin.manager import PluginError, get_controller, get_planner, get_shape, plugin_table, shape_generators
 
 from .units import UnitError, number_type, parse_quantity, quantity_type
 
@@ -96,10 +96,21 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("run", help="plan a focus, play it on a device (default sim://) and measure it")
     _add_target(p)
     p.add_argument("--focus-time", required=True, type=quantity_type("s", "focus-time"), help="T_F, e.g. 25ms")
-    p.add_argument("--margin", type=quantity_type("1", "margin", low=0, high=1),
-                   help="transient margin to plan for, e.g. 0.5 or 50%% (runs the envelope optimizer)")
+    p.add_argument("--planner", default=PLAN.planner,
+                   help="planner plugin; convex: the least-energy drive that holds the margin on every sample of "
+                        f"the whole model (a QP); envelope: the thesis's exponential envelopes ({PLAN.planner})")
+    p.add_argument("--margin", type=_margin, default=PLAN.margin,
+                   help="transient margin off target, before and after T_F, as a share of the focus peak, "
+                        f"e.g. 0.5 or 50%%, or none ({_margin_words(PLAN.margin)})")
+    p.add_argument("--robust-drift", type=quantity_type("1", "robust-drift", low=0, low_open=False),
+                   default=PLAN.robust_drift,
+                   help="convex planner: hold the margin on every truth whose resonances lie within this band "
+                        "of the model's, e.g. 1%% (0)")
     p.add_argument("--voltage-limit", type=quantity_type("V", "voltage-limit", low=0),
                    help="largest drive voltage, e.g. 100V")
+    p.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=0),
+                   help="largest output slope, e.g. 2e6V/s: planned for by the convex planner, and the "
+                        "closed loop's feedback clipped to it")
     p.add_argument("--margin-on", choices=("whole", "kept"), default=PLAN.margin_on,
                    help="where --margin must hold: whole (the field the voltages drive on every mode of the "
                         "model; they are corrected near the focus until it does, up to a minute) or kept (the "
@@ -119,8 +130,6 @@ def build_parser() -> argparse.ArgumentParser:
                            "which closes them itself (no link budget)")
     loop.add_argument("--control-rate", type=quantity_type("Hz", "control-rate", low=0), default=LOOP.control_rate,
                       help=f"loop rate, a divisor of the sample rate ({LOOP.control_rate / 1e3:g}kHz)")
-    loop.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=0),
-                      help="largest output slope, e.g. 2e6V/s")
     loop.add_argument("--authority", type=number_type(float, "authority", low=0, low_open=False),
                       default=LOOP.authority,
                       help=f"largest feedback per mode, as a fraction of its planned drive ({LOOP.authority:g})")
@@ -147,6 +156,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
                    help="shape parameter with units (default width=18mm center=24mm)")
     p.add_argument("--focus-time", type=quantity_type("s", "focus-time"), default=25e-3, help="T_F (25ms)")
+    p.add_argument("--planner", default=THESIS_PLAN.planner,
+                   help=f"planner plugin ({THESIS_PLAN.planner}: the sweeps measure the loops on the thesis's plan)")
     p.add_argument("--margin", type=quantity_type("1", "margin", low=0, high=1),
                    help="transient margin to plan for")
     p.add_argument("--vary", action="append", default=[], type=_parse_param, metavar="NAME=V1,V2,...",
@@ -264,12 +275,25 @@ def _decompose(args) -> int:
     return 0
 
 
+def _margin(text: str) -> float | None:
+    """``--margin``: a share of the focus peak in (0, 1], or ``none``."""
+    if text.strip().lower() == "none":
+        return None
+    return quantity_type("1", "margin", low=0, high=1)(text)
+
+
+def _margin_words(margin: float | None) -> str:
+    return "none" if margin is None else f"{margin:g}"
+
+
 def _run_options(args, out: Path) -> RunOptions:
     """The typed options of ``modalctl run``."""
     if args.learn and args.loop == "open":
         raise ParamError("--learn needs a closed loop (--loop closed or board)")
-    plan = PlanOptions(modes=args.modes, tau_min=args.tau_target or PLAN.tau_min, margin=args.margin,
-                       margin_on=args.margin_on, voltage_limit=args.voltage_limit, kappa=args.kappa,
+    get_planner(args.planner)  # an unknown planner is bad input, refused before the device opens
+    plan = PlanOptions(planner=args.planner, modes=args.modes, tau_min=args.tau_target or PLAN.tau_min,
+                       margin=args.margin, margin_on=args.margin_on, voltage_limit=args.voltage_limit,
+                       slew_limit=args.slew_limit, robust_drift=args.robust_drift, kappa=args.kappa,
                        brake=not args.no_brake, after=args.after, sample_rate=args.sample_rate)
     loop = None if args.loop == "open" else LoopOptions(
         control_rate=args.control_rate, controller=args.controller, on_board=args.loop == "board",
@@ -303,7 +327,14 @@ def _run(args) -> int:
     model, shape = _model_and_shape(args)
     with _open_device(args, model, shape) as device:
         out.mkdir(parents=True, exist_ok=True)
-        shot = run(model, shape, device, options)
+        try:
+            shot = run(model, shape, device, options)
+        except PlanError as refused:  # a result: why, on disk beside where the report would be
+            (out / "refusal.json").write_text(json.dumps(
+                {"refused": str(refused), "needed": refused.needed, "limit": refused.limit,
+                 "certificate": refused.certificate, "planner": options.plan.planner}, indent=2,
+                default=_jsonable))
+            raise
         return _report(args, model, shot, device, out)
 
 
@@ -339,10 +370,17 @@ def _report(args, model, shot, device, out) -> int:
           f"truth: {m['truth']}")
     print(f"modes {m['modes_used']}")
     print(f"tau {m['tau']:.4f} (model {m['tau_model']:.4f})  tau_norm {m['tau_norm']:.4f}  NRMSE {m['nrmse']:.4f}")
+    held = m["margin_planned"]
+    if held is not None and held != m["margin_criterion"]:
+        band = (m["program"] or {}).get("robust_drift")
+        print(f"the closed loop's plan holds {held:g} (headroom for its feedback)"
+              + (f" over +-{100 * band:g}% of resonance drift" if band else ""))
+    planned = (f"planned {m['whole_model_margin_ratio']:.3f} on every sample of the whole model"
+               if m["planner"] == "convex" else f"planned {m['predicted_margin_ratio']:.3f} on the kept modes, "
+               f"{m['whole_model_margin_ratio']:.3f} predicted on the whole model")
     print(f"margin ratio {m['margin_ratio']:.3f} measured ({'met' if m['margin_ok'] else 'NOT met'}: criterion "
-          f"{m['margin_criterion']:g}); planned {m['predicted_margin_ratio']:.3f} on the kept modes, "
-          f"{m['whole_model_margin_ratio']:.3f} predicted on the whole model; peak voltage {m['peak_voltage']:.1f} V")
-    print(f"plan {m['plan_seconds']:.2f} s, device {m['sim_seconds']:.2f} s")
+          f"{m['margin_criterion']:g}); {planned}; peak voltage {m['peak_voltage']:.1f} V")
+    print(f"plan {m['plan_seconds']:.2f} s ({m['planner']} planner), device {m['sim_seconds']:.2f} s")
     if "loop" in m:
         lp = m["loop"]
         where = "on the board" if lp.get("on_board") else f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update"
@@ -407,12 +445,14 @@ def _sweep(args) -> int:
     if unknown:
         raise ParamError(f"unknown method(s) {', '.join(sorted(unknown))}; choose from {', '.join(METHODS)}")
     get_shape(args.shape)  # a clear error before any work
+    get_planner(args.planner)
     if args.points is None and args.scene in SCENES and isinstance(SCENES[args.scene].default_points, int):
         args.points = 211  # a beam: a fifth of the scenes' grids draws their modes and runs five times faster
     load_scene(args.scene, args.points)
     params = tuple(args.param) or (("width", "18mm"), ("center", "24mm"))
     base = Case(args.scene, args.shape, params, args.focus_time, "open", args.drift, args.damping_error,
-                snr_db=args.snr, margin=args.margin, points=args.points, control_rate=args.control_rate,
+                snr_db=args.snr, planner=args.planner, margin=args.margin, points=args.points,
+                control_rate=args.control_rate,
                 sample_rate=args.sample_rate, controller=args.controller, seed=args.seed)
     get_controller(args.controller)
     cases = [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
@@ -565,6 +605,8 @@ def main(argv=None) -> int:
         return DEVICE
     except PlanError as exc:
         print(f"modalctl {args.command}: no plan: {exc}", file=sys.stderr)
+        if exc.certificate:
+            print(f"certificate: {json.dumps(exc.certificate, default=_jsonable)}", file=sys.stderr)
         return UNREACHABLE
     except ReductionError as exc:
         print(f"modalctl {args.command}: {exc}", file=sys.stderr)

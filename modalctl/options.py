@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "ConvexOptions", "PlanOptions", "LoopOptions", "RunOptions", "SurveyOptions",
-           "LEARN_FROM"]
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "ConvexOptions", "PlanOptions", "THESIS_PLAN", "LoopOptions", "RunOptions",
+           "SurveyOptions", "LEARN_FROM"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
@@ -65,6 +65,10 @@ class ConvexOptions(_Options):
     robust_focus : float
         With a robust band, the focus each drifted truth must still reach at the target's peak, as
         a share of the planned one (its margin is then held below that share of the margin).
+    leak : float or None
+        How much each mode the plan leaves out may move at T_F, as a share of the focus peak at
+        its largest point; None: still (the field at T_F is then exactly the reduced one). A
+        structure with few actuators and many fast modes cannot hold them all still cheaply.
     energy_bound : float
         The margin program gives up once its least energy provably exceeds this many times the
         least energy of the focus alone (a dual bound: DAQP's ``fval_bound``); the margin plans
@@ -81,6 +85,7 @@ class ConvexOptions(_Options):
     rounds: int = 40
     solver: str = "daqp"
     robust_focus: float = 0.9
+    leak: float | None = None
     energy_bound: float = 1000.0
 
 
@@ -91,7 +96,8 @@ class PlanOptions(_Options):
     Attributes
     ----------
     planner : str
-        Planner plugin: ``envelope`` (the thesis's method) or ``convex``.
+        Planner plugin: ``convex`` (the least-energy drive under the margin on every sample of the
+        whole model: ``benchmarks/margin_planner.py``) or ``envelope`` (the thesis's method).
     modes : "auto", "all", int or tuple of int
         ``"auto"``: the smallest set meeting ``tau_min`` (more modes are added, up to
         ``added_modes``, when the margin fails on it); ``"all"``; an int N: the N lowest modes; a
@@ -101,7 +107,8 @@ class PlanOptions(_Options):
     added_modes : int
         Modes ``"auto"`` may add for the margin (the thesis's second remedy, chapter 5).
     margin : float or None
-        Transient margin to plan for (``THESIS_MARGIN`` is the thesis's); None plans without one.
+        Transient margin to plan for, a share of the focus peak (the thesis's 0.5 by default);
+        None plans without one.
     margin_on : {"whole", "kept"}
         Where the margin must hold: on the field the voltages drive on every mode of the model
         (the voltages are corrected near the focus until it does), or on the kept modes'
@@ -134,11 +141,11 @@ class PlanOptions(_Options):
     convex : ConvexOptions
     """
 
-    planner: str = "envelope"
+    planner: str = "convex"
     modes: str | int | tuple = "auto"
     tau_min: float = DEFAULT_TAU
     added_modes: int = 4
-    margin: float | None = None
+    margin: float | None = THESIS_MARGIN
     margin_on: str = "whole"
     voltage_limit: float | None = None
     slew_limit: float | None = None
@@ -160,6 +167,11 @@ class PlanOptions(_Options):
         if self.margin is not None and not 0 < self.margin <= 1:
             raise ValueError(f"margin must lie in (0, 1], got {self.margin!r}")
 
+
+#: The thesis's open-loop method: envelopes at kappa = 1 reaching their targets at T_F, no margin.
+#: The baseline of every study of something else than the planner (transports, loops, sweeps,
+#: the thesis's tables), so that they measure what they study on the plan the thesis played.
+THESIS_PLAN = PlanOptions(planner="envelope", margin=None)
 
 
 @dataclass(frozen=True)
@@ -189,6 +201,13 @@ class LoopOptions(_Options):
         Periods without a measurement before the supervisor stops the shot.
     drift : float
         Relative resonance error the controller should expect.
+    margin_headroom, margin_drift : float
+        Under a margin, a closed loop's plan holds ``1 - margin_headroom`` of it, over a band of
+        ``margin_drift`` of resonance drift (the convex planner's robust band, at least): the plan
+        keeps the margin on a drifted truth, the loops restore the focus, and their feedback spends
+        the headroom. ``benchmarks/margin_planner.py`` (thesis-al-cc, 9 modes, 1% and 2% drift, 20%
+        more damping, 40 dB): the plan alone at 0.5 measured 0.52-0.54; robust alone 0.52-0.55, the
+        feedback breaking what open loop held (0.50); both, tau >= 0.955 and ratios 0.47-0.49.
     lockin_fraction, lockin_image : float
         Each mode's lock-in corner: this fraction of the gap to its nearest mode, at most
         ``lockin_image`` times its frequency. The reference goes through the same lock-in as the
@@ -215,6 +234,8 @@ class LoopOptions(_Options):
     slew_limit: float | None = None
     watchdog: int = 1
     drift: float = 0.01
+    margin_headroom: float = 0.1
+    margin_drift: float = 0.02
     lockin_fraction: float = 1.0
     lockin_image: float = 0.5
     leak_limit: float = 0.5
@@ -224,6 +245,8 @@ class LoopOptions(_Options):
             raise ValueError(f"control_rate must be positive, got {self.control_rate!r} Hz")
         if self.authority < 0 or self.latency < 0 or self.watchdog < 1:
             raise ValueError("authority and latency must be zero or more, watchdog at least one period")
+        if not 0 <= self.margin_headroom < 1 or self.margin_drift < 0:
+            raise ValueError("margin_headroom must lie in [0, 1) and margin_drift be zero or more")
 
 
 
@@ -254,6 +277,15 @@ class RunOptions(_Options):
     learn: str | None = None
     log: Path | None = None
     progress: bool = False
+
+    @property
+    def planned(self) -> PlanOptions:
+        """What the planner is asked: the plan options, but, for a closed loop under a margin, the
+        loop's headroom taken off the margin and its drift band added (see :class:`LoopOptions`)."""
+        if self.loop is None or self.plan.margin is None:
+            return self.plan
+        return self.plan.but(margin=self.plan.margin * (1 - self.loop.margin_headroom),
+                             robust_drift=max(self.plan.robust_drift, self.loop.margin_drift))
 
     def __post_init__(self):
         if not self.focus_time > 0:

@@ -49,9 +49,12 @@ class ShotMetrics:
     tau_model : float
         What the kept modes can draw at best.
     margin_ratio : float
-        Largest off-target velocity over the scanned instants, over the focus peak.
+        Largest off-target velocity over the whole shot (16 instants per period of the fastest kept
+        mode), over the focus peak.
     margin_criterion : float
         The margin asked, or the thesis's 0.5.
+    margin_planned : float or None
+        The margin the planner held (a closed loop's plan keeps headroom for its feedback).
     margin_ok : bool
     worst_off_target : dict
         ``x_m`` (the point, or None) and ``t_s`` of the margin's worst sample.
@@ -86,6 +89,7 @@ class ShotMetrics:
     tau_model: float
     margin_ratio: float
     margin_criterion: float
+    margin_planned: float | None
     margin_ok: bool
     worst_off_target: dict
     peak_voltage: float
@@ -299,7 +303,7 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
         the device's rails still apply.
     """
     caps, voltage_limit = _configure(device, options)
-    plan_options = options.plan.but(voltage_limit=voltage_limit)
+    plan_options = options.planned.but(voltage_limit=voltage_limit)
     dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     learning = None
     if options.learn is not None:
@@ -365,7 +369,7 @@ def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device
              options: RunOptions, start: float) -> ShotResult:
     """Scan the field the shot made and measure it: the one place where a shot's metrics are made."""
     model, focus_time, shape = dec.model, the_plan.focus_time, dec.shape
-    times = np.union1d(the_plan.check_times(), [focus_time])
+    times = np.union1d(the_plan.check_times(whole_shot=True), [focus_time])  # the margin: before and after
     try:
         field = device.scan(times, scan_indices(caps, model.grid.points, device.url))
     except DeviceError as exc:
@@ -394,7 +398,8 @@ def _metrics(dec, the_plan, capture, scan, device, options, sim_seconds) -> Shot
     return ShotMetrics(
         tau=float(tau(shape.values, focus)), tau_norm=float(tau_norm(shape.values, focus)),
         nrmse=float(nrmse(shape.values, focus)), tau_model=float(tau(shape.values, dec.reconstruction)),
-        margin_ratio=ratio, margin_criterion=criterion, margin_ok=bool(ratio <= criterion),
+        margin_ratio=ratio, margin_criterion=criterion, margin_planned=options.planned.margin,
+        margin_ok=bool(ratio <= criterion),
         worst_off_target={"x_m": model.grid.points[worst[0]].tolist() if worst[0] >= 0 else None, "t_s": worst[1]},
         peak_voltage=float(np.max(np.abs(capture.voltages))),
         modes_used=[int(model.labels[k]) for k in the_plan.modes],

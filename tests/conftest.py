@@ -23,7 +23,7 @@ def sinc18():
 
     from modalctl.model.scenes import load_scene
     from modalctl.model.shape import parse_params
-    from modalctl.options import PlanOptions
+    from modalctl.options import THESIS_PLAN
     from modalctl.plan.decompose import decompose
     from modalctl.plan.planner import plan
     from modalctl.plugin.manager import get_shape
@@ -33,4 +33,4 @@ def sinc18():
     shape = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return model, shape, plan(decompose(model, shape, "auto"), 0.025, PlanOptions(sample_rate=500e3))
+        return model, shape, plan(decompose(model, shape, "auto"), 0.025, THESIS_PLAN.but(sample_rate=500e3))

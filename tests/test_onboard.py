@@ -16,14 +16,14 @@ from modalctl.loops.recorder import read_log
 from modalctl.loops.shot import loop_parts
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
-from modalctl.options import LoopOptions, PlanOptions
+from modalctl.options import THESIS_PLAN, LoopOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import plan
 from modalctl.plugin.manager import get_shape
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--quiet", "--no-plots",
-       "--json"]
+       "--json", "--planner", "envelope", "--margin", "none"]  # the board recomputes envelope references
 TRUTH = ["--drift", "1%", "--damping-error", "20%", "--snr", "40"]  # sim://'s own; the boards' emulators take it
 PERTURBATION = Perturbation(drift=0.01, damping_error=0.2, snr_db=40.0)
 
@@ -40,7 +40,7 @@ def shot(model):
     field = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        the_plan = plan(decompose(model, field, 9), 0.025, PlanOptions(sample_rate=500e3))
+        the_plan = plan(decompose(model, field, 9), 0.025, THESIS_PLAN.but(sample_rate=500e3))
     return the_plan, loop_parts(the_plan, LoopOptions(control_rate=20e3), 1e-4)
 
 
@@ -139,3 +139,10 @@ def test_a_board_that_dies_during_its_own_shot_is_noticed_at_once(model, tmp_pat
     assert code == 3
     err = capsys.readouterr().err
     assert "stopped answering during its shot" in err or "no heartbeat" in err
+
+
+def test_loops_on_the_board_refuse_a_convex_plan_before_the_shot(tmp_path, capsys):
+    """The board recomputes envelope references from their parameters; a convex plan has none to send."""
+    default = [a for a in RUN if a not in ("--planner", "envelope", "--margin", "none")]
+    code = main([*default, "--loop", "board", "--control-rate", "20kHz", "--out", str(tmp_path)])
+    assert code == 2 and "--planner envelope" in capsys.readouterr().err

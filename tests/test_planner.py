@@ -1,4 +1,7 @@
-"""Planner: dispatch, decoupling, the envelope optimizer and its refusals, checked by simulation."""
+"""Planner: dispatch, decoupling, the envelope optimizer and its refusals, checked by simulation.
+
+The thesis's method is the envelope planner without a margin; the defaults (the convex planner
+under the margin) are tested in ``test_convex.py``."""
 
 import warnings
 from dataclasses import replace
@@ -10,7 +13,7 @@ from modalctl.hil.sim_device import SimDevice
 from modalctl.model.metrics import margin_ratio
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
-from modalctl.options import PlanOptions, RunOptions
+from modalctl.options import THESIS_PLAN, RunOptions
 from modalctl.plan.decompose import decompose
 from modalctl.plan.dispatch import DecouplingWarning, decoupling, dispatch, mobility
 from modalctl.plan.envelope import gap_bounds, planned_field
@@ -18,10 +21,12 @@ from modalctl.plan.planner import MarginWarning, PlanError, min_focus_time, plan
 from modalctl.plugin.manager import get_shape
 from modalctl.run import run
 
+ENVELOPE = THESIS_PLAN
+
 
 def open_loop(model, shape, focus_time, **plan):
     """An open-loop shot of ``shape`` on a perfect simulator of ``model``."""
-    return run(model, shape, SimDevice(model), RunOptions(focus_time, PlanOptions(**plan)))
+    return run(model, shape, SimDevice(model), RunOptions(focus_time, ENVELOPE.but(**plan)))
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +65,7 @@ def test_decoupling_leakage_is_the_mobility_ratio(beam):
 def test_too_fast_envelope_warns(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with pytest.warns(DecouplingWarning, match="Eq 2.30"):
-        plan(dec, 0.025, PlanOptions(kappa=60.0))
+        plan(dec, 0.025, ENVELOPE.but(kappa=60.0))
 
 
 def test_plan_reproduces_the_reduced_field_on_a_perfect_plant(beam):
@@ -75,9 +80,9 @@ def test_thesis_margin_case_kappa_one_fails_and_optimizer_meets_it(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
-        first = plan(dec, 0.025)
+        first = plan(dec, 0.025, ENVELOPE)
         with pytest.warns(MarginWarning, match="whole model predicts 0.7"):  # the fast turns leak (margin_case.md)
-            best = plan(dec, 0.025, PlanOptions(margin=0.5, margin_on="kept"))
+            best = plan(dec, 0.025, ENVELOPE.but(margin=0.5, margin_on="kept"))
     assert first.info["predicted_margin_ratio"] > 0.6  # the thesis: about two thirds
     # independent check of the optimized plan: its modal field evaluated densely by numpy
     t = np.arange(0.021, 0.029, 1e-6)
@@ -106,14 +111,14 @@ def test_optimizer_plan_meets_the_margin_when_simulated(beam):
 def test_voltage_limit_refusal_says_how_much(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with pytest.raises(PlanError, match="above the 1 V limit") as err:
-        plan(dec, 0.002, PlanOptions(voltage_limit=1.0))
+        plan(dec, 0.002, ENVELOPE.but(voltage_limit=1.0))
     assert err.value.needed > 1.0
 
 
 def test_unreachable_margin_is_refused_with_the_best_ratio(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with pytest.raises(PlanError, match="margin") as err:
-        plan(dec, 0.025, PlanOptions(margin=0.1, margin_on="kept"))
+        plan(dec, 0.025, ENVELOPE.but(margin=0.1, margin_on="kept"))
     assert err.value.needed > 0.1 and err.value.limit == 0.1
 
 
@@ -123,17 +128,17 @@ def test_uncontrollable_needed_mode_is_refused(beam):
     crippled = replace(beam, actuator_gains=gains)
     dec = decompose(crippled, sinc(crippled, "18mm", "24mm"), 9)
     with pytest.raises(PlanError, match="mode 3: no actuator can drive it"):
-        plan(dec, 0.025)
+        plan(dec, 0.025, ENVELOPE)
 
 
 def test_min_focus_time_is_the_shortest_within_the_limit(beam):
     dec = decompose(beam, sinc(beam, "18mm", "24mm"), 9)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
-        tf, best = min_focus_time(dec, PlanOptions(voltage_limit=5.0), lower=5e-4, upper=0.02, rel_tol=0.02)
+        tf, best = min_focus_time(dec, ENVELOPE.but(voltage_limit=5.0), lower=5e-4, upper=0.02, rel_tol=0.02)
         assert best.info["peak_voltage"] <= 5.0 * 1.001
         with pytest.raises(PlanError):
-            plan(dec, tf * 0.9, PlanOptions(voltage_limit=5.0))
+            plan(dec, tf * 0.9, ENVELOPE.but(voltage_limit=5.0))
 
 
 def test_cross_talk_compensation_puts_every_kept_mode_on_target():

@@ -62,13 +62,37 @@ def test_closed_loop_rate_must_divide_the_sample_rate(capsys, tmp_path):
 
 
 def test_focus_time_too_short_for_the_voltage_limit(capsys, tmp_path):
-    code, _, err = run(capsys, *RUN, "--focus-time", "1ms", "--voltage-limit", "2V", "--out", str(tmp_path))
+    code, _, err = run(capsys, *RUN, "--focus-time", "1ms", "--voltage-limit", "2V", "--out", str(tmp_path / "c"))
+    assert code == 1 and "no drive on this basis reaches the focus within voltage 2 V" in err
+    code, _, err = run(capsys, *RUN, "--focus-time", "1ms", "--voltage-limit", "2V", "--planner", "envelope",
+                       "--margin", "none", "--out", str(tmp_path / "e"))
     assert code == 1 and "above the 2 V limit" in err
 
 
-def test_margin_no_plan_can_meet(capsys, tmp_path):
-    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--modes", "9", "--margin", "10%", "--out", str(tmp_path))
+def test_margin_no_envelope_can_meet(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--modes", "9", "--margin", "10%", "--planner",
+                       "envelope", "--out", str(tmp_path))
     assert code == 1 and "no envelope meets the 0.1 margin" in err and "best plan found reaches" in err
+
+
+def test_the_convex_planner_holds_the_margin_and_its_refusal_is_written_with_the_certificate(capsys, tmp_path):
+    code, out, err = run(capsys, *RUN, "--focus-time", "25ms", "--modes", "9", "--planner", "convex",
+                         "--margin", "0.5", "--out", str(tmp_path / "ok"))
+    assert code == 0, err
+    metrics = json.loads((tmp_path / "ok" / "metrics.json").read_text())
+    assert metrics["planner"] == "convex" and metrics["margin_ratio"] <= 0.5 + 1e-6  # measured on the sim's scan
+    assert "on every sample of the whole model" in out
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--modes", "9", "--planner", "convex",
+                       "--margin", "0.2", "--out", str(tmp_path / "no"))
+    refusal = json.loads((tmp_path / "no" / "refusal.json").read_text())
+    assert code == 1 and "side lobes" in err and "certificate:" in err
+    assert refusal["certificate"]["status"] == "infeasible" and refusal["needed"] > 0.2
+
+
+def test_an_unknown_planner_exits_2_before_any_work(capsys, tmp_path):
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--planner", "magic", "--out", str(tmp_path / "r"))
+    assert code == 2 and "unknown planner 'magic'" in err and "convex" in err
+    assert not (tmp_path / "r").exists()
 
 
 def test_uncontrollable_mode_the_shape_needs(capsys, tmp_path):
@@ -89,6 +113,7 @@ def test_bad_units_exit_2(capsys, tmp_path):
 
 @pytest.mark.parametrize("option, value, words", [
     ("--margin", "-0.2", "margin must lie in (0, 1]"), ("--margin", "1.5", "margin must lie in (0, 1]"),
+    ("--margin", "0", "margin must lie in (0, 1]"), ("--robust-drift", "-1%", "robust-drift must lie in [0, inf)"),
     ("--latency", "-1", "latency must lie in [0, inf)"), ("--voltage-limit", "0V", "voltage-limit must lie in (0"),
     ("--watchdog", "0", "watchdog must lie in [1"), ("--latency", "x", "invalid latency value")])
 def test_out_of_range_options_exit_2_before_any_work(capsys, tmp_path, option, value, words):

@@ -15,7 +15,8 @@ from modalctl.model.scenes import load_scene
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--loop", "closed",
-       "--control-rate", "2kHz", "--quiet", "--no-plots", "--json"]
+       "--control-rate", "2kHz", "--quiet", "--no-plots", "--json",
+       "--planner", "envelope", "--margin", "none"]  # the transport under test, not the planner
 TRUTH = ["--drift", "1%", "--damping-error", "20%", "--snr", "40"]
 PERTURBATION = Perturbation(drift=0.01, damping_error=0.2, snr_db=40.0)
 
@@ -55,8 +56,10 @@ def test_the_emulated_board_plays_the_simulators_truth(model, tmp_path, capsys, 
 
 
 def test_open_loop_over_serial_measures_what_sim_measures(model, tmp_path, capsys):
-    """The thesis's set-up over the wire: upload, trigger, the synchronized record, the bench's scan."""
-    open_run = [a for a in RUN if a not in ("closed", "--control-rate", "2kHz")]
+    """The thesis's set-up over the wire (upload, trigger, the synchronized record, the bench's scan),
+    planned by the default planner under the thesis's margin."""
+    open_run = [a for a in RUN if a not in ("closed", "--control-rate", "2kHz", "--planner", "envelope", "--margin",
+                                            "none")]
     open_run[open_run.index("--loop") + 1:open_run.index("--loop") + 1] = ["open"]
     assert main([*open_run, *TRUTH, "--out", str(tmp_path / "sim")]) == 0
     with SerialBoardEmulator(model, PERTURBATION) as board:
@@ -82,7 +85,8 @@ def test_a_lost_frame_is_skipped_and_the_watchdog_rides_it_out(model, tmp_path, 
 
 def test_a_board_that_stops_answering_ends_the_shot_with_the_log_on_disk(model, tmp_path, capsys):
     with SerialBoardEmulator(model, PERTURBATION, faults={"silent_after": 20}) as board:
-        code = main([*RUN[:-1], "--transport", f"serial://{board.path}?timeout=0.1", "--out", str(tmp_path)])
+        code = main([*(a for a in RUN if a != "--json"), "--transport", f"serial://{board.path}?timeout=0.1",
+                     "--out", str(tmp_path)])
     assert code == 3
     err = capsys.readouterr().err
     assert "watchdog" in err or "stopped sending" in err or "no answer" in err
@@ -92,8 +96,8 @@ def test_a_board_that_stops_answering_ends_the_shot_with_the_log_on_disk(model, 
 
 def test_the_link_budget_refuses_a_rate_the_line_cannot_carry(model, tmp_path, capsys):
     with SerialBoardEmulator(model, PERTURBATION) as board:
-        code = main([*RUN[:-1], "--control-rate", "20kHz", "--transport", f"serial://{board.path}?baud=115200",
-                     "--out", str(tmp_path)])
+        code = main([*(a for a in RUN if a != "--json"), "--control-rate", "20kHz",
+                     "--transport", f"serial://{board.path}?baud=115200", "--out", str(tmp_path)])
     assert code == 3 and "sustains" in capsys.readouterr().err
     assert 2000 < link_budget(3_000_000, 7) < 2200  # two 75-byte frames per period, 10 bits a byte
 

@@ -70,7 +70,7 @@ def test_tracked_model_plans_a_better_focus(sinc18):
     from modalctl.hil.scenario import Perturbation
     from modalctl.hil.sim_device import SimDevice
     from modalctl.identify.trackers import updated_model
-    from modalctl.options import RunOptions
+    from modalctl.options import THESIS_PLAN, RunOptions
     from modalctl.run import run
 
     model, shape, shot = sinc18
@@ -78,7 +78,7 @@ def test_tracked_model_plans_a_better_focus(sinc18):
         warnings.simplefilter("ignore")
         tracked = run_tracking(model, None, step(0.0, 0.01), 0.029, TrackingOptions(snr_db=40.0, tracker="pole"),
                                plan=shot)
-        taus = [run(m, shape, SimDevice(model, Perturbation(drift=0.01)), RunOptions(0.025)).metrics.tau
+        taus = [run(m, shape, SimDevice(model, Perturbation(drift=0.01)), RunOptions(0.025, THESIS_PLAN)).metrics.tau
                 for m in (model, updated_model(model, tracked.modes, tracked.tracker))]
     assert taus[1] > taus[0] + 0.1
 

@@ -30,7 +30,7 @@ from modalctl.hil.scenario import Perturbation
 from modalctl.hil.sim_device import SimDevice
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
-from modalctl.options import LoopOptions, PlanOptions, RunOptions
+from modalctl.options import THESIS_PLAN, LoopOptions, RunOptions
 from modalctl.plan.planner import plan_shot
 from modalctl.plugin.manager import get_shape
 from modalctl.run import run
@@ -60,6 +60,9 @@ class Case:
     latency : int
         Extra control periods the board takes to use a command.
     snr_db : float or None
+    planner : str
+        Planner plugin (the thesis's envelopes by default: the sweeps measure the feedback on the
+        plan the thesis played).
     margin : float or None
         Transient margin the plan is optimized for.
     modes : int or None
@@ -85,7 +88,8 @@ class Case:
     finger: float = 0.0
     latency: int = 0
     snr_db: float | None = 40.0
-    margin: float | None = None
+    planner: str = THESIS_PLAN.planner
+    margin: float | None = THESIS_PLAN.margin
     modes: int | None = None
     points: int | None = 211
     control_rate: float = 20e3
@@ -100,7 +104,8 @@ class Case:
 
     def options(self) -> RunOptions:
         """The shot's options: the plan's, and the loops' unless open loop."""
-        plan = PlanOptions(modes=self.modes or "auto", margin=self.margin, sample_rate=self.sample_rate)
+        plan = THESIS_PLAN.but(planner=self.planner, modes=self.modes or "auto", margin=self.margin,
+                               sample_rate=self.sample_rate)
         loop = None if self.method == "open" else LoopOptions(
             control_rate=self.control_rate, controller=self.controller, authority=self.authority, latency=self.latency)
         return RunOptions(self.focus_time, plan, loop, LEARNING[self.method])
