@@ -106,6 +106,10 @@ class PlanOptions(_Options):
         The accuracy ``"auto"`` must reach.
     added_modes : int
         Modes ``"auto"`` may add for the margin (the thesis's second remedy, chapter 5).
+    fill_gaps : bool
+        ``"auto"`` also keeps every mode below its highest (a closed loop under a margin: a mode
+        inside the band the target does not need is otherwise held still by the feed-forward
+        alone, which drift and the neighbours' feedback upset; kept, its loop holds it).
     margin : float or None
         Transient margin to plan for, a share of the focus peak (the thesis's 0.5 by default);
         None plans without one.
@@ -145,6 +149,7 @@ class PlanOptions(_Options):
     modes: str | int | tuple = "auto"
     tau_min: float = DEFAULT_TAU
     added_modes: int = 4
+    fill_gaps: bool = False
     margin: float | None = THESIS_MARGIN
     margin_on: str = "whole"
     voltage_limit: float | None = None
@@ -281,11 +286,12 @@ class RunOptions(_Options):
     @property
     def planned(self) -> PlanOptions:
         """What the planner is asked: the plan options, but, for a closed loop under a margin, the
-        loop's headroom taken off the margin and its drift band added (see :class:`LoopOptions`)."""
+        loop's headroom taken off the margin, its drift band added and the gaps of an automatic
+        mode set filled (see :class:`LoopOptions` and :attr:`PlanOptions.fill_gaps`)."""
         if self.loop is None or self.plan.margin is None:
             return self.plan
         return self.plan.but(margin=self.plan.margin * (1 - self.loop.margin_headroom),
-                             robust_drift=max(self.plan.robust_drift, self.loop.margin_drift))
+                             robust_drift=max(self.plan.robust_drift, self.loop.margin_drift), fill_gaps=True)
 
     def __post_init__(self):
         if not self.focus_time > 0:

@@ -156,3 +156,19 @@ def test_cross_talk_compensation_puts_every_kept_mode_on_target():
     assert np.max(np.abs(raw.coefficients()["measured"][:13] - want)) > 0.2 * scale
     np.testing.assert_allclose(fixed.coefficients()["measured"][:13], want, atol=1e-3 * scale)
     assert fixed.metrics.tau == pytest.approx(fixed.metrics.tau_model, abs=2e-3)
+
+
+def test_a_closed_loop_under_the_margin_fills_the_gaps_of_an_automatic_mode_set(beam):
+    """The 18 mm sinc at 24 mm needs modes 1-3 and 5-8; mode 4, inside that band, would be held
+    still by the feed-forward alone, so a closed loop under the margin keeps it for its loop."""
+    from modalctl.options import LoopOptions
+    from modalctl.plan.planner import plan_shot
+
+    shape = sinc(beam, "18mm", "24mm")
+    closed = RunOptions(0.025, THESIS_PLAN.but(margin=0.5), LoopOptions())
+    assert closed.planned.fill_gaps and not RunOptions(0.025, THESIS_PLAN.but(margin=0.5)).planned.fill_gaps
+    alone = decompose(beam, shape, "auto").modes_used
+    assert 3 not in alone and alone.max() == 7
+    dec, _ = plan_shot(beam, shape, 0.025, THESIS_PLAN.but(fill_gaps=True))
+    np.testing.assert_array_equal(dec.modes_used, np.arange(8))
+    assert "gaps filled" in dec.rule

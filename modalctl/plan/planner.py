@@ -254,14 +254,18 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
               progress: bool = False) -> tuple[Decomposition, Plan]:
     """Decompose ``shape`` on ``model``, keep the modes it needs and plan its focus.
 
-    When the margin fails on an automatic mode set (``options.modes == "auto"``), the next strongest
-    modes are added, up to ``options.added_modes``: the margin is part of what a scene needs, and
-    more modes give the planner more freedom to cancel the off-target field (the thesis's second
-    remedy, chapter 5).
+    An automatic mode set (``options.modes == "auto"``) keeps every mode below its highest (in
+    frequency) with ``options.fill_gaps``. When the margin fails on it, the next strongest modes are
+    added, up to ``options.added_modes``: the margin is part of what a scene needs, and more modes give the
+    planner more freedom to cancel the off-target field (the thesis's second remedy, chapter 5).
     """
+    auto = options.modes == "auto"
     modes = list(options.modes) if isinstance(options.modes, tuple) else options.modes
     dec = decompose(model, shape, modes, tau_min=options.tau_min)
-    grow = options.modes == "auto" and options.margin is not None
+    if auto and options.fill_gaps:
+        below = model.frequencies <= model.frequencies[dec.modes_used].max()
+        dec = _keeping(dec, np.flatnonzero(below), "the gaps filled for the loops")
+    grow = auto and options.margin is not None
     for added in range(options.added_modes + 1):
         try:
             return dec, plan(dec, focus_time, options, progress)
@@ -269,8 +273,15 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
             left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
             if not grow or exc.limit != options.margin or left.size == 0 or added == options.added_modes:
                 raise
-            chosen = np.sort(np.append(dec.modes_used, left[np.argmax(np.abs(dec.coefficients[left]))]))
-            dec = replace(dec, modes_used=chosen, reconstruction=reconstruct(dec.coefficients[chosen],
-                                                                             dec.model.shapes[chosen]),
-                          rule=dec.rule + f", plus modes for the {options.margin:g} margin")
+            chosen = np.append(dec.modes_used, left[np.argmax(np.abs(dec.coefficients[left]))])
+            dec = _keeping(dec, chosen, f"plus modes for the {options.margin:g} margin")
     raise AssertionError("unreachable: the last attempt returns or raises")
+
+
+def _keeping(dec: Decomposition, modes: np.ndarray, why: str) -> Decomposition:
+    """``dec`` keeping ``modes`` (positional indices, sorted here), ``why`` added to its rule."""
+    chosen = np.unique(modes)
+    if np.array_equal(chosen, dec.modes_used):
+        return dec
+    reconstruction = reconstruct(dec.coefficients[chosen], dec.model.shapes[chosen])
+    return replace(dec, modes_used=chosen, reconstruction=reconstruction, rule=f"{dec.rule}, {why}")
