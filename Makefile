@@ -28,7 +28,7 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
-BENCHMARKS := modes_needed decompose_speed plant_speed margin_case thesis_table focus_time \
+BENCHMARKS := modes_needed decompose_speed plant_speed margin_case margin_planner thesis_table focus_time \
 	identify_accuracy identify_limits identify_cycle tracking closed_loop closed_maps authority saturation stability \
 	control_rate control_step protocol_speed link_rates
 
