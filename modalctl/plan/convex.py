@@ -722,7 +722,11 @@ def _refusal(program: Program, options: PlanOptions, failed: Solution) -> PlanEr
                        (("voltage", options.voltage_limit, "V"), ("slew", options.slew_limit, "V/s"))
                        if value is not None) or "no voltage limit"
     reached = None if best is None else max([best.ratio, *best.robust_ratios])
+    leak = options.convex.leak
+    at_focus = ("the modes left out still at T_F (ConvexOptions.leak lets them move)" if leak is None else
+                f"the modes left out moving by at most {leak:g} of the focus peak at T_F")
     certificate = {"solver": solver, "margin_program": failed.status, "margin": margin, "focus_lobes": lobes,
+                   "unkept_modes_at_focus": "still" if leak is None else f"leak {leak:g}",
                    "smallest_ratio": reached, "largest_refused": refused, "limits": limits,
                    "energy_bound": options.convex.energy_bound,
                    "peak_voltage_at_smallest": None if best is None else best.peak_voltage}
@@ -741,7 +745,7 @@ def _refusal(program: Program, options: PlanOptions, failed: Solution) -> PlanEr
                          f"{limits} reaches {reached:.3f}: try another solver (ConvexOptions.solver, one of "
                          f"{', '.join(SOLVERS)})", reached, margin, certificate)
     certificate["status"] = "infeasible"
-    return PlanError(f"the {margin:g} margin cannot be held within {limits}: the smallest ratio a drive reaches "
-                     f"is {reached:.3f} ({refused:.3f} refused: infeasible, or past "
+    return PlanError(f"the {margin:g} margin cannot be held within {limits}, {at_focus}: the smallest ratio a "
+                     f"drive reaches is {reached:.3f} ({refused:.3f} refused: infeasible, or past "
                      f"{options.convex.energy_bound:g} times the focus's own least energy)", reached, margin,
                      certificate)
