@@ -120,10 +120,11 @@ def _model_shape(scene: str, points, shape: str, params: tuple):
 
 @lru_cache(maxsize=8)
 def _nominal_plan(case: Case):
-    """The plan on the model, made once for every truth of a sweep."""
+    """The plan on the model, made once for every truth of a sweep (a closed loop's with its
+    headroom: :attr:`modalctl.options.RunOptions.planned`)."""
     model, target = _model_shape(case.scene, case.points, case.shape, case.params)
     options = case.options()
-    return plan_shot(model, target, options.focus_time, options.plan)
+    return plan_shot(model, target, options.focus_time, options.planned)
 
 
 def run_case(case: Case) -> dict:
@@ -134,8 +135,7 @@ def run_case(case: Case) -> dict:
     model, target = _model_shape(case.scene, case.points, case.shape, case.params)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        planned = _nominal_plan(replace(case, method="open", drift=0.0, damping_error=0.0, finger=0.0, latency=0,
-                                        seed=0))
+        planned = _nominal_plan(replace(case, drift=0.0, damping_error=0.0, finger=0.0, latency=0, seed=0))
         peak = int(np.argmax(np.abs(target.values)))
         perturbation = Perturbation(drift=case.drift, damping_error=case.damping_error, snr_db=case.snr_db,
                                     seed=case.seed, finger=case.finger,
