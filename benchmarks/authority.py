@@ -84,7 +84,7 @@ def report(data: dict, path) -> None:
     md = ["# Feedback authority: tau and peak voltage against how much a loop may add", "",
           "Command: `python benchmarks/authority.py`. A loop's command is capped at the authority times its "
           "mode's planned drive at that moment. SNR 40 dB on every truth; drifts with damping +20%; the finger "
-          "at the shape's centre. DAC 500 kHz, PI loops at 20 kHz. tau (peak voltage) measured as `modalctl run` measures (the simulated vibrometer at the plan's check instants, its noise included).",
+          "at the shape's centre. DAC 500 kHz, PI loops at 20 kHz. tau (peak voltage) measured as `modalctl run` measures (the simulated vibrometer over the whole shot, its noise included).",
           "", "| experiment | truth | open loop | " + " | ".join(f"authority {a:g}" for a in authorities) + " |",
           "|---|---|---|" + "---|" * len(authorities)]
     for e in dict.fromkeys(r["experiment"] for r in rows):
