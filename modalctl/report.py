@@ -116,10 +116,11 @@ def _window(shot, half: float = 4e-3):
 
 
 def plot_spacetime(shot, path, finger=None) -> Path:
-    """Space-time field around the focus with margin violations in red (thesis Figs 5.3-5.5).
+    """Space-time field around the focus with margin violations in red (thesis Figs 5.3-5.5), and
+    the largest on- and off-target |w| over the whole shot (where the margin is measured).
 
-    1-D grids: velocity over x and t. 2-D grids: the largest off-target and on-target |w| over time.
-    ``finger``: where a finger rests (m, a point), marked on the field.
+    1-D grids: velocity over x and t (T_F +- 4 ms) beside the whole shot's curves. 2-D grids: the
+    curves alone. ``finger``: where a finger rests (m, a point), marked on the field.
     """
     m, grid = shot.metrics, shot.decomposition.model.grid
     tf, sel = shot.plan.focus_time, _window(shot)
@@ -146,12 +147,17 @@ def plot_spacetime(shot, path, finger=None) -> Path:
                           textcoords="offset points", ha="right", fontsize=8)
         fig.colorbar(im, ax=left, label="velocity (mm/s)")
         left.set_title("field; red: off-target above the margin, green: target zone", fontsize=9)
-    off = np.max(np.abs(field[~mask]), axis=0) if (~mask).any() else np.zeros(t.size)
-    on = np.max(np.abs(field[mask]), axis=0)
+    whole = (shot.times - tf) * 1e3
+    off = np.max(np.abs(shot.field[~mask]), axis=0) if (~mask).any() else np.zeros(whole.size)
+    on = np.max(np.abs(shot.field[mask]), axis=0)
     ax = left if grid.dim != 1 else right
-    ax.plot((t - tf) * 1e3, on * 1e3, "C2", lw=1, label="max |w| in target zone")
-    ax.plot((t - tf) * 1e3, off * 1e3, "C0", lw=1, label="max |w| off target")
+    ax.plot(whole, on * 1e3, "C2", lw=1, label="max |w| in target zone")
+    ax.plot(whole, off * 1e3, "C0", lw=1, label="max |w| off target")
     ax.axhline(limit * 1e3, color="red", ls="--", lw=1, label=f"margin {m.margin_criterion:g} x focus peak")
+    worst = int(np.argmax(off))
+    ax.plot(whole[worst], off[worst] * 1e3, "kx", label=f"worst off target ({whole[worst]:+.2f} ms)")
+    if grid.dim == 1:
+        ax.axvspan((t[0] - tf) * 1e3, (t[-1] - tf) * 1e3, color="0.9", lw=0, zorder=0, label="left: T_F +- 4 ms")
     ax.set_ylabel("velocity (mm/s)")
     ax.legend(frameon=False, fontsize=8)
     for a in (left, right):
