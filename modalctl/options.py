@@ -69,6 +69,10 @@ class ConvexOptions(_Options):
         How much each mode the plan leaves out may move at T_F, as a share of the focus peak at
         its largest point; None: still (the field at T_F is then exactly the reduced one). A
         structure with few actuators and many fast modes cannot hold them all still cheaply.
+    reference : {None, "envelope"}
+        None: the program's basis is the whole drive. ``"envelope"``: the drive is the thesis's
+        envelope plan (kappa = 1, no margin) plus a correction on the basis, and the program
+        minimizes the correction's energy (``benchmarks/margin_planner.py`` measures both).
     energy_bound : float
         The margin program gives up once its least energy provably exceeds this many times the
         least energy of the focus alone (a dual bound: DAQP's ``fval_bound``); the margin plans
@@ -86,7 +90,12 @@ class ConvexOptions(_Options):
     solver: str = "daqp"
     robust_focus: float = 0.9
     leak: float | None = None
+    reference: str | None = None
     energy_bound: float = 1000.0
+
+    def __post_init__(self):
+        if self.reference not in (None, "envelope"):
+            raise ValueError(f"reference must be None or 'envelope', got {self.reference!r}")
 
 
 @dataclass(frozen=True)

@@ -178,3 +178,24 @@ def test_other_solvers_reach_the_same_plan(case, margin_plan, solver):
     assert other.info["whole_model_margin_ratio"] <= 0.5 * (1 + 1e-6)
     energy = [np.sum(p.voltages() ** 2) for p in (other, margin_plan)]
     assert energy[0] == pytest.approx(energy[1], rel=2e-2)
+
+
+def test_a_correction_to_the_thesis_envelopes_holds_the_margin_and_the_focus(case):
+    """The other basis: the kappa = 1 envelope plan plus a correction the program finds. Played on
+    the exact plant independently: the margin on every sample of the whole model, the focus state
+    the decomposition's, and the drive is the envelopes' voltages with the correction added."""
+    from modalctl.options import ConvexOptions
+    from modalctl.plan.envelope import plan_envelopes
+
+    model, shape, dec = case
+    corrected = plan(dec, TF, convex(convex=ConvexOptions(reference="envelope")))
+    envelopes = plan_envelopes(dec, TF, PlanOptions(planner="envelope", margin=None, sample_rate=FS))
+    np.testing.assert_allclose(corrected.voltages() - corrected.correction, envelopes.voltages(), atol=1e-12)
+    assert np.all(corrected.kappa == 1.0) and np.abs(corrected.correction).max() > 1.0  # it did correct
+    field = whole_field(model, corrected.voltages())
+    focus = int(round(TF * FS))
+    assert ratio(field, shape.target_mask, focus) <= 0.5 + 1e-9
+    assert ratio(whole_field(model, envelopes.voltages()), shape.target_mask, focus) > 0.6  # what it corrected
+    velocity = Plant(model, FS).simulate(corrected.voltages()[:, :focus + 1])[:, focus]
+    np.testing.assert_allclose(model.shapes.T @ velocity, dec.reconstruction,
+                               atol=1e-8 * np.abs(dec.reconstruction).max())

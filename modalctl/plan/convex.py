@@ -59,6 +59,7 @@ from modalctl.options import ConvexOptions, PlanOptions
 from .decompose import Decomposition
 from .dispatch import dispatch
 from .drive import BumpFamily, HatFamily, SplineDrive, hann, hat
+from .envelope import plan_envelopes
 from .planner import Plan, PlanError, Planner, controllable
 
 __all__ = ["ConvexPlanner", "Basis", "Responses", "Program", "Solution", "plan_convex", "SOLVERS"]
@@ -205,6 +206,7 @@ class Responses:
     def __init__(self, model: ModalModel, basis: Basis, sample_rate: float, focus_time: float):
         p = poles(model)
         self.e, g0, _ = hold_coefficients(p, 1 / sample_rate, "zoh")
+        self.g0 = g0
         self.r, self.q = p / (p - p.conj()), 1 / (p - p.conj())
         self.basis, self.model = basis, model
         gains = model.actuator_gains
@@ -258,6 +260,13 @@ class Responses:
             z_re, _ = self._at(self.hat_table, n - self.basis.hats.offsets)  # (K, 1, j)
             blocks.append((self.gains[:, :, None] * z_re[:, 0][:, None, :]).reshape(self.e.size, -1))
         return np.hstack(blocks) * self.basis.scale
+
+    def driven(self, volts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Every mode's velocity and displacement at samples 0..N under ``volts`` (a, N) from rest,
+        by the same recursion: two arrays (K, N + 1)."""
+        force = np.hstack([self.gains @ volts, np.zeros((self.gains.shape[0], 1))])
+        z = np.stack([lfilter([0, g], [1, -e], f) for g, e, f in zip(self.g0, self.e, force)])
+        return 2 * (self.r[:, None] * z).real, 2 * (self.q[:, None] * z).real
 
     def velocity(self, n: int) -> np.ndarray:
         """Every mode's velocity at sample ``n`` per unit of each column, shape (K, columns)."""
@@ -342,9 +351,13 @@ class Program:
     target_mask : ndarray of bool, shape (n,)
     focus_time : float
     options : PlanOptions
+    offset : ndarray, shape (a, N), or None
+        Voltages the program corrects (the drive is ``offset`` plus the basis's); None: the basis
+        is the whole drive.
     """
 
-    def __init__(self, model: ModalModel, modes, targets, target_mask, focus_time: float, options: PlanOptions):
+    def __init__(self, model: ModalModel, modes, targets, target_mask, focus_time: float, options: PlanOptions,
+                 offset: np.ndarray | None = None):
         tic = _time.perf_counter()
         self.model, self.options = model, options
         self.margin = np.inf if options.margin is None else float(options.margin)  # none: no margin rows
@@ -368,9 +381,15 @@ class Program:
         self.focus_lobes = max(lobes, 0.0)  # every drive's ratio is at least this
         self.plants = [model] + [_drifted(model, s) for s in _drifts(options.robust_drift)]
         self.responses = [Responses(m, self.basis, self.fs, self.focus_time) for m in self.plants]
+        self.offset = None if offset is None else np.asarray(offset, float)[:, :self.samples]
+        driven = [r.driven(self.offset) for r in self.responses] if offset is not None else None
+        self.offset_velocity = None if driven is None else [v for v, _ in driven]  # (K, N + 1) per plant
+        self.offset_displacement = None if driven is None else driven[0][1][:, self.focus]
         self.seconds = {"tables": _time.perf_counter() - tic, "solve": 0.0, "check": 0.0, "rows": 0.0}
         self.cuts = {}  # every margin row found so far, per unit margin: later solves start from them
+        self.cut_offsets = {}  # the offset's part of each, in the same units
         self.limit_cuts = {}  # and every voltage and slew row
+        self.limit_offsets = {}
 
     # -- rows ------------------------------------------------------------------------------------
     def equality(self) -> tuple[np.ndarray, np.ndarray]:
@@ -379,11 +398,28 @@ class Program:
         velocity zero; rows scaled by the largest target."""
         nominal = self.responses[0]
         scale = np.max(np.abs(self.targets))
-        still = np.arange(self.model.n_modes) if self.options.convex.leak is None else self.modes
+        still = self._still()
         displacement = nominal.displacement(self.focus)[self.modes] * self.model.omega[self.modes, None]
         a = np.vstack([nominal.velocity(self.focus)[still], displacement]) / scale
         b = np.r_[self.velocity_at_focus[still], np.zeros(self.modes.size)] / scale
+        if self.offset is not None:  # what the offset already does at T_F
+            b = b - np.r_[self.offset_velocity[0][still, self.focus],
+                          self.offset_displacement[self.modes] * self.model.omega[self.modes]] / scale
         return a, b
+
+    def _offset(self, plant: int, weights: np.ndarray, n: int) -> float:
+        """``weights @`` the offset's modal velocity on ``plant`` at sample ``n`` (0 without one)."""
+        return 0.0 if self.offset is None else float(weights @ self.offset_velocity[plant][:, n])
+
+    def _add_margin_row(self, rows: _Rows, key, margin: float) -> None:
+        """The cut ``key`` as the row ``|cut x + its offset| <= aim margin`` (units of the bound)."""
+        scale = self.options.convex.aim * margin
+        shift = self.cut_offsets.get(key, 0.0) / scale
+        rows.add(key, self.cuts[key] / scale, -1.0 - shift, 1.0 - shift)
+
+    def _add_limit_row(self, rows: _Rows, key) -> None:
+        shift = self.limit_offsets.get(key, 0.0)
+        rows.add(key, self.limit_cuts[key], -1.0 - shift, 1.0 - shift)
 
     def _fixed_rows(self, rows: _Rows) -> None:
         """The rows every round has: with a ``leak``, each left-out mode's share of the field at T_F
@@ -395,11 +431,15 @@ class Program:
             reach = np.abs(self.model.shapes[left]).max(axis=1)
             velocity = self.responses[0].velocity(self.focus)[left]
             for k, row in zip(left, velocity * reach[:, None] / (opts.leak * self.peak)):
-                rows.add(("leak", int(k)), row, -1.0, 1.0)
+                unit = np.zeros(self.model.n_modes)
+                unit[k] = reach[left == k][0] / (opts.leak * self.peak)
+                shift = self._offset(0, unit, self.focus)
+                rows.add(("leak", int(k)), row, -1.0 - shift, 1.0 - shift)
         sign = np.sign(self.focus_field[self.peak_point])
         for s, responses in enumerate(self.responses[1:], start=1):
-            row = sign * (self.model.shapes[:, self.peak_point] @ responses.velocity(self.focus))
-            rows.add(("floor", s), row / (opts.robust_focus * self.peak), 1.0, np.inf)
+            weights = sign * self.model.shapes[:, self.peak_point] / (opts.robust_focus * self.peak)
+            row = weights @ responses.velocity(self.focus)
+            rows.add(("floor", s), row, 1.0 - self._offset(s, weights, self.focus), np.inf)
 
     def _margin_bound(self, plant: int, margin: float) -> float:
         """The off-target bound on ``plant``: ``margin`` of the focus peak (of its floor, drifted)."""
@@ -409,10 +449,15 @@ class Program:
     # -- the check ---------------------------------------------------------------------------------
     def play(self, x: np.ndarray) -> tuple[np.ndarray, list]:
         """The drive's voltages (a, N) and every plant's modal velocities (K, N) on it."""
+        volts = self.correction(x) if self.offset is None else self.offset + self.correction(x)
+        return volts, [Plant(m, self.fs).simulate(volts) for m in self.plants]
+
+    def correction(self, x: np.ndarray) -> np.ndarray:
+        """The basis's voltages (a, N) for the columns ``x``: the whole drive, or what the program
+        adds to its offset."""
         drive = self.basis.drive(x, self.focus_time, self.fs)
         t = np.arange(self.samples) / self.fs + 0.5 / self.fs
-        volts = self.basis.weights @ drive.forces(t) + drive.channels(t, self.basis.weights.shape[0])
-        return volts, [Plant(m, self.fs).simulate(volts) for m in self.plants]
+        return self.basis.weights @ drive.forces(t) + drive.channels(t, self.basis.weights.shape[0])
 
     def off_target(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
         """The largest off-target |w| at every sample, shape (N,), exactly wherever it may exceed
@@ -450,7 +495,8 @@ class Program:
                     if key in rows.keys:
                         continue
                     self.cuts[key] = shapes[:, i] @ velocity_rows / self._margin_bound(s, 1.0)
-                    rows.add(key, self.cuts[key] / (aim * margin), -1.0, 1.0)
+                    self.cut_offsets[key] = self._offset(s, shapes[:, i], int(n)) / self._margin_bound(s, 1.0)
+                    self._add_margin_row(rows, key, margin)
                     added += 1
         return added
 
@@ -469,12 +515,15 @@ class Program:
             for n in peaks[top[peaks] > limit]:
                 channel = int(np.argmax(size[:, n]))
                 row = self.basis.voltage_rows(channel, np.array([n + step]), self.fs, self.focus_time)[0]
+                fixed = 0.0 if self.offset is None else self.offset[channel, n + step]
                 if step:
                     row = row - self.basis.voltage_rows(channel, np.array([n]), self.fs, self.focus_time)[0]
+                    fixed -= 0.0 if self.offset is None else self.offset[channel, n]
                 key = (kind, channel, int(n))
                 if key not in rows.keys:
                     self.limit_cuts[key] = row / (aim * limit)
-                    rows.add(key, self.limit_cuts[key], -1.0, 1.0)
+                    self.limit_offsets[key] = fixed / (aim * limit)
+                    self._add_limit_row(rows, key)
                     added += 1
         return added
 
@@ -489,12 +538,12 @@ class Program:
         a_eq, b_eq = self.equality()
         rows = _Rows()
         self._fixed_rows(rows)
-        for key, cut in self.cuts.items() if np.isfinite(margin) else ():  # true of every program of this
-            rows.add(key, cut / (opts.aim * margin), -1.0, 1.0)  # focus: start from them
-        for key, cut in self.limit_cuts.items():
-            rows.add(key, cut, -1.0, 1.0)
+        for key in self.cuts if np.isfinite(margin) else ():  # true of every program of this focus:
+            self._add_margin_row(rows, key, margin)  # start from them
+        for key in self.limit_cuts:
+            self._add_limit_row(rows, key)
         qp = _QP(self.basis.energy(self.fs), np.zeros(self.basis.size), a_eq, b_eq, rows)
-        bound = opts.energy_bound * qp.least_energy()
+        bound = opts.energy_bound * self.focus_energy(qp)
         history, status, x, duals = [], "not solved", np.zeros(self.basis.size), None
         for round_ in range(1, opts.rounds + 1):
             tic = _time.perf_counter()
@@ -517,6 +566,18 @@ class Program:
             self._new_margin_rows(rows, velocities, tops, margin)
             self.seconds["rows"] += _time.perf_counter() - tic
         return self._solution(x, status, history, len(rows), start)
+
+    def focus_energy(self, qp: _QP) -> float:
+        """The least energy of the focus alone on the basis (the scale of ``energy_bound``): with an
+        offset, of the whole drive, not of a correction the offset may almost spare."""
+        if self.offset is None:
+            return qp.least_energy()
+        whole = np.r_[self.velocity_at_focus[self._still()], np.zeros(self.modes.size)] / np.max(np.abs(self.targets))
+        return replace(qp, b_eq=whole).least_energy()
+
+    def _still(self) -> np.ndarray:
+        """The modes whose velocity at T_F the equalities fix: every one, or the kept ones with a leak."""
+        return np.arange(self.model.n_modes) if self.options.convex.leak is None else self.modes
 
     def _solution(self, x, status, history, rows, start) -> Solution:
         volts, velocities = self.play(x)
@@ -679,24 +740,37 @@ def plan_convex(dec: Decomposition, focus_time: float, options: PlanOptions = Pl
         raise PlanError(f"unknown QP solver {options.convex.solver!r}; known: {', '.join(SOLVERS)}")
     targets = dec.coefficients[modes]
     margin = options.margin
-    program = Program(model, modes, targets, dec.shape.target_mask, focus_time, options)
+    base = _reference(dec, focus_time, options)
+    program = Program(model, modes, targets, dec.shape.target_mask, focus_time, options,
+                      None if base is None else base.voltages())
     solution = program.solve()
     info = {"planner": "convex", "margin_asked": margin, "voltage_limit": options.voltage_limit,
             "slew_limit": options.slew_limit, "robust_drift": options.robust_drift, "after_s": options.after,
-            "program": _summary(program, solution)}
+            "reference": options.convex.reference, "program": _summary(program, solution)}
     if solution.status != "optimal":  # infeasible, or a solver that gave up on an infeasible program
         raise _refusal(program, options, solution)
     if not solution.holds(program.margin, options):
         raise PlanError(f"the convex program stopped after {solution.rounds} rounds at a ratio of "
                         f"{solution.ratio:.4f} and {solution.peak_voltage:.1f} V (the margin or the limits not "
                         f"yet held on every sample): raise ConvexOptions.rounds", solution.ratio, margin)
-    drive = program.basis.drive(solution.x[:program.basis.size], focus_time, options.sample_rate)
     info.update({"predicted_margin_ratio": solution.ratio, "whole_model_margin_ratio": solution.ratio,
                  "robust_margin_ratios": solution.robust_ratios, "peak_voltage": solution.peak_voltage,
                  "peak_slew_v_per_s": solution.peak_slew, "decoupling_worst": None, "decoupling_warnings": [],
                  "plan_seconds": _time.perf_counter() - start})
+    if base is not None:  # the envelope plan, its correction added to its voltages
+        return replace(base, correction=program.correction(solution.x), correction_start=0, info=info)
+    drive = program.basis.drive(solution.x[:program.basis.size], focus_time, options.sample_rate)
     return Plan(model, modes, targets, focus_time, focus_time + options.after, options.sample_rate,
                 program.basis.weights, dec.shape.target_mask, model.shapes[modes].T @ targets, drive, info)
+
+
+def _reference(dec: Decomposition, focus_time: float, options: PlanOptions) -> Plan | None:
+    """The plan a ``reference="envelope"`` program corrects: the thesis's envelopes (kappa = 1, no
+    margin, no limits: the program holds them); None for the whole drive."""
+    if options.convex.reference is None:
+        return None
+    return plan_envelopes(dec, focus_time, options.but(planner="envelope", margin=None, voltage_limit=None,
+                                                       slew_limit=None, robust_drift=0.0))
 
 
 def _summary(program: Program, solution: Solution) -> dict:
