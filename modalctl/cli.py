@@ -13,6 +13,7 @@ import re
 import sys
 from pathlib import Path
 
+from modalctl.hil.scenario import DAMPING_ERROR_MAX, DRIFT_MAX, SNR_MAX
 from modalctl.io.device import DeviceContext, DeviceError, add_transport_options
 from modalctl.loops.realtime import keep_memory
 from modalctl.model.modes import ModalModel, ModelError
@@ -164,9 +165,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a swept parameter and its values: " + ", ".join(SWEPT) + " (one or two)")
     p.add_argument("--methods", default="open,closed,tracked",
                    help="open, closed, tracked, learned (default the first three)")
-    p.add_argument("--drift", type=quantity_type("1", "drift"), default=0.0, help="fixed drift when not swept")
-    p.add_argument("--damping-error", type=quantity_type("1", "damping-error"), default=0.0)
-    p.add_argument("--snr", type=float, default=40.0, help="sensor noise, dB below the focus peak (40)")
+    p.add_argument("--drift", type=quantity_type("1", "drift", low=-DRIFT_MAX, high=DRIFT_MAX), default=0.0,
+                   help="fixed drift when not swept")
+    p.add_argument("--damping-error", type=quantity_type("1", "damping-error", low=-1, high=DAMPING_ERROR_MAX),
+                   default=0.0)
+    p.add_argument("--snr", type=number_type(float, "snr", low=0, high=SNR_MAX, low_open=False), default=40.0,
+                   help="sensor noise, dB below the focus peak (40)")
     p.add_argument("--control-rate", type=quantity_type("Hz", "control-rate"), default=20e3)
     p.add_argument("--sample-rate", type=quantity_type("Hz", "sample-rate"), default=500e3)
     p.add_argument("--controller", default="pi", help="per-mode controller plugin of the closed loops (pi)")

@@ -61,8 +61,15 @@ def parse_quantity(value, unit: str, name: str = "value") -> float:
     Returns
     -------
     float
-        The value in SI units (for ``"1"``: a plain fraction, ``"1%"`` -> 0.01).
+        The value in SI units (for ``"1"``: a plain fraction, ``"1%"`` -> 0.01); always finite.
     """
+    si = _si(value, unit, name)
+    if not math.isfinite(si):  # "1e400mm" overflows to infinity: no quantity is that
+        raise UnitError(f"{name}: {value!r} is not a finite number")
+    return si
+
+
+def _si(value, unit: str, name: str) -> float:
     table = DIMENSIONS[unit]
     if isinstance(value, bool):
         raise UnitError(f"{name}: expected a number with unit {unit!r}, got {value!r}")
@@ -116,7 +123,7 @@ def number_type(kind: type, name: str, *, low: float, high: float = math.inf,
     :func:`quantity_type`."""
     def parse(text: str):
         value = kind(text)  # ValueError: argparse's "invalid <name> value: <text>"
-        if not ((low < value if low_open else low <= value) and value <= high):
+        if not (math.isfinite(value) and (low < value if low_open else low <= value) and value <= high):
             span = f"{'(' if low_open else '['}{low:g}, {high:g}{']' if math.isfinite(high) else ')'}"
             raise argparse.ArgumentTypeError(f"{name} must lie in {span}, got {text!r}")
         return value

@@ -234,3 +234,22 @@ def test_the_device_contract_is_enough_for_a_shot_and_its_defaults_refuse_clearl
         device.phasor_board(1.0, 20e3)
     with device:  # a context manager that closes (the default close releases nothing)
         assert device.url == "bare://"
+
+
+@pytest.mark.parametrize("option, value, words", [
+    ("--snr", "nan", "snr must lie in [0, 200]"), ("--snr", "1e9", "snr must lie in [0, 200]"),
+    ("--snr", "inf", "snr must lie in [0, 200]"), ("--drift-rate", "1e9%/s", "drift-rate must lie in (-10, 10]"),
+    ("--finger", "1e12Ns/m", "finger must lie in [0, 100]"), ("--damping-error", "-100%", "damping-error must lie"),
+    ("--drift", "60%", "drift must lie in (-0.5, 0.5]"), ("--focus-time", "1e400ms", "not a finite number")])
+def test_non_finite_and_unphysical_truths_exit_2(capsys, tmp_path, option, value, words):
+    """Each ended in exit 0 with a NaN or nonsense, or a traceback (issue 26), before the bounds."""
+    with pytest.raises(SystemExit) as exit_:
+        main([*RUN, "--focus-time", "25ms", option, value, "--out", str(tmp_path / "r")])
+    assert exit_.value.code == 2 and words in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_infinite_shape_parameter_exits_2(capsys, tmp_path):
+    code, _, err = run(capsys, "run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param",
+                       "width=1e400mm", "--focus-time", "25ms", "--out", str(tmp_path))
+    assert code == 2 and "is not a finite number" in err

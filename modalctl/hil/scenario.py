@@ -10,7 +10,15 @@ import numpy as np
 from modalctl.model.modes import ModalModel
 from modalctl.model.shape import Shape
 
-__all__ = ["Perturbation", "perturb", "step", "ramp", "scan_noise"]
+__all__ = ["Perturbation", "perturb", "step", "ramp", "scan_noise", "DRIFT_MAX", "DRIFT_RATE_MAX",
+           "DAMPING_ERROR_MAX", "FINGER_MAX", "SNR_MAX"]
+
+# The largest departures a simulated truth may take (bad input beyond them, refused at the edge):
+DRIFT_MAX = 0.5  # a resonance moved by half its frequency is another structure
+DRIFT_RATE_MAX = 10.0  # 1/s: 25% over a 25 ms shot, far past any warming
+DAMPING_ERROR_MAX = 10.0  # eleven times the modelled damping
+FINGER_MAX = 100.0  # N s/m: a hundred times a pressing finger (0.1-1 N s/m)
+SNR_MAX = 200.0  # dB: beyond, the noise is below float64's round-off of the signal
 
 
 @dataclass(frozen=True)

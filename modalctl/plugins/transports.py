@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 
+from modalctl.hil.scenario import DAMPING_ERROR_MAX, DRIFT_MAX, DRIFT_RATE_MAX, FINGER_MAX, SNR_MAX
 from modalctl.io.device import Device, DeviceContext, TransportOptions
 from modalctl.plugin.spec import hookimpl
 from modalctl.units import number_type, quantity_type
@@ -51,21 +52,26 @@ def modalctl_add_options(options: TransportOptions):
     """The simulator's truth: how the structure it simulates differs from the model planned on."""
     group = options.group("sim", "simulator truth (sim:// only)")
     group.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
-    group.add_argument("--drift", type=quantity_type("1", "drift"), default=0.0,
+    group.add_argument("--drift", type=quantity_type("1", "drift", low=-DRIFT_MAX, high=DRIFT_MAX), default=0.0,
                        help="shift of every resonance, e.g. 1%%")
-    group.add_argument("--drift-spread", type=quantity_type("1", "drift-spread"), default=0.0,
+    group.add_argument("--drift-spread", type=quantity_type("1", "drift-spread", low=0, high=DRIFT_MAX, low_open=False),
+                       default=0.0,
                        help="random extra shift per mode (standard deviation), e.g. 0.5%%")
-    group.add_argument("--drift-rate", type=quantity_type("1/s", "drift-rate"), default=0.0,
+    group.add_argument("--drift-rate", default=0.0,
+                       type=quantity_type("1/s", "drift-rate", low=-DRIFT_RATE_MAX, high=DRIFT_RATE_MAX),
                        help="resonances moving during the shot, from its start, e.g. 40%%/s (+1%% at 25 ms)")
     group.add_argument("--drift-step", type=_drift_step, default=(0.0, 0.0), metavar="SHIFT@TIME",
                        help="every resonance jumps by SHIFT at TIME of the shot, e.g. 1%%@20ms")
-    group.add_argument("--damping-error", type=quantity_type("1", "damping-error"), default=0.0,
+    group.add_argument("--damping-error", type=quantity_type("1", "damping-error", low=-1, high=DAMPING_ERROR_MAX),
+                       default=0.0,
                        help="relative damping error, e.g. 20%%")
-    group.add_argument("--finger", type=quantity_type("N s/m", "finger", low=0, low_open=False), default=0.0,
+    group.add_argument("--finger", type=quantity_type("N s/m", "finger", low=0, high=FINGER_MAX, low_open=False),
+                       default=0.0,
                        help="a finger resting on the surface: its viscous damping, e.g. 0.5Ns/m")
     group.add_argument("--finger-at", type=quantity_type("m", "finger-at", point=True), metavar="POINT",
                        help="where the finger rests, e.g. 24mm or 30mm,20mm (default: the target's peak)")
-    group.add_argument("--snr", type=float, help="measurement noise, dB below the largest velocity")
+    group.add_argument("--snr", type=number_type(float, "snr", low=0, high=SNR_MAX, low_open=False),
+                       help="measurement noise, dB below the largest velocity")
     group.add_argument("--scan-repeats", type=number_type(int, "scan-repeats", low=1, low_open=False), default=1,
                        help="the vibrometer measures each point N times and keeps the mean (1)")
     group.add_argument("--amplifier-bandwidth", type=quantity_type("Hz", "amplifier-bandwidth", low=0),
