@@ -145,7 +145,8 @@ def build_parser() -> argparse.ArgumentParser:
                            "every resonance and damping fitted to it) or from a pole tracker during it (tracker); "
                            "the shot planned again on the updated model is the one reported")
     p.set_defaults(transports=add_transport_options(p))
-    p.add_argument("--out", required=True, help="directory for metrics.json, fields.npz and the pictures")
+    p.add_argument("--out", required=True, type=_out_dir,
+                   help="directory for metrics.json, fields.npz and the pictures")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -177,7 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--scheduler", help="dask.distributed scheduler address (default: a local process pool)")
     p.add_argument("--workers", type=int, help="local processes (default: every core)")
-    p.add_argument("--out", required=True, help="directory for sweep.json, sweep.md and maps.png")
+    p.add_argument("--out", required=True, type=_out_dir, help="directory for sweep.json, sweep.md and maps.png")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -245,7 +246,7 @@ def _plugins(args) -> int:
 
 
 def _model_and_shape(args):
-    model = load_scene(args.scene, args.points) if args.scene else ModalModel.load(args.model)
+    model = load_scene(args.scene, args.points) if args.scene is not None else ModalModel.load(args.model)
     generator = get_shape(args.shape)
     return model, generator.generate(model.grid, **parse_params(generator, dict(args.param)))
 
@@ -277,6 +278,15 @@ def _decompose(args) -> int:
     if args.plot:
         print(f"picture: {summary['plot']}")
     return 0
+
+
+def _out_dir(text: str) -> str:
+    """``--out``: a directory to write into (made if absent); not empty, not an existing file."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("out: give a directory (an empty name would write into the working one)")
+    if Path(text).exists() and not Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"out: {text!r} is a file, not a directory")
+    return text
 
 
 def _margin(text: str) -> float | None:

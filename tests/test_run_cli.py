@@ -253,3 +253,21 @@ def test_an_infinite_shape_parameter_exits_2(capsys, tmp_path):
     code, _, err = run(capsys, "run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param",
                        "width=1e400mm", "--focus-time", "25ms", "--out", str(tmp_path))
     assert code == 2 and "is not a finite number" in err
+
+
+@pytest.mark.parametrize("out, words", [("", "an empty name would write into the working one"),
+                                        ("FILE", "is a file, not a directory")])
+def test_an_out_that_is_no_directory_exits_2(capsys, tmp_path, out, words):
+    """Before: '' wrote into the working directory and exited 0; a file raised FileExistsError."""
+    if out == "FILE":
+        out = str(tmp_path / "a-file")
+        (tmp_path / "a-file").write_text("not a directory")
+    with pytest.raises(SystemExit) as exit_:
+        main([*RUN, "--focus-time", "25ms", "--out", out])
+    assert exit_.value.code == 2 and words in capsys.readouterr().err
+
+
+def test_an_empty_scene_name_is_an_unknown_scene(capsys, tmp_path):
+    code, _, err = run(capsys, "run", "--scene", "", "--shape", "sinc", "--focus-time", "25ms",
+                       "--out", str(tmp_path))
+    assert code == 2 and "unknown scene ''" in err
