@@ -8,6 +8,8 @@ unreadable file), 3 a device error or a closed-loop shot stopped by the supervis
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import re
 import sys
@@ -607,27 +609,55 @@ def main(argv=None) -> int:
     import warnings
 
     warnings.formatwarning = _say_warning
-    args = build_parser().parse_args(_negatives_attached(list(sys.argv[1:] if argv is None else argv)))
+    argv = _negatives_attached(list(sys.argv[1:] if argv is None else argv))
+    args = _parse(argv)
     if args.command in REAL_TIME:  # shots reuse their memory instead of faulting on fresh pages each time
         keep_memory()
     handlers = {"scenes": _scenes, "plugins": _plugins, "decompose": _decompose, "run": _run,
                 "identify": _identify, "sweep": _sweep, "emulate": _emulate}
+    as_json = getattr(args, "json", False)
     try:
         return handlers[args.command](args)
     except DeviceError as exc:
-        print(f"modalctl {args.command}: device error: {exc}", file=sys.stderr)
-        return DEVICE
+        return _refuse(args.command, DEVICE, f"device error: {exc}", as_json)
     except PlanError as exc:
-        print(f"modalctl {args.command}: no plan: {exc}", file=sys.stderr)
+        code = _refuse(args.command, UNREACHABLE, f"no plan: {exc}", as_json, certificate=exc.certificate)
         if exc.certificate:
             print(f"certificate: {json.dumps(exc.certificate, default=_jsonable)}", file=sys.stderr)
-        return UNREACHABLE
+        return code
     except ReductionError as exc:
-        print(f"modalctl {args.command}: {exc}", file=sys.stderr)
-        return UNREACHABLE
+        return _refuse(args.command, UNREACHABLE, str(exc), as_json)
     except (UnknownScene, PluginError, ParamError, UnitError, ModelError, ValueError) as exc:
-        print(f"modalctl {args.command}: error: {exc}", file=sys.stderr)
-        return BAD_INPUT
+        return _refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
+
+
+def _parse(argv: list[str]) -> argparse.Namespace:
+    """The command line, parsed; with ``--json``, a refusal also goes to stdout as a JSON object."""
+    if "--json" not in argv:
+        return build_parser().parse_args(argv)
+    said = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(said):
+            return build_parser().parse_args(argv)
+    except SystemExit as exc:
+        sys.stderr.write(said.getvalue())
+        if exc.code:  # 0: --help
+            lines = [line for line in said.getvalue().splitlines() if line.strip()]
+            _refuse(argv[0] if argv else "", BAD_INPUT, lines[-1] if lines else "bad input", True, stderr=False)
+        raise
+
+
+def _refuse(command: str, code: int, message: str, as_json: bool, certificate=None, stderr: bool = True) -> int:
+    """Say why a command ends with ``code``: on stderr, and with ``--json`` as ``{"error", "code"}``
+    (and the certificate of a refused plan) on stdout. Returns ``code``."""
+    if stderr:
+        print(f"modalctl {command}: {message}", file=sys.stderr)
+    if as_json:
+        body = {"error": message, "code": code, "command": command}
+        if certificate:
+            body["certificate"] = certificate
+        print(json.dumps(body, default=_jsonable))
+    return code
 
 
 if __name__ == "__main__":

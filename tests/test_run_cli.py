@@ -271,3 +271,15 @@ def test_an_empty_scene_name_is_an_unknown_scene(capsys, tmp_path):
     code, _, err = run(capsys, "run", "--scene", "", "--shape", "sinc", "--focus-time", "25ms",
                        "--out", str(tmp_path))
     assert code == 2 and "unknown scene ''" in err
+
+
+def test_json_refusals_are_a_json_object_on_stdout(capsys, tmp_path):
+    """Before, a refusal under --json left stdout empty: a script reading it had nothing to parse."""
+    code, out, _ = run(capsys, *RUN, "--focus-time", "1ms", "--voltage-limit", "1V", "--json", "--out", str(tmp_path))
+    said = json.loads(out)
+    assert code == 1 and said["code"] == 1 and "no drive" in said["error"] and said["certificate"]["status"]
+    with pytest.raises(SystemExit) as exit_:
+        main([*RUN, "--focus-time", "1kg", "--json", "--out", str(tmp_path)])
+    out, err = capsys.readouterr()
+    said = json.loads(out)
+    assert exit_.value.code == 2 and said["code"] == 2 and "unknown unit 'kg'" in said["error"] and "kg" in err
