@@ -77,6 +77,56 @@ def test_load_errors(tmp_path):
         ModalModel.load(bad)
 
 
+def _rewritten(path, out, change):
+    """``path``'s arrays with ``change`` (name -> array, or None to drop it) written to ``out``."""
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    for name, value in change.items():
+        arrays.pop(name) if value is None else arrays.__setitem__(name, value)
+    np.savez(out, **arrays)
+    return out
+
+
+def test_damaged_model_files_are_refused_with_a_reason(model, tmp_path):
+    """Issue 26's files, each a traceback (BadZipFile, TypeError) or a nonsense run before."""
+    good = model.save(tmp_path / "good")
+    raw = good.read_bytes()
+    cases = {"truncated": raw[: len(raw) // 2], "empty": b"", "corrupted": raw[:40] + bytes(200) + raw[240:]}
+    for name, content in cases.items():
+        (tmp_path / f"{name}.npz").write_bytes(content)
+        with pytest.raises(ModelError, match="not a modalctl .npz model|model file"):
+            ModalModel.load(tmp_path / f"{name}.npz")
+    extra = _rewritten(good, tmp_path / "extra.npz", {"secret": np.ones(2)})
+    with pytest.raises(ModelError, match=r"unknown entries \['secret'\]"):
+        ModalModel.load(extra)
+    missing = _rewritten(good, tmp_path / "missing.npz", {"shapes": None})
+    with pytest.raises(ModelError, match=r"missing entries \['shapes'\]"):
+        ModalModel.load(missing)
+    scaled = _rewritten(good, tmp_path / "scaled.npz", {"shapes": 5.5 * model.shapes})
+    with pytest.raises(ModelError, match="mass-normalized"):
+        ModalModel.load(scaled)
+    not_json = _rewritten(good, tmp_path / "notjson.npz", {"meta_json": np.array("{not json")})
+    with pytest.raises(ModelError, match="meta_json is not JSON"):
+        ModalModel.load(not_json)
+
+
+def test_a_model_file_declaring_terabytes_is_refused_unread(model, tmp_path):
+    """An .npy header may claim any shape: the loader reads the headers first and refuses the file."""
+    import io
+    import zipfile
+
+    good = model.save(tmp_path / "good")
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False, "shape": (2**41,)})
+    huge = tmp_path / "huge.npz"
+    with zipfile.ZipFile(good) as source, zipfile.ZipFile(huge, "w") as target:
+        for info in source.infolist():
+            target.writestr(info, header.getvalue() + bytes(64) if info.filename == "shapes.npy"
+                            else source.read(info))
+    with pytest.raises(ModelError, match="GiB of arrays .*refused unread"):
+        ModalModel.load(huge)
+
+
 def test_csv_shapes(tmp_path, al_beam):
     grid = al_beam.grid(101)
     shapes = al_beam.shapes(grid.x, 3)

@@ -8,6 +8,7 @@ the mass each point stands for (kg), so that the mass-weighted inner product is
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -17,6 +18,16 @@ from scipy.integrate import simpson
 __all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite"]
 
 FORMAT_VERSION = 1
+
+#: The arrays a model file holds (besides ``meta_json``), and the most it may hold in all (bytes):
+#: a 2,000 x 2,000 plate with 200 modes is 6.4 GB; a model file beyond that is refused unread.
+MODEL_ARRAYS = {"points", "mass", "frequencies", "damping", "shapes", "actuator_gains", "sensor_gains", "labels",
+                "rigid_shapes"}
+MODEL_BYTES_MAX = 2**33
+
+#: How far from 1 a loaded model's modal masses (``shapes @ diag(mass) @ shapes.T``'s diagonal) may
+#: be: a measured model's normalization is approximate, a file of unnormalized shapes is not a model.
+MASS_NORMALIZATION_TOLERANCE = 0.2
 
 
 class ModelError(ValueError):
@@ -250,20 +261,64 @@ class ModalModel:
         path = Path(path)
         if not path.is_file():
             raise ModelError(f"model file: no such file {str(path)!r}")
+        name = str(path)
         try:
+            _check_sizes(path)
             with np.load(path, allow_pickle=False) as data:
                 arrays = {key: data[key] for key in data.files}
-        except (ValueError, OSError) as exc:
-            raise ModelError(f"model file: {str(path)!r} is not a modalctl .npz model ({exc})") from None
+        except ModelError:
+            raise
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:  # not a zip, truncated, corrupted
+            raise ModelError(f"model file: {name!r} is not a modalctl .npz model ({exc})") from None
         try:
             header = json.loads(str(arrays.pop("meta_json")))
         except KeyError:
-            raise ModelError(f"model file: {str(path)!r} has no meta_json entry") from None
-        if header.get("format") != "modalctl.ModalModel" or header.get("version", 0) > FORMAT_VERSION:
-            raise ModelError(f"model file: unsupported format {header.get('format')!r} "
-                             f"version {header.get('version')!r}")
-        shape = tuple(header["grid_shape"]) if header.get("grid_shape") else None
+            raise ModelError(f"model file: {name!r} has no meta_json entry") from None
+        except ValueError as exc:
+            raise ModelError(f"model file: {name!r}: meta_json is not JSON ({exc})") from None
+        if not isinstance(header, dict) or header.get("format") != "modalctl.ModalModel" \
+                or not isinstance(header.get("version", 0), int) or header.get("version", 0) > FORMAT_VERSION:
+            found = header if not isinstance(header, dict) else (header.get("format"), header.get("version"))
+            raise ModelError(f"model file: {name!r}: unsupported format {found!r}")
+        unknown = set(arrays) - MODEL_ARRAYS
+        missing = {"points", "mass", "frequencies", "damping", "shapes"} - set(arrays)
+        if unknown or missing:
+            raise ModelError(f"model file: {name!r}: " + "; ".join(
+                part for part in (f"unknown entries {sorted(unknown)}" if unknown else "",
+                                  f"missing entries {sorted(missing)}" if missing else "") if part))
+        try:
+            shape = tuple(int(s) for s in header["grid_shape"]) if header.get("grid_shape") else None
+        except (TypeError, ValueError):
+            raise ModelError(f"model file: {name!r}: grid_shape {header['grid_shape']!r} is not a shape") from None
         grid = Grid(arrays.pop("points"), arrays.pop("mass"), shape)
-        return cls(grid=grid, meta=header.get("meta", {}), **arrays)
+        model = cls(grid=grid, meta=header.get("meta", {}), **arrays)
+        _check_normalized(model, name)
+        return model
 
 
+def _check_sizes(path: Path) -> None:
+    """Refuse a model file whose arrays, as their headers declare them, exceed
+    :data:`MODEL_BYTES_MAX` in all, before any is read (a zip bomb, a header claiming terabytes)."""
+    total = 0
+    with zipfile.ZipFile(path) as archive:
+        for info in archive.infolist():
+            with archive.open(info) as member:
+                version = np.lib.format.read_magic(member)
+                read = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+                    np.lib.format.read_array_header_2_0
+                shape, _, dtype = read(member)
+            total += int(np.prod(shape, dtype=object)) * dtype.itemsize
+            if total > MODEL_BYTES_MAX:
+                raise ModelError(f"model file: {str(path)!r} declares more than {MODEL_BYTES_MAX / 2**30:g} GiB of "
+                                 f"arrays ({info.filename} and before): refused unread")
+
+
+def _check_normalized(model: ModalModel, name: str) -> None:
+    """Refuse a loaded model whose shapes are not mass-normalized on its grid (within
+    :data:`MASS_NORMALIZATION_TOLERANCE`): coefficients and tau would be meaningless."""
+    masses = np.einsum("kn,n,kn->k", model.shapes, model.grid.mass, model.shapes)
+    off = np.abs(masses - 1.0) > MASS_NORMALIZATION_TOLERANCE
+    if np.any(off):
+        i = int(np.argmax(np.abs(masses - 1.0)))
+        raise ModelError(f"model file: {name!r}: mode {model.labels[i]}'s modal mass on the grid is {masses[i]:.3g}, "
+                         f"not 1: the shapes must be mass-normalized (sum_i m_i phi_k(x_i)^2 = 1)")
