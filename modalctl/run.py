@@ -26,7 +26,7 @@ from modalctl.loops.runtime import LoopParts, PhasorBoard, RunResult, State
 from modalctl.loops.schedule import HOLD
 from modalctl.loops.shot import closed_shot, loop_log, loop_parts
 from modalctl.model.metrics import margin_ratio, nrmse, tau, tau_norm
-from modalctl.model.modes import ModalModel
+from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.projection import project
 from modalctl.model.shape import Shape
 from modalctl.options import THESIS_MARGIN, LoopOptions, RunOptions
@@ -302,6 +302,10 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
         A plan made before for this model, shape and options (a sweep plans once for many truths);
         the device's rails still apply.
     """
+    if options.closed and model.sensor_gains.shape[1] == 0:
+        raise ModelError("a closed loop reads the modes through the model's sensor gains, and this model has none "
+                         "(an identified model: identify measures the actuators' gains, not the sensors'): run it "
+                         "open loop (--loop open), or plan on a model with its sensors")
     caps, voltage_limit = _configure(device, options)
     plan_options = options.planned.but(voltage_limit=voltage_limit)
     dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)

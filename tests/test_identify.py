@@ -208,6 +208,17 @@ def test_identify_cli_on_the_hil_and_bad_input(tmp_path):
 
     model = ModalModel.load(out)
     assert model.n_modes == 5 and model.actuator_gains.shape == (5, 8)
+    # the README's flow: the identified model planned on, the scene as the truth (issue 26: it exited 2,
+    # the model having no sensors); open loop plays, a closed loop is refused saying why
+    run = ["run", "--model", str(out), "--truth", "thesis-al-cc", "--shape", "sinc", "--param", "width=25mm",
+           "--param", "center=24mm", "--focus-time", "25ms", "--modes", "all", "--margin", "none", "--quiet",
+           "--no-plots"]
+    assert main([*run, "--out", str(tmp_path / "open")]) == 0
+    import json
+
+    metrics = json.loads((tmp_path / "open" / "metrics.json").read_text())
+    assert metrics["tau"] > 0.9 and metrics["modes_used"] == [1, 2, 3, 4, 5]
+    assert main([*run, "--loop", "closed", "--out", str(tmp_path / "closed")]) == 2
     assert main(["identify", "--out", str(out)]) == 2  # the simulator needs a scene
     assert main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--method", "nope",
                  "--out", str(out)]) == 2

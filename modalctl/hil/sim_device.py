@@ -216,6 +216,8 @@ def _structure(context: DeviceContext) -> ModalModel:
     if model is not None:
         for what in ("actuator", "sensor"):
             ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))
+            if what == "sensor" and ours == 0:  # an identified model: the sensors are the device's, unmodelled
+                continue
             if ours != theirs:
                 raise ModelError(f"--truth {name} has {theirs} {what}s, the model {ours}: the truth must be the "
                                  f"same structure as the one planned on (its modes may differ)")
