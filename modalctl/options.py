@@ -14,12 +14,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "ConvexOptions", "PlanOptions", "THESIS_PLAN", "LoopOptions", "RunOptions",
-           "SurveyOptions", "LEARN_FROM"]
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ConvexOptions", "PlanOptions", "THESIS_PLAN",
+           "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
 THESIS_MARGIN = 0.5
+
+#: The most DAC samples per channel a shot may take: 1 s at 1 MHz, 40 times the thesis's shots.
+SHOT_SAMPLES_MAX = 1_000_000
 
 #: The least tau an automatic mode set must reach (``modes="auto"``).
 DEFAULT_TAU = 0.98
@@ -305,6 +308,11 @@ class RunOptions(_Options):
     def __post_init__(self):
         if not self.focus_time > 0:
             raise ValueError(f"focus time must be positive, got {self.focus_time!r} s")
+        samples = (self.focus_time + self.plan.after) * self.plan.sample_rate
+        if samples > SHOT_SAMPLES_MAX:
+            raise ValueError(f"the shot (T_F + after = {self.focus_time + self.plan.after:g} s at "
+                             f"{self.plan.sample_rate:g} Hz) is {samples:.3g} samples per channel; at most "
+                             f"{SHOT_SAMPLES_MAX:.3g} (1 s at 1 MHz)")
         if self.learn is not None and self.learn not in LEARN_FROM:
             raise ValueError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
         if self.learn is not None and self.loop is None:

@@ -283,3 +283,11 @@ def test_json_refusals_are_a_json_object_on_stdout(capsys, tmp_path):
     out, err = capsys.readouterr()
     said = json.loads(out)
     assert exit_.value.code == 2 and said["code"] == 2 and "unknown unit 'kg'" in said["error"] and "kg" in err
+
+
+@pytest.mark.parametrize("focus_time, after", [("1000000s", "4ms"), ("25ms", "10s")])
+def test_a_shot_longer_than_the_bound_exits_2_before_allocating(capsys, tmp_path, focus_time, after):
+    """Before: --focus-time 1000000s asked numpy for 428 GiB (a MemoryError traceback); --after 10s
+    played ten seconds to exit 0."""
+    code, _, err = run(capsys, *RUN, "--focus-time", focus_time, "--after", after, "--out", str(tmp_path))
+    assert code == 2 and "samples per channel; at most 1e+06" in err

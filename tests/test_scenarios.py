@@ -90,8 +90,8 @@ def test_run_with_a_finger_and_a_drift_ramp_open_and_closed(capsys, tmp_path):
 
 @pytest.mark.parametrize("args, code, words", [
     (["--finger-at", "24mm"], 2, "--finger-at places a finger"),
-    (["--finger", "0.5Ns/m", "--finger-at", "90mm"], 3, "off the structure"),
-    (["--finger", "0.5Ns/m", "--finger-at", "1mm,2mm"], 3, "2 coordinate(s) on a 1-D structure"),
+    (["--finger", "0.5Ns/m", "--finger-at", "90mm"], 2, "off the structure"),
+    (["--finger", "0.5Ns/m", "--finger-at", "1mm,2mm"], 2, "2 coordinate(s) on a 1-D structure"),
     (["--finger", "0.5Ns/m", "--drift-step", "1%@10ms"], 2, "not simulated"),
 ])
 def test_finger_and_drift_options_refused_with_a_reason(capsys, tmp_path, args, code, words):

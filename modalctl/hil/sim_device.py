@@ -11,6 +11,7 @@ from tqdm.auto import tqdm
 from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.scenes import load_scene
+from modalctl.model.shape import ParamError
 
 from .finger import Finger, FingerPlant
 from .plant import HOLDS, Plant, truncation
@@ -197,10 +198,10 @@ def _finger(model: ModalModel, p: Perturbation, url: str) -> Finger | None:
     at = np.atleast_1d(np.asarray(p.finger_at, float))
     grid = model.grid
     if at.size != grid.dim:
-        raise DeviceError(f"{url}: the finger rests at {at.size} coordinate(s) on a {grid.dim}-D structure")
+        raise ParamError(f"{url}: the finger rests at {at.size} coordinate(s) on a {grid.dim}-D structure")
     low, high = grid.bounds
     if np.any(at < low - 1e-9) or np.any(at > high + 1e-9):
-        raise DeviceError(f"{url}: the finger at {np.round(at * 1e3, 3).tolist()} mm is off the structure "
+        raise ParamError(f"{url}: the finger at {np.round(at * 1e3, 3).tolist()} mm is off the structure "
                           f"({np.round(low * 1e3, 3).tolist()} to {np.round(high * 1e3, 3).tolist()} mm)")
     return Finger(int(np.argmin(np.linalg.norm(grid.points - at, axis=1))), p.finger)
 
