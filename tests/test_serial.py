@@ -131,3 +131,12 @@ def test_a_full_receive_queue_is_reported_and_ridden_out_or_stopped(model, tmp_p
     else:
         assert "watchdog" in capsys.readouterr().err
         assert records["state"][-1] == 3 and 20 <= records.size <= 25
+
+
+def test_a_second_host_cannot_open_a_port_in_use(model):
+    """Issue 26: two hosts on one pty read each other's replies (tau 0.757, exit 0). The port is
+    now opened exclusively: the second host is refused with a device error saying so."""
+    with SerialBoardEmulator(model, PERTURBATION) as board:
+        with open_device(f"serial://{board.path}"):
+            with pytest.raises(DeviceError, match="busy with another host"):
+                open_device(f"serial://{board.path}")

@@ -50,17 +50,24 @@ class SerialDevice(ProtocolDevice):
         super().__init__(url, timeout)
         self.baud, self.path = baud, parts.path or parts.netloc
         try:
-            self.port = serial.Serial(self.path, self.baud, timeout=0)
+            # exclusive: a second host on the same port would read this one's replies (an flock on POSIX)
+            self.port = serial.Serial(self.path, self.baud, timeout=0, exclusive=True)
         except (serial.SerialException, OSError) as exc:
-            raise DeviceError(f"{url}: cannot open {self.path}: {exc}") from None
+            raise DeviceError(f"{url}: cannot open {self.path} (busy with another host, or absent): {exc}") from None
         self.deframer = p.Deframer()
 
 
     def _write(self, message: p.Message, node: int) -> None:
-        self.port.write(p.frame(message))
+        try:
+            self.port.write(p.frame(message))
+        except (serial.SerialException, OSError) as exc:  # the board unplugged, the pty closed
+            raise DeviceError(f"{self.url}: the link to the board failed while writing: {exc}") from None
 
     def _read(self) -> list:
-        data = self.port.read(self.port.in_waiting or 1)
+        try:
+            data = self.port.read(self.port.in_waiting or 1)
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceError(f"{self.url}: the link to the board failed while reading: {exc}") from None
         items = self.deframer.feed(data) if data else []
         for item in items:
             if isinstance(item, p.Message):
