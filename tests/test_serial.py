@@ -140,3 +140,18 @@ def test_a_second_host_cannot_open_a_port_in_use(model):
         with open_device(f"serial://{board.path}"):
             with pytest.raises(DeviceError, match="busy with another host"):
                 open_device(f"serial://{board.path}")
+
+
+def test_a_board_gone_from_the_line_is_a_device_error(model):
+    """The emulator's end of the pty closed under an open host: reads and writes fail with EIO,
+    which was an OSError out of the transport (a traceback, exit 1) and is now a DeviceError."""
+    from modalctl.io import protocol
+
+    board = SerialBoardEmulator(model, PERTURBATION).__enter__()
+    device = open_device(f"serial://{board.path}")
+    board.__exit__(None, None, None)
+    with pytest.raises(DeviceError, match="failed while reading"):
+        for _ in range(50):  # until the closed end is noticed
+            device._read()
+    with pytest.raises(DeviceError, match="failed while writing"):
+        device._write(protocol.Start(), 1)

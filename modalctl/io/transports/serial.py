@@ -55,18 +55,19 @@ class SerialDevice(ProtocolDevice):
         except (serial.SerialException, OSError) as exc:
             raise DeviceError(f"{url}: cannot open {self.path} (busy with another host, or absent): {exc}") from None
         self.deframer = p.Deframer()
+        self._link_errors = (serial.SerialException, OSError)  # what a failing line raises
 
 
     def _write(self, message: p.Message, node: int) -> None:
         try:
             self.port.write(p.frame(message))
-        except (serial.SerialException, OSError) as exc:  # the board unplugged, the pty closed
+        except self._link_errors as exc:  # the board unplugged, the pty closed
             raise DeviceError(f"{self.url}: the link to the board failed while writing: {exc}") from None
 
     def _read(self) -> list:
         try:
             data = self.port.read(self.port.in_waiting or 1)
-        except (serial.SerialException, OSError) as exc:
+        except self._link_errors as exc:
             raise DeviceError(f"{self.url}: the link to the board failed while reading: {exc}") from None
         items = self.deframer.feed(data) if data else []
         for item in items:
