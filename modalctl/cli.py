@@ -400,9 +400,10 @@ def _report(args, model, shot, device, out) -> int:
     if "loop" in m:
         lp = m["loop"]
         where = "on the board" if lp.get("on_board") else f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update"
-        print(f"closed loop at {lp['control_rate_hz'] / 1e3:g} kHz: {lp['state']}"
-              + (f" ({lp['fault']})" if lp["fault"] else "") + f", {lp['periods']} periods, "
-              f"{where}, crossovers "
+        ended = (f"stopped by a fault ({lp['fault']})" if lp["fault"] else
+                 f"ran {lp['periods']} periods and ended {lp['state']}")  # inactive: the lifecycle's rest state
+        print(f"closed loop at {lp['control_rate_hz'] / 1e3:g} kHz: {ended}, "
+              + (f"{lp['periods']} periods, " if lp["fault"] else "") + f"{where}, crossovers "
               f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
         print(f"the shot took {lp['real_time_factor']:.2f}x its played time (set-up, loop, log, records; "
               f"design {lp['design_seconds']:.2f} s and the field's scan {lp['scan_seconds']:.2f} s besides)")
