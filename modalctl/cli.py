@@ -21,7 +21,15 @@ from modalctl.loops.realtime import keep_memory
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.scenes import SCENES, UnknownScene, load_scene
 from modalctl.model.shape import ParamError, parse_params
-from modalctl.options import LEARN_FROM, THESIS_PLAN, LoopOptions, PlanOptions, RunOptions, SurveyOptions
+from modalctl.options import (
+    LEARN_FROM,
+    ROBUST_DRIFT_MAX,
+    THESIS_PLAN,
+    LoopOptions,
+    PlanOptions,
+    RunOptions,
+    SurveyOptions,
+)
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import PlanError
 from modalctl.plan.reduction import ReductionError
@@ -105,7 +113,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--margin", type=_margin, default=PLAN.margin,
                    help="transient margin off target, before and after T_F, as a share of the focus peak, "
                         f"e.g. 0.5 or 50%%, or none ({_margin_words(PLAN.margin)})")
-    p.add_argument("--robust-drift", type=quantity_type("1", "robust-drift", low=0, low_open=False),
+    p.add_argument("--robust-drift", type=quantity_type("1", "robust-drift", low=0, high=ROBUST_DRIFT_MAX,
+                                                        low_open=False),
                    default=PLAN.robust_drift,
                    help="convex planner: hold the margin on every truth whose resonances lie within this band "
                         "of the model's, e.g. 1%% (0)")

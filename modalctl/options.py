@@ -14,8 +14,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ConvexOptions", "PlanOptions", "THESIS_PLAN",
-           "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ROBUST_DRIFT_MAX", "ConvexOptions", "PlanOptions",
+           "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
@@ -23,6 +23,10 @@ THESIS_MARGIN = 0.5
 
 #: The most DAC samples per channel a shot may take: 1 s at 1 MHz, 40 times the thesis's shots.
 SHOT_SAMPLES_MAX = 1_000_000
+
+#: The widest band of resonance drift a plan may be made robust to: half the frequency is another
+#: structure (its drifted copies would have no positive resonances past it).
+ROBUST_DRIFT_MAX = 0.5
 
 #: The least tau an automatic mode set must reach (``modes="auto"``).
 DEFAULT_TAU = 0.98
@@ -177,8 +181,8 @@ class PlanOptions(_Options):
     convex: ConvexOptions = field(default_factory=ConvexOptions)
 
     def __post_init__(self):
-        if self.robust_drift < 0:
-            raise ValueError(f"robust_drift must be zero or more, got {self.robust_drift!r}")
+        if not 0 <= self.robust_drift <= ROBUST_DRIFT_MAX:
+            raise ValueError(f"robust_drift must lie in [0, {ROBUST_DRIFT_MAX:g}], got {self.robust_drift!r}")
         if self.margin_on not in ("whole", "kept"):
             raise ValueError(f"margin_on must be 'whole' or 'kept', got {self.margin_on!r}")
         if self.margin is not None and not 0 < self.margin <= 1:
