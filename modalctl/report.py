@@ -322,7 +322,8 @@ def plot_sweep_maps(rows, axes, methods, path) -> Path:
                 ax.set_ylabel(label)
             ax.set_xlabel(_AXIS_LABELS.get(x_name, x_name))
             ax.set_title(f"{method}: {label} (" + ("at least" if metric == "tau" else "at most") + f" {good:g})")
-    fig.suptitle("where each method fails (✗: criterion not met)")
+    plans = sorted({f"{r.get('planner', '?')} planner, margin {r.get('margin') or 'none'}" for r in rows})
+    fig.suptitle(f"where each method fails (✗: criterion not met); {'; '.join(plans)}")
     return _save(fig, path)
 
 
