@@ -226,9 +226,10 @@ class LoopOptions(_Options):
         Under a margin, a closed loop's plan holds ``1 - margin_headroom`` of it, over a band of
         ``margin_drift`` of resonance drift (the convex planner's robust band, at least): the plan
         keeps the margin on a drifted truth, the loops restore the focus, and their feedback spends
-        the headroom. ``benchmarks/margin_planner.py`` (thesis-al-cc, 9 modes, 1% and 2% drift, 20%
-        more damping, 40 dB): the plan alone at 0.5 measured 0.52-0.54; robust alone 0.52-0.55, the
-        feedback breaking what open loop held (0.50); both, tau >= 0.955 and ratios 0.47-0.49.
+        the headroom. Measured with ``modalctl run ... --modes 9 --margin 0.5 --loop closed`` on
+        thesis-al-cc's margin case (1% and 2% drift, 20% more damping, 40 dB): the plan alone at 0.5
+        measured 0.52-0.54; robust alone 0.52-0.55, the feedback breaking what open loop held (0.50);
+        both, tau >= 0.955 and ratios 0.47-0.49 (README, "Planners and the transient margin").
     lockin_fraction, lockin_image : float
         Each mode's lock-in corner: this fraction of the gap to its nearest mode, at most
         ``lockin_image`` times its frequency. The reference goes through the same lock-in as the

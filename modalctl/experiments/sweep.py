@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from functools import lru_cache
 
 import numpy as np
@@ -30,7 +30,7 @@ from modalctl.hil.scenario import Perturbation
 from modalctl.hil.sim_device import SimDevice
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
-from modalctl.options import THESIS_PLAN, LoopOptions, RunOptions
+from modalctl.options import THESIS_PLAN, LoopOptions, PlanOptions, RunOptions
 from modalctl.plan.planner import plan_shot
 from modalctl.plugin.manager import get_shape
 from modalctl.run import run
@@ -119,12 +119,11 @@ def _model_shape(scene: str, points, shape: str, params: tuple):
 
 
 @lru_cache(maxsize=8)
-def _nominal_plan(case: Case):
-    """The plan on the model, made once for every truth of a sweep (a closed loop's with its
-    headroom: :attr:`modalctl.options.RunOptions.planned`)."""
-    model, target = _model_shape(case.scene, case.points, case.shape, case.params)
-    options = case.options()
-    return plan_shot(model, target, options.focus_time, options.planned)
+def _nominal_plan(scene: str, points, shape: str, params: tuple, focus_time: float, planned: PlanOptions):
+    """The plan on the model, made once for every truth and every method a sweep plans alike
+    (``planned``: :attr:`modalctl.options.RunOptions.planned`, a closed loop's with its headroom)."""
+    model, target = _model_shape(scene, points, shape, params)
+    return plan_shot(model, target, focus_time, planned)
 
 
 def run_case(case: Case) -> dict:
@@ -135,13 +134,14 @@ def run_case(case: Case) -> dict:
     model, target = _model_shape(case.scene, case.points, case.shape, case.params)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        planned = _nominal_plan(replace(case, drift=0.0, damping_error=0.0, finger=0.0, latency=0, seed=0))
+        options = case.options()
+        planned = _nominal_plan(case.scene, case.points, case.shape, case.params, case.focus_time, options.planned)
         peak = int(np.argmax(np.abs(target.values)))
         perturbation = Perturbation(drift=case.drift, damping_error=case.damping_error, snr_db=case.snr_db,
                                     seed=case.seed, finger=case.finger,
                                     finger_at=tuple(model.grid.points[peak]) if case.finger else None)
         device = SimDevice(model, perturbation)
-        shot = run(model, target, device, case.options(), planned)
+        shot = run(model, target, device, options, planned)
     added = 0.0
     if case.finger > 0:
         modes = planned[1].modes

@@ -429,11 +429,10 @@ class Program:
         if opts.leak is not None:
             left = np.setdiff1d(np.arange(self.model.n_modes), self.modes)
             reach = np.abs(self.model.shapes[left]).max(axis=1)
-            velocity = self.responses[0].velocity(self.focus)[left]
-            for k, row in zip(left, velocity * reach[:, None] / (opts.leak * self.peak)):
-                unit = np.zeros(self.model.n_modes)
-                unit[k] = reach[left == k][0] / (opts.leak * self.peak)
-                shift = self._offset(0, unit, self.focus)
+            scale = reach / (opts.leak * self.peak)
+            velocity = self.responses[0].velocity(self.focus)[left] * scale[:, None]
+            fixed = 0.0 if self.offset is None else self.offset_velocity[0][left, self.focus] * scale
+            for k, row, shift in zip(left, velocity, np.broadcast_to(fixed, left.shape)):
                 rows.add(("leak", int(k)), row, -1.0 - shift, 1.0 - shift)
         sign = np.sign(self.focus_field[self.peak_point])
         for s, responses in enumerate(self.responses[1:], start=1):
