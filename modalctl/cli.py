@@ -360,7 +360,21 @@ def _run(args) -> int:
                  "certificate": refused.certificate, "planner": options.plan.planner}, indent=2,
                 default=_jsonable))
             raise
+        except DeviceError as fault:
+            _halted(out, device, fault)
+            raise
         return _report(args, model, shot, device, out)
+
+
+def _halted(out: Path, device, fault: Exception) -> None:
+    """After a device fault: every output commanded to zero (best effort), and what happened in
+    ``out/metrics.json`` beside the loop's log, so the run's folder says why it has no field."""
+    could_not = device.halt()
+    log = out / "log.json"
+    metrics = {"fault": str(fault), "exit_code": DEVICE, "device": device.url, "device_info": device.info,
+               "outputs": "commanded to zero" if could_not is None else f"not confirmed at zero: {could_not}",
+               "log": str(log) if log.exists() else None, "out": str(out)}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_jsonable))
 
 
 def _report(args, model, shot, device, out) -> int:

@@ -77,7 +77,7 @@ class CanBoardEmulator(BoardEmulator):
         self.states = {node: BOOT_UP for node in self.layout}  # NMT state of each board
         self._node = self.sensing  # who answers the message being handled
         self._configs: dict = {}
-        self._started: set = set()
+        self._started: dict = {}  # node -> the sequence of its Start
         self._commands: dict = {}
 
     def __enter__(self):
@@ -98,7 +98,7 @@ class CanBoardEmulator(BoardEmulator):
 
     # -- the wire ------------------------------------------------------------------------------
     def _send(self, message: p.Message) -> None:
-        for data in p.segments(message):
+        for data in p.segments(self._stamp(message)):
             data = self._faulty(data)
             if data is not None:
                 self.bus.send(self._can.Message(arbitration_id=p.to_host(self._node), data=data, is_fd=True,
@@ -168,14 +168,17 @@ class CanBoardEmulator(BoardEmulator):
     def _on_hello(self, message: p.Hello) -> None:
         channels, sensors = self.layout[self._node]
         limit, snr = self.perturbation.voltage_limit, self.perturbation.snr_db
-        self._send(p.Info(channels=channels.size, sensors=sensors.size, max_sample_rate=10e6,
-                          voltage_limit=float("nan") if limit is None else limit, max_modes=64,
+        self._send(p.Info(channels=channels.size, sensors=sensors.size, max_sample_rate=self.MAX_SAMPLE_RATE,
+                          voltage_limit=float("nan") if limit is None else limit, max_modes=self.MAX_MODES,
                           scans=self.model.grid.points.shape[0] if self._node == self.sensing else 0,
                           snr_db=float("nan") if snr is None else snr, name=f"{self.name}, node {self._node}"))
 
     def _on_configure(self, message: p.Configure) -> None:
         channels, sensors = self.layout[self._node]
         k = message.modes
+        if (why := self._invalid(message)) is not None:
+            self._refuse("config", f"configure: {why}")
+            return
         if message.weights.size != channels.size * k or message.sensors.size != k * sensors.size:
             self._refuse("config", f"configure: node {self._node} has {channels.size} channels and "
                                    f"{sensors.size} sensors")
@@ -206,21 +209,23 @@ class CanBoardEmulator(BoardEmulator):
                                     samples=message.samples))
 
     def _on_start(self, message: p.Start) -> None:
-        self._started.add(self._node)
-        if self._started != set(self.layout):
+        self._started[self._node] = message.seq
+        if set(self._started) != set(self.layout):
             return  # the shot starts when every board is armed
-        self._started.clear()
+        started, self._started = self._started, {}
         self._commands = {}
         open_loop = self.config is not None and self.config.modes == 0
-        self._node = self.sensing
-        super()._on_start(message)
-        if open_loop:  # every board reports its part done
+        self._node, self._answering = self.sensing, started[self.sensing]
+        super()._on_start(p.Start(seq=started[self.sensing]))
+        if open_loop:  # every board reports its part done, answering its own Start
             for node in self.layout:
                 if node != self.sensing:
-                    self._node = node
-                    self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+                    self._node, self._answering = node, started[node]
+                    self._send(p.Ack(of=message.TYPE, ack_seq=started[node]))
 
     def _on_commands(self, message: p.Commands) -> None:
+        if not self._usable(message):
+            return
         self._commands[self._node] = message.commands.astype(complex)  # applied on SYNC
 
     def _sync(self) -> None:

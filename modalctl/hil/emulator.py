@@ -64,6 +64,17 @@ class BoardEmulator:
         self._beat_at = 0.0  # when the last heartbeat of a board-run shot went out
         self.sent = 0
         self.errors: list[str] = []
+        self._answering: int | None = None  # the sequence of the request being handled
+        self._counter = 0  # the board's own sequence, for what it sends unasked
+
+    def _stamp(self, message: p.Message) -> p.Message:
+        """Give ``message`` its sequence: a reply the request's, anything else the board's count."""
+        if isinstance(message, p.REPLIES) and self._answering is not None:
+            message.seq = self._answering
+        else:
+            self._counter = (self._counter + 1) & 0xFFFF
+            message.seq = self._counter
+        return message
 
     def _send(self, message: p.Message) -> None:
         raise NotImplementedError
@@ -101,11 +112,14 @@ class BoardEmulator:
         """Act on one decoded item; never raises (a failure is reported to the host)."""
         if self._overrun():
             return
+        self._answering = item.seq if isinstance(item, p.Message) else None
         try:
             self._handle(item)
         except Exception as exc:  # report, never die: the host decides what to do
             self.errors.append(f"{type(exc).__name__}: {exc}")
             self._send(p.Error(code=ERRORS["internal"], text=f"{type(exc).__name__}: {exc}"))
+        finally:
+            self._answering = None
 
     # -- the board -----------------------------------------------------------------------------
     def _handle(self, item) -> None:
@@ -126,13 +140,36 @@ class BoardEmulator:
     def _on_hello(self, message: p.Hello) -> None:
         limit, snr = self.perturbation.voltage_limit, self.perturbation.snr_db
         self._send(p.Info(channels=self.model.actuator_gains.shape[1], sensors=self.model.sensor_gains.shape[1],
-                          max_sample_rate=10e6, voltage_limit=float("nan") if limit is None else limit,
-                          max_modes=64, scans=self.model.grid.points.shape[0],
+                          max_sample_rate=self.MAX_SAMPLE_RATE, voltage_limit=float("nan") if limit is None else limit,
+                          max_modes=self.MAX_MODES, scans=self.model.grid.points.shape[0],
                           snr_db=float("nan") if snr is None else snr, name=self.name))
+
+    MAX_SAMPLES = 1 << 18  # feed-forward samples per channel the board holds (0.5 s at 500 kHz)
+    MAX_SAMPLE_RATE = 10e6  # Hz, as its Info says
+    MAX_MODES = 64
+
+    def _invalid(self, message: p.Configure) -> str | None:
+        """Why a configuration is beyond this board (its memory, its rates, non-finite values), or None."""
+        rate, control = float(message.sample_rate), float(message.control_rate)
+        if not (np.isfinite(rate) and 0 < rate <= self.MAX_SAMPLE_RATE):
+            return f"sample rate {rate:g} Hz outside (0, {self.MAX_SAMPLE_RATE:g}]"
+        if not (np.isfinite(control) and 0 < control <= rate) or abs(rate / control - round(rate / control)) > 1e-6:
+            return f"control rate {control:g} Hz must divide the sample rate {rate:g} Hz"
+        if message.samples > self.MAX_SAMPLES:
+            return f"{message.samples} samples per channel, the board holds {self.MAX_SAMPLES}"
+        if message.modes > self.MAX_MODES:
+            return f"{message.modes} modes, the board runs at most {self.MAX_MODES}"
+        arrays = (message.carriers, message.bandwidths, message.weights, message.sensors, [message.level])
+        if not all(np.all(np.isfinite(a)) for a in arrays):
+            return "non-finite carriers, bandwidths, weights, sensor weights or level"
+        return None
 
     def _on_configure(self, message: p.Configure) -> None:
         a, s = self.model.actuator_gains.shape[1], self.model.sensor_gains.shape[1]
         k = message.modes
+        if (why := self._invalid(message)) is not None:
+            self._refuse("config", f"configure: {why}")
+            return
         if message.weights.size != a * k or message.sensors.size != k * s or message.carriers.size != k:
             self._refuse("config", f"configure: {k} modes need {a * k} weights, {k * s} sensor weights "
                                    f"and {k} carriers")
@@ -151,6 +188,9 @@ class BoardEmulator:
         except ValueError as exc:
             self._refuse("config", f"program: {exc}")
             return
+        if not all(np.all(np.isfinite(getattr(message, name))) for name in p.PROGRAM_ARRAYS + ("focus_time",)):
+            self._refuse("config", "program: non-finite values")
+            return
         if loops.modes != c.modes:
             self._refuse("config", f"program for {loops.modes} modes, the shot has {c.modes}")
             return
@@ -165,6 +205,9 @@ class BoardEmulator:
         if message.channel >= self.feedforward.shape[0] or end > self.feedforward.shape[1]:
             self._refuse("config", f"upload: channel {message.channel} samples {message.offset}-{end} "
                                    "outside the shot")
+            return
+        if not np.all(np.isfinite(message.samples)):
+            self._refuse("config", f"upload: non-finite samples for channel {message.channel}")
             return
         self.feedforward[message.channel, message.offset:end] = message.samples
         self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
@@ -224,9 +267,19 @@ class BoardEmulator:
         if envelopes is not None:
             self._send(p.Envelopes(period=board.period - 1, envelopes=envelopes))
 
-    def _on_commands(self, message: p.Commands) -> None:
+    def _usable(self, message: p.Commands) -> bool:
+        """Whether the commands can be played (a shot running, one finite value per mode); refused if not."""
         if self.board is None:
             self._refuse("state", "commands before start")
+            return False
+        if message.commands.size != self.board.schedule.carriers.size or not np.all(np.isfinite(message.commands)):
+            self._refuse("config", f"commands for period {message.period}: {message.commands.size} values, "
+                                   "finite, one per mode expected; the last ones are kept")
+            return False
+        return True
+
+    def _on_commands(self, message: p.Commands) -> None:
+        if not self._usable(message):
             return
         self.board.write(message.commands.astype(complex))
         self._answer_period()

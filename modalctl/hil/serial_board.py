@@ -2,7 +2,9 @@
 
 :class:`SerialBoardEmulator` opens a pty pair, hands out the device path (``/dev/pts/N``) for
 ``serial:///dev/pts/N``, and serves the board protocol from a thread (what it answers:
-:class:`~modalctl.hil.emulator.BoardEmulator`), the frames COBS-encoded with their CRC.
+:class:`~modalctl.hil.emulator.BoardEmulator`), the frames COBS-encoded with their CRC. Beside the
+base class's faults, ``die_after`` n periods: the board is unplugged (its end of the line closes,
+the host's reads and writes fail as on a USB adapter pulled out).
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ class SerialBoardEmulator(BoardEmulator):
         tty.setraw(slave)
         self.path = os.ttyname(slave)
         self._slave = slave
+        self._fds = (self.master, slave)  # open until unplugged or closed
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._serve, name="serial board", daemon=True)
 
@@ -49,15 +52,27 @@ class SerialBoardEmulator(BoardEmulator):
 
     def close(self) -> None:
         self._stop.set()
-        self._thread.join(timeout=2)
-        for fd in (self.master, self._slave):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(timeout=2)
+        self._unplug()
+
+    def _dead(self) -> bool:
+        """Whether the board has been unplugged (the ``die_after`` fault)."""
+        die = self.faults.get("die_after")
+        return die is not None and getattr(self.board, "period", -1) >= die
+
+    def _unplug(self) -> None:
+        """Close the board's end of the line: the host's side hangs up (EIO)."""
+        self._stop.set()
+        fds, self._fds = self._fds, ()  # once: a closed number may be reused by another file
+        for fd in fds:
+            os.close(fd)
 
     def _send(self, message: p.Message) -> None:
-        data = self._faulty(p.frame(message), b"\x00")
+        if self._dead():
+            self._unplug()
+            return
+        data = self._faulty(p.frame(self._stamp(message)), b"\x00")
         if data is None:
             return
         view = memoryview(data)

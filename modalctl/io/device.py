@@ -138,6 +138,15 @@ class Device(ABC):
         if self.state == "active":
             self.state = "inactive"
 
+    def halt(self) -> str | None:
+        """After a fault: command every output to zero now, best effort (the link may be gone).
+        Returns None when the command went out, else why it could not."""
+        try:
+            self.deactivate()
+        except Exception as exc:  # a fault handler must not fault
+            return f"{type(exc).__name__}: {exc}"
+        return None
+
     def close(self) -> None:
         """Release the port or bus (nothing to release by default)."""
 

@@ -30,7 +30,7 @@ __all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", 
            "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Program", "Field", "Error", "Ack", "encode", "decode",
            "frame", "Deframer", "MAX_FRAME", "CAN_DATA", "SYNC_ID", "to_board", "to_host", "segments", "Reassembler",
            "NMT_ID", "NMT_COMMANDS", "NMT_STATES", "heartbeat_id", "nmt",
-           "ERRORS", "WARNINGS", "to_program", "from_program"]
+           "ERRORS", "WARNINGS", "REPLIES", "PROGRAM_ARRAYS", "to_program", "from_program"]
 
 VERSION = 1
 MAX_FRAME = 1 << 16  # bytes of one encoded message, at most
@@ -43,7 +43,8 @@ class ProtocolError(ValueError):
 
 @dataclass
 class Message:
-    """Base of every message: ``seq`` counts messages per sender (wraps at 65536)."""
+    """Base of every message: ``seq`` counts messages per sender (wraps at 65536); a reply
+    (:data:`REPLIES`) carries the sequence of the request it answers instead."""
 
     TYPE = 0
     seq: int = 0
@@ -229,6 +230,10 @@ class Error(Message):
     code: int = 0
     text: str = ""
 
+
+#: What a board sends in answer to one request, with that request's ``seq``: a host takes a reply
+#: only to the request it made (never one to a previous host's, still in the line).
+REPLIES = (Info, Field, Ack, Error)
 
 _TYPES = {cls.TYPE: cls for cls in (Hello, Info, Configure, Upload, Start, Commands, Envelopes, Heartbeat,
                                     RampDown, Stop, Scan, Capture, Program, Field, Ack, Error)}
@@ -450,20 +455,20 @@ class Reassembler:
 
 # -- loops loaded into a board (Program) ------------------------------------------------------------
 
-_PROGRAM_ARRAYS = ("damping", "targets", "kappa", "brake", "reading", "kp", "ki", "limit", "leak")
+PROGRAM_ARRAYS = ("damping", "targets", "kappa", "brake", "reading", "kp", "ki", "limit", "leak")
 
 
 def to_program(loops: BoardLoop) -> Program:
     """The protocol's Program message that loads ``loops`` into a board."""
-    return Program(focus_time=loops.focus_time, **{name: np.ravel(getattr(loops, name)) for name in _PROGRAM_ARRAYS})
+    return Program(focus_time=loops.focus_time, **{name: np.ravel(getattr(loops, name)) for name in PROGRAM_ARRAYS})
 
 
 def from_program(message: Program) -> BoardLoop:
     """The loops a Program message describes; ValueError if its arrays do not fit one another."""
     k = message.targets.size
-    sizes = {name: getattr(message, name).size for name in _PROGRAM_ARRAYS}
+    sizes = {name: getattr(message, name).size for name in PROGRAM_ARRAYS}
     if any(size != (k * k if name == "reading" else k) for name, size in sizes.items()):
         raise ValueError(f"program for {k} modes with arrays of sizes {sizes}")
-    values = {name: getattr(message, name).astype(complex if name == "leak" else float) for name in _PROGRAM_ARRAYS}
+    values = {name: getattr(message, name).astype(complex if name == "leak" else float) for name in PROGRAM_ARRAYS}
     values["reading"] = values["reading"].reshape(k, k)
     return BoardLoop(float(message.focus_time), **values)

@@ -219,8 +219,13 @@ class Runtime:
         self.state = State.INACTIVE
 
     def fault(self, reason: str) -> None:
-        """Stop: outputs to zero within one period, the reason kept, the log closed with what it has."""
-        self.board.ramp_down(1 / self.schedule.control_rate)
+        """Stop: outputs to zero within one period, the reason kept, the log closed with what it has.
+        A board gone from the link cannot hear the ramp-down: that is said in the reason, and the
+        first fault, not the failed ramp-down, is what the shot reports."""
+        try:
+            self.board.ramp_down(1 / self.schedule.control_rate)
+        except Exception as exc:  # the link is gone: nothing more can be commanded
+            reason = f"{reason}; the ramp-down to zero could not be sent ({exc})"
         self.state, self.reason = State.ERROR, reason
         self._record(None, 0.0, 0.0)
 

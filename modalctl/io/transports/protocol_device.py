@@ -14,6 +14,7 @@ with ``_write`` (send one message), ``_read`` (what arrived: messages and protoc
 
 from __future__ import annotations
 
+import os
 import time
 
 import numpy as np
@@ -38,6 +39,8 @@ class ProtocolDevice(Device):
     """
 
     upload_samples = 4000  # float32 per upload message (16 kB)
+    MAX_SCANS = 1_000_000  # grid points a bench vibrometer may claim (a 1000 x 1000 grid)
+    MAX_RATE = 1e9  # Hz a board may claim
     scan_times = 4000  # instants per scan request (32 kB)
     capture_samples = 8000  # samples per capture request: one block per row, asked again alone if lost
 
@@ -46,7 +49,9 @@ class ProtocolDevice(Device):
         self.timeout = float(timeout)
         self.nodes = list(nodes)  # boards reached through this device, in channel order
         self.layout: dict = {}  # node -> (its channels, its sensors) as global index arrays
-        self.seq, self.corrupted = 0, 0
+        # a random first sequence: replies to a previous host's requests (still in the line after it
+        # died) do not match this host's
+        self.seq, self.corrupted, self.stale = int.from_bytes(os.urandom(2), "little"), 0, 0
         self.warnings: list[str] = []  # what boards reported without stopping (overruns)
         self._queue: list = []
         self.scans = self.samples = 0
@@ -86,12 +91,13 @@ class ProtocolDevice(Device):
         message.seq = self.seq
         self._write(message, self.nodes[0] if node is None else node)
 
-    def receive(self, kinds: tuple, timeout: float | None = None, node: int | None = None):
-        """The next message of one of ``kinds`` (from ``node``, if given) within ``timeout`` (s), or None;
-        board errors raise."""
+    def receive(self, kinds: tuple, timeout: float | None = None, node: int | None = None,
+                reply_to: int | None = None):
+        """The next message of one of ``kinds`` (from ``node``, if given; answering the request of
+        sequence ``reply_to``, if given) within ``timeout`` (s), or None; board errors raise."""
         deadline = time.perf_counter() + (self.timeout if timeout is None else timeout)
         while True:
-            found = self._take(kinds, node)
+            found = self._take(kinds, node, reply_to)
             if found is not None:
                 return found
             if time.perf_counter() > deadline:
@@ -103,9 +109,10 @@ class ProtocolDevice(Device):
             else:
                 time.sleep(20e-6)
 
-    def _take(self, kinds: tuple, node: int | None = None):
+    def _take(self, kinds: tuple, node: int | None = None, reply_to: int | None = None):
         """The first queued message of one of ``kinds`` (the others stay queued, in order); protocol
-        errors are counted and dropped; a board's warning is kept, its Error raises."""
+        errors are counted and dropped; a board's warning is kept, its Error raises; a reply of
+        one of ``kinds`` to another request than ``reply_to`` is stale: counted and dropped."""
         keep = []
         for i, item in enumerate(self._queue):
             if isinstance(item, p.ProtocolError):
@@ -117,6 +124,9 @@ class ProtocolDevice(Device):
                 self._queue = keep + self._queue[i + 1:]
                 raise DeviceError(f"{self.url}: board error {item.code}: {item.text}")
             elif isinstance(item, kinds) and (node is None or getattr(item, "node", node) == node):
+                if reply_to is not None and isinstance(item, p.REPLIES) and item.seq != reply_to:
+                    self.stale += 1
+                    continue
                 self._queue = keep + self._queue[i + 1:]
                 return item
             else:
@@ -130,7 +140,7 @@ class ProtocolDevice(Device):
         node = self.nodes[0] if node is None else node
         for _ in range(attempts):
             self.send(message, node)
-            answer = self.receive(kinds, node=node)
+            answer = self.receive(kinds, node=node, reply_to=message.seq)
             if answer is not None:
                 return answer
         raise DeviceError(f"{self.url}: no answer to {type(message).__name__} in {attempts} attempts "
@@ -140,7 +150,7 @@ class ProtocolDevice(Device):
     def configure(self, sample_rate: float) -> Capabilities:
         """Identify every board; the device's channels and sensors are theirs, in node order."""
         self._queue = []
-        infos = {node: self.request(p.Hello(), (p.Info,), node) for node in self.nodes}
+        infos = {node: self._checked(self.request(p.Hello(), (p.Info,), node), node) for node in self.nodes}
         first = infos[self.nodes[0]]
         fastest = min(i.max_sample_rate for i in infos.values())
         if not 0 < sample_rate <= fastest:
@@ -152,13 +162,30 @@ class ProtocolDevice(Device):
                                  np.arange(sensors, sensors + info.sensors))
             channels, sensors = channels + info.channels, sensors + info.sensors
         limits = [i.voltage_limit for i in infos.values() if not np.isnan(i.voltage_limit)]
-        self.info = {"board": first.name, "boards": len(self.nodes), "snr_db": first.snr_db,
+        self.info = {"board": first.name, "boards": len(self.nodes),
+                     "snr_db": None if np.isnan(first.snr_db) else float(first.snr_db),
                      "link": self.link_description()}
         self.capabilities = Capabilities(first.name, channels, sensors, fastest, min(limits) if limits else None,
                                          first.scans > 0, phasor_mode=True)
         self._snr = None if np.isnan(first.snr_db) else float(first.snr_db)
         self.scans = first.scans
         return self.capabilities
+
+    def _checked(self, info: p.Info, node: int) -> p.Info:
+        """The board's Info, if it describes a board this host can drive; DeviceError saying what is
+        wrong otherwise (a board's reply is input from outside: nothing unchecked goes further)."""
+        problems = []
+        if not (np.isfinite(info.max_sample_rate) and 0 < info.max_sample_rate <= self.MAX_RATE):
+            problems.append(f"max sample rate {info.max_sample_rate:g} Hz")
+        if not (np.isnan(info.voltage_limit) or 0 < info.voltage_limit < np.inf):
+            problems.append(f"voltage limit {info.voltage_limit:g} V")
+        if info.scans > self.MAX_SCANS:
+            problems.append(f"{info.scans} scan points (at most {self.MAX_SCANS})")
+        if not (np.isnan(info.snr_db) or -50 <= info.snr_db <= 200):
+            problems.append(f"SNR {info.snr_db:g} dB")
+        if problems:
+            raise DeviceError(f"{self.url}: board {node} describes itself out of bounds: {', '.join(problems)}")
+        return info
 
     def sensing(self) -> list[int]:
         """The nodes that have sensors."""
@@ -191,10 +218,12 @@ class ProtocolDevice(Device):
     def trigger(self, progress: bool = False) -> Capture:
         """Play the uploaded shot and bring back its record (the thesis's synchronized capture)."""
         self._operational(True)
+        starts = {}
         for node in self.nodes:
-            self.send(p.Start(), node)
+            starts[node] = p.Start()
+            self.send(starts[node], node)
         for node in self.nodes:
-            if self.receive((p.Ack,), timeout=max(self.timeout, 60.0), node=node) is None:
+            if self.receive((p.Ack,), timeout=max(self.timeout, 60.0), node=node, reply_to=starts[node].seq) is None:
                 raise DeviceError(f"{self.url}: board {node} did not finish the shot")
         self._operational(False)
         times = np.arange(self.samples) / self.sample_rate
@@ -236,18 +265,45 @@ class ProtocolDevice(Device):
             if missing.size == 0:
                 return out
             filled[missing] = 0
-            self.send(request(rows[missing].astype(np.float32)), node)
+            asked = request(rows[missing].astype(np.float32))
+            self.send(asked, node)
             while np.any(filled[missing] < columns):
-                block = self.receive((p.Field,), timeout=max(self.timeout, 1.0), node=node)
+                block = self.receive((p.Field,), timeout=max(self.timeout, 1.0), node=node, reply_to=asked.seq)
                 if block is None:
                     break
-                width = block.values.size // max(block.rows, 1)
+                width = self._fits(block, missing.size, columns)
                 where = missing[block.first:block.first + block.rows]
                 out[where, block.offset:block.offset + width] = block.values.reshape(block.rows, width)
                 filled[where] += width
         if np.any(filled < columns):
             raise DeviceError(f"{self.url}: {int(np.sum(filled < columns))} of {rows.size} rows never arrived whole")
         return out
+
+    def _fits(self, block: p.Field, rows: int, columns: int) -> int:
+        """The block's width, if it lies inside the (rows, columns) answer and holds finite values;
+        DeviceError otherwise."""
+        width = block.values.size // block.rows if block.rows else 0
+        if not (block.rows >= 1 and width >= 1 and block.values.size == block.rows * width
+                and block.first + block.rows <= rows and block.offset + width <= columns):
+            raise DeviceError(f"{self.url}: the board sent a Field block outside its request (rows "
+                              f"{block.first}+{block.rows} of {rows}, columns {block.offset}+{width} of {columns}, "
+                              f"{block.values.size} values)")
+        if not np.all(np.isfinite(block.values)):
+            raise DeviceError(f"{self.url}: the board sent non-finite values (rows {block.first}+{block.rows})")
+        return width
+
+    def halt(self) -> str | None:
+        """Stop (outputs to zero at once) to every board, each acknowledged within the timeout."""
+        try:
+            stops = {node: p.Stop() for node in self.nodes}
+            for node, stop in stops.items():
+                self.send(stop, node)
+            self._operational(False)
+            silent = [n for n, stop in stops.items() if self.receive((p.Ack,), node=n, reply_to=stop.seq) is None]
+        except Exception as exc:  # the link is gone
+            return f"{type(exc).__name__}: {exc}"
+        self.state = "inactive"
+        return f"board(s) {silent} did not acknowledge the stop" if silent else None
 
     def phasor_board(self, level: float, control_rate: float, latency: int = 0) -> "ProtocolPhasorBoard":
         return ProtocolPhasorBoard(self, level)  # the link budget is checked with the shot's modes
@@ -299,6 +355,9 @@ class ProtocolPhasorBoard(PhasorBoard):
                     return None
                 if answer.period >= self.period:  # an answer too late for its period is dropped
                     break
+            if answer.envelopes.size != self.modes or not np.all(np.isfinite(answer.envelopes)):
+                raise DeviceError(f"{self.device.url}: envelopes of period {answer.period}: "
+                                  f"{answer.envelopes.size} values for {self.modes} modes, or non-finite")
             total = answer.envelopes.astype(complex) + (0 if total is None else total)
             period = answer.period
         self.period = period + 1
@@ -312,9 +371,10 @@ class ProtocolPhasorBoard(PhasorBoard):
             raise DeviceError(f"{d.url}: loops on the board need one board with every channel and sensor")
         d.request(p.to_program(loops), (p.Ack,))
         d._operational(True)
-        d.send(p.Start())
+        start = p.Start()
+        d.send(start)
         while True:  # the board beats while it runs the shot; it is done when it acknowledges
-            answer = d.receive((p.Ack, p.Heartbeat))
+            answer = d.receive((p.Ack, p.Heartbeat), reply_to=start.seq)
             if answer is None:
                 self.ramp_down(1 / self.control_rate)  # outputs to zero, should it hear
                 raise DeviceError(f"{d.url}: the board stopped answering during its shot (no heartbeat "

@@ -1,0 +1,171 @@
+"""The fault suite (issue 26): boards killed mid-shot, a host killed mid-capture then run again, two
+hosts on one port, hostile replies; on the pty and on the virtual CAN bus. Each ends in exit 3 with
+the reason, the outputs commanded to zero, the loop's log and ``metrics.json`` on disk, and never
+with another run's data."""
+
+import json
+
+import numpy as np
+import pytest
+
+from modalctl.cli import main
+from modalctl.hil.can_board import CanBoardEmulator
+from modalctl.hil.scenario import Perturbation
+from modalctl.hil.serial_board import SerialBoardEmulator
+from modalctl.io import protocol as p
+from modalctl.io.device import DeviceError, open_device
+from modalctl.loops.recorder import read_log
+from modalctl.model.scenes import load_scene
+
+SHOT = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
+        "--focus-time", "25ms", "--sample-rate", "500kHz", "--control-rate", "2kHz", "--quiet", "--no-plots",
+        "--planner", "envelope", "--margin", "none"]  # the link under test, not the planner
+CLOSED = [*SHOT, "--param", "center=24mm", "--loop", "closed"]
+PERTURBATION = Perturbation(drift=0.01)  # no sensor noise: two shots of one plan measure the same field
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_scene("thesis-al-cc", 211)
+
+
+def _metrics(out):
+    return json.loads((out / "metrics.json").read_text())
+
+
+def _says_it_stopped(out, capsys, reason: str) -> dict:
+    """The checks every fault shares: the reason on stderr and in metrics.json, the outputs' fate
+    said, and the loop's log up to the fault."""
+    err = capsys.readouterr().err
+    assert reason in err, err
+    metrics = _metrics(out)
+    assert reason in metrics["fault"] and metrics["exit_code"] == 3
+    assert metrics["outputs"]
+    return metrics
+
+
+def test_a_serial_board_unplugged_mid_shot_ends_in_exit_3_with_its_log_and_metrics(model, tmp_path, capsys):
+    """Issue 26: the host crashed (exit 1) when the line died, the ramp-down failed again, no metrics."""
+    with SerialBoardEmulator(model, PERTURBATION, faults={"die_after": 20}) as board:
+        code = main([*CLOSED, "--transport", f"serial://{board.path}?timeout=0.1", "--out", str(tmp_path)])
+    assert code == 3
+    metrics = _says_it_stopped(tmp_path, capsys, "failed while reading")
+    assert metrics["outputs"].startswith("not confirmed at zero")  # a board gone cannot hear it: said so
+    records, _ = read_log(tmp_path / "log")
+    assert records["state"][-1] == 3 and 20 <= records.size <= 23  # every period up to the fault, then the fault
+
+
+def test_a_can_board_gone_mid_shot_ends_in_exit_3_with_its_log_and_metrics(model, tmp_path, capsys):
+    with CanBoardEmulator(model, PERTURBATION, faults={"bus_off": 20}, channel="faults-gone") as board:
+        code = main([*CLOSED, "--transport", f"{board.url}&timeout=0.1&heartbeat=0.3", "--out", str(tmp_path)])
+    assert code == 3
+    _says_it_stopped(tmp_path, capsys, "heartbeat")
+    records, _ = read_log(tmp_path / "log")
+    assert records["state"][-1] == 3 and records.size >= 20
+
+
+def test_a_rerun_after_a_host_killed_mid_capture_never_sees_that_hosts_data(model, tmp_path, capsys):
+    """A host asks for a scan and a capture and dies before reading them: the board's answers wait
+    in the line. The next host's run must measure its own shot, exactly as on a fresh board (it
+    exited 0 with the dead host's rows before replies were matched to requests by sequence)."""
+    other = [*SHOT, "--param", "center=30mm", "--transport"]
+    fresh, rerun = tmp_path / "fresh", tmp_path / "rerun"
+    with SerialBoardEmulator(model, PERTURBATION) as board:
+        assert main([*SHOT, "--param", "center=10mm", "--transport", f"serial://{board.path}",
+                     "--out", str(tmp_path / "first")]) == 0
+        dying = open_device(f"serial://{board.path}")
+        dying.send(p.Scan(times=np.linspace(0, 0.03, 4000)))  # 844,000 values of the first shot's field
+        dying.send(p.Capture(what=1))
+        dying.close()  # killed: nobody reads the answers
+        assert main([*other, f"serial://{board.path}", "--json", "--out", str(rerun)]) == 0
+    with SerialBoardEmulator(model, PERTURBATION) as board:
+        assert main([*other, f"serial://{board.path}", "--json", "--out", str(fresh)]) == 0
+    capsys.readouterr()
+    assert _metrics(rerun)["tau"] == pytest.approx(_metrics(fresh)["tau"], abs=1e-9)
+    ours, theirs = np.load(rerun / "fields.npz"), np.load(fresh / "fields.npz")
+    for name in ("field", "sensors", "voltages"):
+        np.testing.assert_array_equal(ours[name], theirs[name])
+
+
+def test_a_second_host_on_a_busy_port_is_refused_and_the_first_goes_on(model, tmp_path, capsys):
+    with SerialBoardEmulator(model, PERTURBATION) as board:
+        with open_device(f"serial://{board.path}"):
+            assert main([*SHOT, "--transport", f"serial://{board.path}", "--out", str(tmp_path / "second")]) == 3
+            assert "busy with another host" in capsys.readouterr().err
+        assert main([*SHOT, "--transport", f"serial://{board.path}", "--out", str(tmp_path / "first")]) == 0
+
+
+class HostileBoard(SerialBoardEmulator):
+    """A board that answers one kind of request with a reply a host must not trust; it records
+    whether it was told to stop."""
+
+    def __init__(self, model, lie: str):
+        super().__init__(model, PERTURBATION)
+        self.lie, self.stopped = lie, False
+
+    def _on_hello(self, message):
+        if self.lie == "scans":  # 2^32 - 1 points: a host that believes it allocates 32 GB
+            self._send(p.Info(channels=4, sensors=2, max_sample_rate=10e6, voltage_limit=float("nan"),
+                              max_modes=64, scans=2**32 - 1, snr_db=float("nan"), name="hostile"))
+        elif self.lie == "rate":
+            self._send(p.Info(channels=4, sensors=2, max_sample_rate=float("inf"), scans=211, name="hostile"))
+        else:
+            super()._on_hello(message)
+
+    def _send_rows(self, values):
+        values = np.asarray(values, np.float32)
+        if self.lie == "ragged":  # seven values announced as two rows
+            self._send(p.Field(first=0, rows=2, offset=0, values=values.ravel()[:7]))
+        elif self.lie == "beyond":  # rows past the request
+            self._send(p.Field(first=values.shape[0], rows=1, offset=0, values=values[0]))
+        elif self.lie == "nan":
+            self._send(p.Field(first=0, rows=1, offset=0, values=np.full(values.shape[1], np.nan)))
+        else:
+            super()._send_rows(values)
+
+    def _answer_period(self):
+        if self.lie == "envelopes" and self.board.period >= 5:
+            self._send(p.Envelopes(period=self.board.period, envelopes=np.full(3, np.nan, np.complex64)))
+            self.board.period += 1
+        else:
+            super()._answer_period()
+
+    def _on_stop(self, message):
+        self.stopped = True
+        super()._on_stop(message)
+
+
+@pytest.mark.parametrize("lie, says, loop", [
+    ("scans", "4294967295 scan points", "open"),
+    ("rate", "max sample rate inf", "open"),
+    ("ragged", "Field block outside its request", "open"),
+    ("beyond", "Field block outside its request", "open"),
+    ("nan", "non-finite values", "open"),
+    ("envelopes", "envelopes of period 5", "closed"),
+])
+def test_a_hostile_board_is_refused_with_the_reason_and_told_to_stop(model, tmp_path, capsys, lie, says, loop):
+    """Issue 26: such replies raised MemoryError, ValueError or ZeroDivisionError in the host (exit 1)."""
+    with HostileBoard(model, lie) as board:
+        code = main([*SHOT, "--param", "center=24mm", "--loop", loop, "--transport",
+                     f"serial://{board.path}?timeout=0.2", "--out", str(tmp_path)])
+    assert code == 3
+    metrics = _says_it_stopped(tmp_path, capsys, says)
+    assert board.stopped and metrics["outputs"] == "commanded to zero"
+    if loop == "closed":
+        records, _ = read_log(tmp_path / "log")
+        assert records["state"][-1] == 3 and records.size >= 5
+
+
+@pytest.mark.parametrize("request_, says", [
+    (p.Configure(sample_rate=500e3, control_rate=500e3, samples=10**6), "the board holds 262144"),
+    (p.Configure(sample_rate=float("nan"), control_rate=1.0), "sample rate nan"),
+    (p.Configure(sample_rate=500e3, control_rate=3e3), "must divide the sample rate"),
+])
+def test_the_emulated_board_refuses_what_it_cannot_hold(model, request_, says):
+    """Issue 26: Configure(samples=1e6) then Start grew the emulator to 1.8 GB; NaN configurations
+    were taken. A board has its limits, and says them."""
+    with SerialBoardEmulator(model, PERTURBATION) as board:
+        device = open_device(f"serial://{board.path}")
+        with pytest.raises(DeviceError, match=says):
+            device.request(request_, (p.Ack,))
+        device.close()
