@@ -169,3 +169,15 @@ def test_the_emulated_board_refuses_what_it_cannot_hold(model, request_, says):
         with pytest.raises(DeviceError, match=says):
             device.request(request_, (p.Ack,))
         device.close()
+
+
+def test_a_can_interface_that_fails_is_a_device_error(model):
+    """The host's own interface going away (an adapter unplugged: python-can's bus raises) is a
+    device error on reading and on writing, not a traceback."""
+    with CanBoardEmulator(model, PERTURBATION, channel="faults-interface") as board:
+        device = open_device(board.url)
+        device.bus.shutdown()  # what a vanished interface leaves: a bus that raises on use
+        with pytest.raises(DeviceError, match="bus failed while reading"):
+            device._read()
+        with pytest.raises(DeviceError, match="bus refused"):
+            device._write(p.Start(), 1)

@@ -104,16 +104,24 @@ class CanDevice(ProtocolDevice):
     def _post(self, identifier: int, data: bytes) -> None:
         try:
             self.bus.send(self._frame(identifier, data))
-        except self._can.CanError as exc:  # bus-off, a full transmit queue...
+        except (self._can.CanError, OSError, ValueError) as exc:  # bus-off, a full queue, a bus shut down
             raise DeviceError(f"{self.url}: the bus refused a frame: {exc}") from None
 
     def _write(self, message: p.Message, node: int) -> None:
         for data in p.segments(message):
             self._post(p.to_board(node), data)
 
+    def _receive_frame(self):
+        """The next frame on the bus, or None; a failing interface (unplugged adapter, interface
+        down) is a DeviceError."""
+        try:
+            return self.bus.recv(timeout=0)
+        except (self._can.CanError, OSError, ValueError) as exc:
+            raise DeviceError(f"{self.url}: the bus failed while reading: {exc}") from None
+
     def _read(self) -> list:
         out = []
-        while (frame := self.bus.recv(timeout=0)) is not None:
+        while (frame := self._receive_frame()) is not None:
             if frame.arbitration_id in self.beats and len(frame.data) >= 1:
                 self.states[self.beats[frame.arbitration_id]] = (frame.data[0], time.perf_counter())
                 continue
@@ -135,7 +143,7 @@ class CanDevice(ProtocolDevice):
             try:
                 self.bus.send(self._can.Message(arbitration_id=p.NMT_ID, data=p.nmt(command, node),
                                                 is_extended_id=False))
-            except self._can.CanError as exc:
+            except (self._can.CanError, OSError, ValueError) as exc:
                 raise DeviceError(f"{self.url}: the bus refused an NMT command: {exc}") from None
 
     def _operational(self, on: bool) -> None:
