@@ -11,6 +11,7 @@ import argparse
 import contextlib
 import io
 import json
+import math
 import re
 import sys
 from pathlib import Path
@@ -38,6 +39,10 @@ from modalctl.plugin.manager import PluginError, get_controller, get_planner, ge
 from .units import UnitError, number_type, parse_quantity, quantity_type
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
+POINTS_MAX = 1_000_000  # grid points of a scene (a 1000 x 1000 plate)
+MODES_MAX = 1000
+SCAN_POINTS_MIN = 5  # identify: scan points a mode shape needs
+SEED = number_type(int, "seed", low=0, high=2**32 - 1, low_open=False)
 PLAN, LOOP, SURVEY = PlanOptions(), LoopOptions(), SurveyOptions()  # the defaults the options below show and use
 REAL_TIME = {"run", "sweep", "emulate"}  # the commands that play shots (see modalctl.loops.realtime)
 
@@ -58,6 +63,9 @@ def _points(text: str):
         parts = [int(v) for v in text.lower().replace("x", ",").split(",")]
     except ValueError:
         raise argparse.ArgumentTypeError(f"points: expected N (a beam) or NxM (a plate), got {text!r}") from None
+    if len(parts) > 2 or min(parts) < 2 or math.prod(parts) > POINTS_MAX:
+        raise argparse.ArgumentTypeError(f"points: N or NxM with at least 2 per side and at most {POINTS_MAX:,} "
+                                         f"in all, got {text!r}")
     return parts[0] if len(parts) == 1 else tuple(parts)
 
 
@@ -81,9 +89,12 @@ def _modes(text: str):
     if text in ("auto", "all"):
         return text
     try:
-        return int(text)
+        count = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected auto, all or a number of modes, got {text!r}") from None
+    if not 1 <= count <= MODES_MAX:
+        raise argparse.ArgumentTypeError(f"modes must lie in [1, {MODES_MAX}], got {text!r}")
+    return count
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -106,7 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="plan a focus, play it on a device (default sim://) and measure it")
     _add_target(p)
-    p.add_argument("--focus-time", required=True, type=quantity_type("s", "focus-time"), help="T_F, e.g. 25ms")
+    p.add_argument("--focus-time", required=True, type=quantity_type("s", "focus-time", low=0), help="T_F, e.g. 25ms")
     p.add_argument("--planner", default=PLAN.planner,
                    help="planner plugin; convex: the least-energy drive that holds the margin on every sample of "
                         f"the whole model (a QP); envelope: the thesis's exponential envelopes ({PLAN.planner})")
@@ -145,11 +156,11 @@ def build_parser() -> argparse.ArgumentParser:
     loop.add_argument("--authority", type=number_type(float, "authority", low=0, low_open=False),
                       default=LOOP.authority,
                       help=f"largest feedback per mode, as a fraction of its planned drive ({LOOP.authority:g})")
-    loop.add_argument("--latency", type=number_type(int, "latency", low=0, low_open=False), default=LOOP.latency,
+    loop.add_argument("--latency", type=number_type(int, "latency", low=0, high=1000, low_open=False), default=LOOP.latency,
                       help=f"extra periods the board takes to use a command ({LOOP.latency})")
     loop.add_argument("--controller", default=LOOP.controller,
                       help=f"per-mode controller plugin: pi or lqg ({LOOP.controller})")
-    loop.add_argument("--watchdog", type=number_type(int, "watchdog", low=1, low_open=False), default=LOOP.watchdog,
+    loop.add_argument("--watchdog", type=number_type(int, "watchdog", low=1, high=10**6, low_open=False), default=LOOP.watchdog,
                       help=f"periods without a measurement before the supervisor stops the shot ({LOOP.watchdog})")
     loop.add_argument("--learn", nargs="?", const="record", choices=LEARN_FROM,
                       help="a first closed-loop shot teaches the model: from its record (record, the default: "
@@ -168,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--shape", default="sinc", help="shape generator (sinc)")
     p.add_argument("--param", action="append", default=[], type=_parse_param, metavar="NAME=VALUE",
                    help="shape parameter with units (default width=18mm center=24mm)")
-    p.add_argument("--focus-time", type=quantity_type("s", "focus-time"), default=25e-3, help="T_F (25ms)")
+    p.add_argument("--focus-time", type=quantity_type("s", "focus-time", low=0), default=25e-3, help="T_F (25ms)")
     p.add_argument("--planner", default=THESIS_PLAN.planner,
                    help=f"planner plugin ({THESIS_PLAN.planner}: the sweeps measure the loops on the thesis's plan)")
     p.add_argument("--margin", type=quantity_type("1", "margin", low=0, high=1),
@@ -183,12 +194,12 @@ def build_parser() -> argparse.ArgumentParser:
                    default=0.0)
     p.add_argument("--snr", type=number_type(float, "snr", low=0, high=SNR_MAX, low_open=False), default=40.0,
                    help="sensor noise, dB below the focus peak (40)")
-    p.add_argument("--control-rate", type=quantity_type("Hz", "control-rate"), default=20e3)
-    p.add_argument("--sample-rate", type=quantity_type("Hz", "sample-rate"), default=500e3)
+    p.add_argument("--control-rate", type=quantity_type("Hz", "control-rate", low=0), default=20e3)
+    p.add_argument("--sample-rate", type=quantity_type("Hz", "sample-rate", low=0), default=500e3)
     p.add_argument("--controller", default="pi", help="per-mode controller plugin of the closed loops (pi)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=SEED, default=0)
     p.add_argument("--scheduler", help="dask.distributed scheduler address (default: a local process pool)")
-    p.add_argument("--workers", type=int, help="local processes (default: every core)")
+    p.add_argument("--workers", type=number_type(int, "workers", low=1, high=256, low_open=False), help="local processes (default: every core)")
     p.add_argument("--out", required=True, type=_out_dir, help="directory for sweep.json, sweep.md and maps.png")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -197,17 +208,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", default="thesis-al-cc", help="the structure (thesis-al-cc)")
     p.add_argument("--points", type=_points, help="grid points: N for a beam, NxM for a plate (default: the scene's)")
     p.set_defaults(transports=add_transport_options(p))
-    p.add_argument("--latency", type=number_type(int, "latency", low=0, low_open=False), default=0,
+    p.add_argument("--latency", type=number_type(int, "latency", low=0, high=1000, low_open=False), default=0,
                    help="extra periods before a command is used")
-    p.add_argument("--for", dest="seconds", type=quantity_type("s", "for"), help="stop after this long (default: never)")
+    p.add_argument("--for", dest="seconds", type=quantity_type("s", "for", low=0), help="stop after this long (default: never)")
 
     p = sub.add_parser("identify", help="identify a structure's modes from FRFs measured through a device")
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
     p.add_argument("--scene", help="sim://: the structure simulated (and its mass per length by default)")
     p.add_argument("--frf", help="identify from measured FRFs in a universal file (datasets 58 and 15) instead")
     p.set_defaults(transports=add_transport_options(p), snr=40.0)  # a vibrometer of 40 dB, unless said
-    p.add_argument("--f-low", type=quantity_type("Hz", "f-low"), default=100.0, help="sweep start (100Hz)")
-    p.add_argument("--f-high", type=quantity_type("Hz", "f-high"), default=100e3, help="sweep end (100kHz)")
+    p.add_argument("--f-low", type=quantity_type("Hz", "f-low", low=0, low_open=False), default=100.0, help="sweep start (100Hz)")
+    p.add_argument("--f-high", type=quantity_type("Hz", "f-high", low=0), default=100e3, help="sweep end (100kHz)")
     p.add_argument("--resolution", type=quantity_type("Hz", "resolution", low=0), default=4.0,
                    help="FRF resolution = 1 / T_sweep (4Hz)")
     p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=0), default=15.0,
@@ -219,7 +230,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", default=SURVEY.method, help=f"identifier plugin: sdof or peaks ({SURVEY.method})")
     p.add_argument("--primary", type=number_type(int, "primary", low=0, low_open=False), default=SURVEY.primary,
                    help=f"actuator swept over the whole grid ({SURVEY.primary})")
-    p.add_argument("--averages", type=number_type(int, "averages", low=1, low_open=False), default=SURVEY.averages,
+    p.add_argument("--averages", type=number_type(int, "averages", low=1, high=1000, low_open=False), default=SURVEY.averages,
                    help=f"shots per point ({SURVEY.averages})")
     p.add_argument("--no-orthogonalize", action="store_true", help="skip Gram-Schmidt")
     p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
@@ -571,6 +582,9 @@ def _identify(args) -> int:
             caps = device.configure(sweep.sample_rate)
             x = np.asarray(caps.scan_points, float)[:, 0]
             points = np.flatnonzero(np.diff(np.floor((x - x[0]) / args.step + 1e-9), prepend=-1) > 0)
+            if points.size < SCAN_POINTS_MIN:  # said now, not after the whole survey
+                raise ParamError(f"identify: --step {args.step * 1e3:g} mm leaves {points.size} scan point(s) on "
+                                 f"{(x[-1] - x[0]) * 1e3:.0f} mm; at least {SCAN_POINTS_MIN} draw a mode shape")
             survey = identify_device(device, sweep, points, mass, options, beam_wavelength(meta, args.f_high),
                                      progress=not args.quiet)
     out = Path(args.out)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+from dataclasses import dataclass
 from typing import Any, Callable
 
 __all__ = ["UnitError", "parse_quantity", "parse_point", "quantity_type", "number_type", "DIMENSIONS"]
@@ -96,6 +97,25 @@ def parse_point(value, unit: str, name: str = "value") -> tuple[float, ...]:
     return tuple(parse_quantity(p, unit, name) for p in parts)
 
 
+@dataclass(frozen=True)
+class Bounds:
+    """What an option's type accepts: values of dimension ``unit`` in ``(low, high]`` (``[low, high]``
+    when not ``low_open``; ``low`` None: unbounded below), of ``kind``; kept on the parser so that
+    tests and documentation read the ranges from where they are enforced."""
+
+    unit: str
+    low: float | None
+    high: float
+    low_open: bool
+    point: bool = False
+    kind: type = float
+
+    def holds(self, value: float) -> bool:
+        """Whether ``value`` (SI) is accepted."""
+        above = True if self.low is None else (self.low < value if self.low_open else self.low <= value)
+        return math.isfinite(value) and above and value <= self.high
+
+
 def quantity_type(unit: str, name: str, *, low: float | None = None, high: float = math.inf,
                   low_open: bool = True, point: bool = False) -> Callable[[str], Any]:
     """An argparse ``type`` reading text with units of dimension ``unit`` into SI, refusing values
@@ -114,6 +134,7 @@ def quantity_type(unit: str, name: str, *, low: float | None = None, high: float
         return value
 
     parse.__name__ = name  # argparse's "invalid <name> value" for text it cannot read
+    parse.bounds = Bounds(unit, low, high, low_open, point)
     return parse
 
 
@@ -129,4 +150,5 @@ def number_type(kind: type, name: str, *, low: float, high: float = math.inf,
         return value
 
     parse.__name__ = name
+    parse.bounds = Bounds("1", low, high, low_open, False, kind)
     return parse

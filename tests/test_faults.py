@@ -157,7 +157,7 @@ def test_a_hostile_board_is_refused_with_the_reason_and_told_to_stop(model, tmp_
 
 
 @pytest.mark.parametrize("request_, says", [
-    (p.Configure(sample_rate=500e3, control_rate=500e3, samples=10**6), "the board holds 262144"),
+    (p.Configure(sample_rate=500e3, control_rate=500e3, samples=10**6), "the board holds 524288"),
     (p.Configure(sample_rate=float("nan"), control_rate=1.0), "sample rate nan"),
     (p.Configure(sample_rate=500e3, control_rate=3e3), "must divide the sample rate"),
 ])

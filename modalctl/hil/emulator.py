@@ -144,7 +144,7 @@ class BoardEmulator:
                           max_modes=self.MAX_MODES, scans=self.model.grid.points.shape[0],
                           snr_db=float("nan") if snr is None else snr, name=self.name))
 
-    MAX_SAMPLES = 1 << 18  # feed-forward samples per channel the board holds (0.5 s at 500 kHz)
+    MAX_SAMPLES = 1 << 19  # feed-forward samples per channel the board holds (1 s at 500 kHz)
     MAX_SAMPLE_RATE = 10e6  # Hz, as its Info says
     MAX_MODES = 64
 

@@ -17,6 +17,7 @@ import numpy as np
 import scipy.fft
 
 from modalctl.model.modes import ModelError
+from modalctl.options import SHOT_SAMPLES_MAX
 
 __all__ = ["Sweep", "FRF", "H1", "mobility", "read_uff58", "bending_wavelength", "check_spatial_step", "SpatialAliasingWarning"]
 
@@ -74,9 +75,16 @@ class Sweep:
         """
         if not resolution > 0:
             raise ValueError(f"sweep: the resolution must be positive, got {resolution!r} Hz")
+        if not 0 <= f_low < f_high:
+            raise ValueError(f"sweep: the band must run up from f-low >= 0, got {f_low:g} to {f_high:g} Hz")
         duration = 1 / resolution
         tail = 0.05 * duration if slowest_decay is None else 10 / slowest_decay
-        return cls(f_low, f_high, duration, sample_rate or 10 * f_high, amplitude, tail)
+        rate = sample_rate or 10 * f_high
+        if (duration + tail) * rate > SHOT_SAMPLES_MAX:
+            raise ValueError(f"sweep: {resolution:g} Hz resolution up to {f_high:g} Hz needs "
+                             f"{(duration + tail) * rate:.3g} samples per shot, at most {SHOT_SAMPLES_MAX:.3g}: "
+                             f"a coarser --resolution or a lower --f-high")
+        return cls(f_low, f_high, duration, rate, amplitude, tail)
 
     @property
     def samples(self) -> int:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -268,7 +269,7 @@ class ModalModel:
                 arrays = {key: data[key] for key in data.files}
         except ModelError:
             raise
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:  # not a zip, truncated, corrupted
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as exc:  # not a zip, truncated, corrupted
             raise ModelError(f"model file: {name!r} is not a modalctl .npz model ({exc})") from None
         try:
             header = json.loads(str(arrays.pop("meta_json")))
@@ -290,6 +291,10 @@ class ModalModel:
             shape = tuple(int(s) for s in header["grid_shape"]) if header.get("grid_shape") else None
         except (TypeError, ValueError):
             raise ModelError(f"model file: {name!r}: grid_shape {header['grid_shape']!r} is not a shape") from None
+        for key, value in arrays.items():
+            if value.dtype.kind not in "biuf" or value.ndim == 0:
+                raise ModelError(f"model file: {name!r}: entry {key!r} holds {value.dtype} of shape {value.shape}, "
+                                 "not an array of real numbers")
         grid = Grid(arrays.pop("points"), arrays.pop("mass"), shape)
         model = cls(grid=grid, meta=header.get("meta", {}), **arrays)
         _check_normalized(model, name)

@@ -72,9 +72,9 @@ def modalctl_add_options(options: TransportOptions):
                        help="where the finger rests, e.g. 24mm or 30mm,20mm (default: the target's peak)")
     group.add_argument("--snr", type=number_type(float, "snr", low=0, high=SNR_MAX, low_open=False),
                        help="measurement noise, dB below the largest velocity")
-    group.add_argument("--scan-repeats", type=number_type(int, "scan-repeats", low=1, low_open=False), default=1,
+    group.add_argument("--scan-repeats", type=number_type(int, "scan-repeats", low=1, high=1000, low_open=False), default=1,
                        help="the vibrometer measures each point N times and keeps the mean (1)")
     group.add_argument("--amplifier-bandwidth", type=quantity_type("Hz", "amplifier-bandwidth", low=0),
                        help="first-order amplifier bandwidth, e.g. 100kHz")
     group.add_argument("--rails", type=quantity_type("V", "rails", low=0), help="amplifier voltage rails (clipping)")
-    group.add_argument("--seed", type=int, default=0, help="seed of the spread and the noise (0)")
+    group.add_argument("--seed", type=number_type(int, "seed", low=0, high=2**32 - 1, low_open=False), default=0, help="seed of the spread and the noise (0)")
