@@ -36,6 +36,7 @@ from modalctl.plan.planner import PlanError
 from modalctl.plan.reduction import ReductionError
 from modalctl.plugin.manager import PluginError, get_controller, get_planner, get_shape, plugin_table, shape_generators
 
+from .outdir import atomic, claim, record
 from .units import UnitError, number_type, parse_quantity, quantity_type
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
@@ -169,6 +170,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(transports=add_transport_options(p))
     p.add_argument("--out", required=True, type=_out_dir,
                    help="directory for metrics.json, fields.npz and the pictures")
+    p.add_argument("--force", action="store_true", help="replace another run's results in --out")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -201,6 +203,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", help="dask.distributed scheduler address (default: a local process pool)")
     p.add_argument("--workers", type=number_type(int, "workers", low=1, high=256, low_open=False), help="local processes (default: every core)")
     p.add_argument("--out", required=True, type=_out_dir, help="directory for sweep.json, sweep.md and maps.png")
+    p.add_argument("--force", action="store_true", help="replace another run's results in --out")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -361,15 +364,14 @@ def _run(args) -> int:
     out = Path(args.out)
     options = _run_options(args, out)
     model, shape = _model_and_shape(args)
-    with _open_device(args, model, shape) as device:
-        out.mkdir(parents=True, exist_ok=True)
+    with _open_device(args, model, shape) as device:  # its options checked before the folder is made
+        claim(out, "run", _identity(args), args.force)
         try:
             shot = run(model, shape, device, options)
         except PlanError as refused:  # a result: why, on disk beside where the report would be
-            (out / "refusal.json").write_text(json.dumps(
-                {"refused": str(refused), "needed": refused.needed, "limit": refused.limit,
-                 "certificate": refused.certificate, "planner": options.plan.planner}, indent=2,
-                default=_jsonable))
+            _write_json(out / "refusal.json", {"refused": str(refused), "needed": refused.needed,
+                                               "limit": refused.limit, "certificate": refused.certificate,
+                                               "planner": options.plan.planner})
             raise
         except DeviceError as fault:
             _halted(out, device, fault)
@@ -385,7 +387,20 @@ def _halted(out: Path, device, fault: Exception) -> None:
     metrics = {"fault": str(fault), "exit_code": DEVICE, "device": device.url, "device_info": device.info,
                "outputs": "commanded to zero" if could_not is None else f"not confirmed at zero: {could_not}",
                "log": str(log) if log.exists() else None, "out": str(out)}
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_jsonable))
+    _write_json(out / "metrics.json", metrics)
+
+
+def _identity(args) -> dict:
+    """The options that make a run what it is (not how it is shown): a folder holding results of
+    other options holds another run."""
+    shown = {"quiet", "force", "json", "no_plots", "transports", "out", "command"}
+    return {k: v for k, v in sorted(vars(args).items()) if k not in shown and not callable(v)}
+
+
+def _write_json(path: Path, value) -> None:
+    """``value`` as JSON at ``path``, atomically (see :mod:`modalctl.outdir`)."""
+    with atomic(path) as temporary:
+        temporary.write_text(json.dumps(value, indent=2, default=_jsonable))
 
 
 def _report(args, model, shot, device, out) -> int:
@@ -396,18 +411,20 @@ def _report(args, model, shot, device, out) -> int:
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out)}
     coeffs = shot.coefficients()
     # the field scan is stored in float32 (7 digits, far below any measurement noise) to keep runs small
-    np.savez_compressed(out / "fields.npz", times=shot.times, field=shot.field.astype(np.float32),
-                        focus_field=shot.focus_field,
-                        target=shot.decomposition.shape.values, target_mask=shot.decomposition.shape.target_mask,
-                        grid=model.grid.points,
-                        sample_times=shot.capture.times, voltages=shot.capture.voltages,
-                        sensors=shot.capture.sensors, focus_point_velocity=shot.focus_velocity,
-                        labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
+    with atomic(out / "fields.npz") as temporary:
+        np.savez_compressed(temporary, times=shot.times, field=shot.field.astype(np.float32),
+                            focus_field=shot.focus_field,
+                            target=shot.decomposition.shape.values, target_mask=shot.decomposition.shape.target_mask,
+                            grid=model.grid.points,
+                            sample_times=shot.capture.times, voltages=shot.capture.voltages,
+                            sensors=shot.capture.sensors, focus_point_velocity=shot.focus_velocity,
+                            labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
     if not args.no_plots:
         from .report import write_run_report
 
         metrics["pictures"] = write_run_report(shot, out)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2, default=_jsonable))
+        record(out, [Path(picture).name for picture in metrics["pictures"].values()])
+    _write_json(out / "metrics.json", metrics)
     fault = metrics.get("loop", {}).get("fault")
     if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
         print(f"modalctl run: the supervisor stopped the shot: {fault}; outputs ramped to zero, "
@@ -508,16 +525,17 @@ def _sweep(args) -> int:
     get_controller(args.controller)
     cases = [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
              for m in methods for values in itertools.product(*[v for _, v in axes])]
+    out = claim(Path(args.out), "sweep", _identity(args), args.force)
     executor = executor_for(args.scheduler, args.workers)
     rows = executor.map(run_case, cases, progress=not args.quiet)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     summary = {"axes": {f: v for f, v in axes}, "methods": methods, "rows": rows,
                "executor": type(executor).__name__}
-    (out / "sweep.json").write_text(json.dumps(summary, indent=2, default=_jsonable))
+    _write_json(out / "sweep.json", summary)
     from .report import plot_sweep_maps, sweep_table
 
-    (out / "sweep.md").write_text(sweep_table(rows, [f for f, _ in axes]))
+    with atomic(out / "sweep.md") as temporary:
+        temporary.write_text(sweep_table(rows, [f for f, _ in axes]))
+    record(out, ["maps.png"])
     summary["pictures"] = {"maps": str(plot_sweep_maps(rows, [f for f, _ in axes], methods, out / "maps.png"))}
     if args.json:
         print(json.dumps(summary, default=_jsonable))

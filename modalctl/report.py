@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from modalctl.outdir import atomic  # noqa: E402
 from modalctl.plan.decompose import Decomposition  # noqa: E402
 
 __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
@@ -19,7 +20,8 @@ __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_mo
 def _save(fig, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    with atomic(path) as temporary:  # a link planted under that name is replaced, not followed
+        fig.savefig(temporary, dpi=120, bbox_inches="tight")
     plt.close(fig)
     return path
 

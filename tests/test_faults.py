@@ -181,3 +181,47 @@ def test_a_can_interface_that_fails_is_a_device_error(model):
             device._read()
         with pytest.raises(DeviceError, match="bus refused"):
             device._write(p.Start(), 1)
+
+
+# -- the run's folder (--out) --------------------------------------------------------------------
+QUICK = ["run", "--scene", "thesis-al-cc", "--points", "61", "--shape", "sinc", "--param", "width=18mm",
+         "--focus-time", "25ms", "--quiet", "--planner", "envelope", "--margin", "none"]
+
+
+def test_a_folder_holding_another_run_is_refused_unless_forced(tmp_path, capsys):
+    """Issue 26: a previous run in the same folder was overwritten without a word."""
+    out = tmp_path / "out"
+    assert main([*QUICK, "--no-plots", "--out", str(out)]) == 0
+    first = _metrics(out)["tau"]
+    assert main([*QUICK, "--no-plots", "--out", str(out)]) == 0  # the same run again: replaced
+    assert main([*QUICK, "--no-plots", "--param", "center=30mm", "--out", str(out)]) == 2
+    assert "holds another run (other --param)" in capsys.readouterr().err
+    assert _metrics(out)["tau"] == first  # untouched
+    assert main([*QUICK, "--no-plots", "--param", "center=30mm", "--force", "--out", str(out)]) == 0
+    assert _metrics(out)["params"]["center"] == "30mm"
+
+
+def test_a_rerun_that_fails_leaves_none_of_the_previous_runs_results(model, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main([*QUICK, "--out", str(out)]) == 0
+    pictures = sorted(p.name for p in out.glob("*.png"))
+    assert pictures
+    with SerialBoardEmulator(model, PERTURBATION, faults={"die_after": 5}) as board:
+        code = main([*QUICK, "--points", "211", "--loop", "closed", "--control-rate", "2kHz", "--force",
+                     "--transport", f"serial://{board.path}?timeout=0.1", "--out", str(out)])
+    assert code == 3
+    assert "fault" in _metrics(out) and not (out / "fields.npz").exists()
+    assert not any((out / name).exists() for name in pictures)
+
+
+def test_links_planted_in_the_folder_are_replaced_never_followed(tmp_path, capsys):
+    """Issue 26: --out followed a planted symlink and overwrote a file outside the folder."""
+    out, victim = tmp_path / "out", tmp_path / "precious.txt"
+    victim.write_text("keep me")
+    out.mkdir()
+    for name in ("metrics.json", "fields.npz", "spacetime.png", "log.bin"):
+        (out / name).symlink_to(victim)
+    assert main([*QUICK, "--loop", "closed", "--control-rate", "20kHz", "--force", "--out", str(out)]) == 0
+    assert victim.read_text() == "keep me"
+    assert not any(p.is_symlink() for p in out.iterdir())
+    assert _metrics(out)["tau"] > 0.9

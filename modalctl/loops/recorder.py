@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from modalctl.outdir import atomic
+
 __all__ = ["Recorder", "read_log", "LOG_VERSION"]
 
 LOG_VERSION = 2  # 1: the records back to back, no count (still read)
@@ -49,8 +51,12 @@ class Recorder:
                   "fields": [{"name": name, "dtype": np.dtype(dt).newbyteorder("<").str, "shape": list(shape),
                               "unit": unit} for name, (dt, shape, unit) in fields.items()],
                   "meta": meta or {}}
-        self.path.with_suffix(".json").write_text(json.dumps(header, indent=1))
-        self._file = open(self.path.with_suffix(".bin"), "w+b")
+        with atomic(self.path.with_suffix(".json")) as temporary:
+            temporary.write_text(json.dumps(header, indent=1))
+        binary = self.path.with_suffix(".bin")
+        if binary.is_symlink():  # never written through: the link goes, a file of ours takes its place
+            binary.unlink()
+        self._file = open(binary, "w+b")
         self._map: mmap.mmap | None = None
         self.records = 0
         self._room(max(1, int(capacity)))
