@@ -143,6 +143,9 @@ def test_csv_shapes(tmp_path, al_beam):
     path.write_text("x,mode1\n0.1,abc\n")
     with pytest.raises(ModelError, match="csv"):
         read_shapes_csv(path)
+    path.write_bytes(bytes(range(256)) * 8)  # issue 26: a binary file ended in UnicodeDecodeError
+    with pytest.raises(ModelError, match="not a text table"):
+        read_shapes_csv(path)
 
 
 def test_uff55_roundtrip(tmp_path, al_beam):

@@ -62,3 +62,18 @@ def test_sweep_runs_a_plate_on_its_own_grid(capsys, tmp_path):
 def test_sweep_refuses_bad_input(capsys, tmp_path, args, message):
     code = main(["sweep", *args, "--out", str(tmp_path), "--quiet"])
     assert code == 2 and message in capsys.readouterr().err
+
+
+def test_a_dead_scheduler_address_is_refused_in_seconds(tmp_path, capsys):
+    """Issue 26: ``sweep --scheduler`` of a dead address ended in an OSError after 30 s."""
+    import socket
+    import time
+
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    start = time.perf_counter()
+    code = main(["sweep", "--scheduler", f"tcp://127.0.0.1:{port}", "--vary", "drift=0%", "--methods", "open",
+                 "--quiet", "--out", str(tmp_path / "s")])
+    assert code == 2 and "no dask scheduler answers" in capsys.readouterr().err
+    assert time.perf_counter() - start < 30

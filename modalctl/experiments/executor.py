@@ -54,12 +54,21 @@ class DaskExecutor:
         A client, or the scheduler's address.
     """
 
+    CONNECT_SECONDS = 5.0  # a scheduler that has not answered by then is not there
+
     def __init__(self, client):
         try:
             from distributed import Client
         except ImportError:  # pragma: no cover - the extra is part of the test set-up
             raise RuntimeError("dask executor: install modalctl[dask] (dask.distributed)") from None
-        self.client = client if isinstance(client, Client) else Client(client)
+        if isinstance(client, Client):
+            self.client = client
+            return
+        try:
+            self.client = Client(client, timeout=self.CONNECT_SECONDS)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:  # a dead or malformed address
+            raise ValueError(f"--scheduler: no dask scheduler answers at {client!r} within "
+                             f"{self.CONNECT_SECONDS:g} s ({type(exc).__name__}: {exc})") from None
 
     def map(self, fn, items, progress=False):
         from distributed import as_completed as dask_completed

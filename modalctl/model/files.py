@@ -14,7 +14,8 @@ import numpy as np
 
 from .modes import ModelError, check_finite
 
-__all__ = ["read_shapes_csv", "read_uff_sets", "read_uff55"]
+__all__ = ["read_shapes_csv", "read_uff_sets", "read_uff55", "CSV_BYTES_MAX"]
+CSV_BYTES_MAX = 256 * 10**6  # a table of shapes larger than this is not a haptic surface's
 
 
 def read_shapes_csv(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -26,8 +27,13 @@ def read_shapes_csv(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"csv: no such file {str(path)!r}")
-    with path.open(newline="") as handle:
-        rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
+    if path.stat().st_size > CSV_BYTES_MAX:
+        raise ModelError(f"csv: {str(path)!r} is {path.stat().st_size / 1e6:.0f} MB, above {CSV_BYTES_MAX / 1e6:.0f} MB")
+    try:
+        with path.open(newline="", encoding="utf-8") as handle:
+            rows = [row for row in csv.reader(handle) if row and not row[0].lstrip().startswith("#")]
+    except (UnicodeDecodeError, csv.Error) as exc:  # a binary file, NUL bytes
+        raise ModelError(f"csv: {str(path)!r} is not a text table ({exc})") from None
     if len(rows) < 2:
         raise ModelError(f"csv: {str(path)!r} needs a header and at least one row")
     header = [h.strip() for h in rows[0]]
