@@ -155,3 +155,13 @@ def test_a_board_gone_from_the_line_is_a_device_error(model):
             device._read()
     with pytest.raises(DeviceError, match="failed while writing"):
         device._write(protocol.Start(), 1)
+
+
+def test_the_metrics_say_the_truth_the_board_reports(model, tmp_path, capsys):
+    """Issue 26: over serial the run's truth read as if the model were perfect while the emulator
+    drifted. A host knows only what the board says of itself: the URL and the board's name, which an
+    emulator makes its truth's description."""
+    with SerialBoardEmulator(model, Perturbation(drift=0.02)) as board:
+        assert main([*RUN, "--loop", "open", "--transport", f"serial://{board.path}", "--out", str(tmp_path)]) == 0
+    truth = _metrics(tmp_path)["truth"]
+    assert truth.startswith(f"serial://{board.path}") and "drift +2.0%" in truth

@@ -171,7 +171,7 @@ class CanBoardEmulator(BoardEmulator):
         self._send(p.Info(channels=channels.size, sensors=sensors.size, max_sample_rate=self.MAX_SAMPLE_RATE,
                           voltage_limit=float("nan") if limit is None else limit, max_modes=self.MAX_MODES,
                           scans=self.model.grid.points.shape[0] if self._node == self.sensing else 0,
-                          snr_db=float("nan") if snr is None else snr, name=f"{self.name}, node {self._node}"))
+                          snr_db=float("nan") if snr is None else snr, name=self._named(f", node {self._node}")))
 
     def _on_configure(self, message: p.Configure) -> None:
         channels, sensors = self.layout[self._node]

@@ -142,7 +142,7 @@ class BoardEmulator:
         self._send(p.Info(channels=self.model.actuator_gains.shape[1], sensors=self.model.sensor_gains.shape[1],
                           max_sample_rate=self.MAX_SAMPLE_RATE, voltage_limit=float("nan") if limit is None else limit,
                           max_modes=self.MAX_MODES, scans=self.model.grid.points.shape[0],
-                          snr_db=float("nan") if snr is None else snr, name=self.name))
+                          snr_db=float("nan") if snr is None else snr, name=self._named()))
 
     MAX_SAMPLES = 1 << 19  # feed-forward samples per channel the board holds (1 s at 500 kHz)
     MAX_SAMPLE_RATE = 10e6  # Hz, as its Info says
@@ -163,6 +163,10 @@ class BoardEmulator:
         if not all(np.all(np.isfinite(a)) for a in arrays):
             return "non-finite carriers, bandwidths, weights, sensor weights or level"
         return None
+
+    def _named(self, node: str = "") -> str:
+        """What the board calls itself: an emulator says the truth it plays (drift, finger...)."""
+        return f"{self.name}{node}: {self.perturbation.describe()}"
 
     def _on_configure(self, message: p.Configure) -> None:
         a, s = self.model.actuator_gains.shape[1], self.model.sensor_gains.shape[1]

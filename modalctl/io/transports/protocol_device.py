@@ -162,7 +162,7 @@ class ProtocolDevice(Device):
                                  np.arange(sensors, sensors + info.sensors))
             channels, sensors = channels + info.channels, sensors + info.sensors
         limits = [i.voltage_limit for i in infos.values() if not np.isnan(i.voltage_limit)]
-        self.info = {"board": first.name, "boards": len(self.nodes),
+        self.info = {"board": first.name, "boards": len(self.nodes), "truth": f"{self.url} ({first.name})",
                      "snr_db": None if np.isnan(first.snr_db) else float(first.snr_db),
                      "link": self.link_description()}
         self.capabilities = Capabilities(first.name, channels, sensors, fastest, min(limits) if limits else None,
