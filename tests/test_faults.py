@@ -64,22 +64,34 @@ def test_a_can_board_gone_mid_shot_ends_in_exit_3_with_its_log_and_metrics(model
     assert records["state"][-1] == 3 and records.size >= 20
 
 
-def test_a_rerun_after_a_host_killed_mid_capture_never_sees_that_hosts_data(model, tmp_path, capsys):
+def _board(kind: str, model, name: str):
+    """A fresh emulated board and the URL a host opens it at."""
+    if kind == "serial":
+        board = SerialBoardEmulator(model, PERTURBATION)
+        return board, f"serial://{board.path}"
+    board = CanBoardEmulator(model, PERTURBATION, channel=name)
+    return board, board.url
+
+
+@pytest.mark.parametrize("link", ["serial", "can"])
+def test_a_rerun_after_a_host_killed_mid_capture_never_sees_that_hosts_data(model, tmp_path, capsys, link):
     """A host asks for a scan and a capture and dies before reading them: the board's answers wait
-    in the line. The next host's run must measure its own shot, exactly as on a fresh board (it
-    exited 0 with the dead host's rows before replies were matched to requests by sequence)."""
+    in the line (or are still on the bus). The next host's run must measure its own shot, exactly as
+    on a fresh board (on the pty it exited 0 with the dead host's rows before replies were matched
+    to requests by sequence)."""
     other = [*SHOT, "--param", "center=30mm", "--transport"]
     fresh, rerun = tmp_path / "fresh", tmp_path / "rerun"
-    with SerialBoardEmulator(model, PERTURBATION) as board:
-        assert main([*SHOT, "--param", "center=10mm", "--transport", f"serial://{board.path}",
-                     "--out", str(tmp_path / "first")]) == 0
-        dying = open_device(f"serial://{board.path}")
-        dying.send(p.Scan(times=np.linspace(0, 0.03, 4000)))  # 844,000 values of the first shot's field
+    board, url = _board(link, model, "faults-rerun")
+    with board:
+        assert main([*SHOT, "--param", "center=10mm", "--transport", url, "--out", str(tmp_path / "first")]) == 0
+        dying = open_device(url)
+        dying.send(p.Scan(times=np.linspace(0, 0.03, 4000 if link == "serial" else 800)))  # the first shot's field
         dying.send(p.Capture(what=1))
         dying.close()  # killed: nobody reads the answers
-        assert main([*other, f"serial://{board.path}", "--json", "--out", str(rerun)]) == 0
-    with SerialBoardEmulator(model, PERTURBATION) as board:
-        assert main([*other, f"serial://{board.path}", "--json", "--out", str(fresh)]) == 0
+        assert main([*other, url, "--json", "--out", str(rerun)]) == 0
+    board, url = _board(link, model, "faults-fresh")
+    with board:
+        assert main([*other, url, "--json", "--out", str(fresh)]) == 0
     capsys.readouterr()
     assert _metrics(rerun)["tau"] == pytest.approx(_metrics(fresh)["tau"], abs=1e-9)
     ours, theirs = np.load(rerun / "fields.npz"), np.load(fresh / "fields.npz")
