@@ -112,3 +112,22 @@ def test_parameter_errors_list_what_is_accepted():
         make("sinc")
     with pytest.raises(ParamError, match="unknown unit"):
         make("sinc", width="18 furlongs")
+
+
+def test_a_taper_that_moves_the_pulse_is_said():
+    """Issue 26: a 20 mm bump at 48 mm on the 105 mm clamped beam peaked at 43.4 mm under the default
+    taper, and runs measured against the moved target without a word."""
+    import warnings
+
+    from modalctl.model.scenes import load_scene
+    from modalctl.plugins.shapes import TaperWarning
+
+    grid = load_scene("thesis-al-cc", 211).grid
+    bump = get_shape("bump")
+    with pytest.warns(TaperWarning, match="moves the pulse's peak by 4.[0-9] mm"):
+        shape = bump.generate(grid, **parse_params(bump, {"width": "20mm", "center": "48mm"}))
+    assert abs(grid.x[np.argmax(shape.values)] - 0.048) > 3e-3  # independent: the peak did move
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", TaperWarning)
+        bump.generate(grid, **parse_params(bump, {"width": "20mm", "center": "0mm"}))  # far from the ends
+        bump.generate(grid, **parse_params(bump, {"width": "20mm", "center": "48mm", "taper": "0"}))
