@@ -45,3 +45,26 @@ def test_unreachable_target_says_what_all_modes_reach(al_beam):
     field = np.sign(model.grid.x) * 0.04  # a step: far outside three modes
     with pytest.raises(ReductionError, match="all 3 modes reach worst tau"):
         smallest_set(field, model.shapes, model.grid.mass, tau_min=0.99)
+
+
+def test_a_target_of_the_parity_no_mode_has_is_said_so():
+    """Issue 26: thesis-al-ff (symmetric modes only) under an off-centre pulse was told 'finer than
+    the model's modes can draw; widen it', and widening made it worse. The message now names the
+    missing parity and its share, which is checked here by mirroring the target on x -> -x."""
+    import re
+
+    from modalctl.model.scenes import load_scene
+    from modalctl.model.shape import parse_params
+    from modalctl.plugin.manager import get_shape
+
+    model = load_scene("thesis-al-ff")
+    sinc = get_shape("sinc")
+    target = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "20mm"})).values
+    with pytest.raises(ReductionError, match="symmetric about the middle") as refused:
+        smallest_set(target, model.shapes, model.grid.mass, tau_min=0.98)
+    x = model.grid.points[:, 0]
+    mirrored = np.interp(-x, x, target)  # independent of the grid's order
+    odd = (target - mirrored) / 2
+    share = np.sum(model.grid.mass * odd**2) / np.sum(model.grid.mass * target**2)
+    said = float(re.search(r"(\d+)% of the target's energy is antisymmetric", str(refused.value)).group(1))
+    assert said == pytest.approx(100 * share, abs=1)

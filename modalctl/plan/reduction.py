@@ -123,7 +123,27 @@ def smallest_set(fields, shapes, mass, *, tau_min: float | None = None, nrmse_ma
         if ok_tau and ok_err:
             return fit(fields, shapes, mass, ranking[:count])
     best = fit(fields, shapes, mass, ranking)
+    why = _missing_parity(fields, shapes, mass) or ("the shape is finer than the model's modes can draw; widen it, "
+                                                    "lower the target, or choose the modes yourself")
     raise ReductionError(
         f"no mode set meets the target (tau >= {tau_min}, nrmse <= {nrmse_max}): all {shapes.shape[0]} modes "
-        f"reach worst tau {best.tau.min():.4f} and worst nrmse {best.nrmse.max():.4f}: the shape is finer than "
-        f"the model's modes can draw; widen it, lower the target, or choose the modes yourself")
+        f"reach worst tau {best.tau.min():.4f} and worst nrmse {best.nrmse.max():.4f}: {why}")
+
+
+def _missing_parity(fields: np.ndarray, shapes: np.ndarray, mass: np.ndarray) -> str | None:
+    """Why the target cannot be drawn when every mode has one parity about the grid's centre (the
+    reversed grid order: a mirror on a beam, a point reflection on a plate) and the target has a
+    share of the other: no set of these modes draws that share, and widening the shape does not
+    help (issue 26: thesis-al-ff's symmetric modes under an off-centre pulse). None otherwise."""
+    if not np.allclose(mass, mass[::-1]):
+        return None
+    scale = np.abs(shapes).max(axis=1, keepdims=True)
+    for parity, name, other in ((1, "symmetric", "antisymmetric"), (-1, "antisymmetric", "symmetric")):
+        if np.all(np.abs(shapes - parity * shapes[:, ::-1]) <= 1e-6 * scale):
+            part = (fields - parity * fields[:, ::-1]) / 2  # the share of the parity the modes lack
+            share = float(np.max((part ** 2 @ mass) / np.maximum(fields ** 2 @ mass, 1e-300)))
+            if share > 0.01:
+                return (f"every mode of the model is {name} about the middle, and {100 * share:.0f}% of the target's "
+                        f"energy is {other}: no mode can draw that part (widening does not help); centre the shape, "
+                        f"or use a model with {other} modes")
+    return None
