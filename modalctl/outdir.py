@@ -19,7 +19,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["OutDirError", "claim", "atomic", "MANIFEST"]
+__all__ = ["OutDirError", "claim", "record", "atomic", "MANIFEST"]
 
 MANIFEST = "run.json"  # which command and options made the folder's results
 RESULTS = ("metrics.json", "fields.npz", "refusal.json", "log.json", "log.bin", "log-learning.json", "log-learning.bin",
