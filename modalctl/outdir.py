@@ -39,9 +39,7 @@ def claim(out: Path, command: str, options: dict, force: bool = False) -> Path:
         ``out`` holds the results of a different run (another command or other options) and
         ``force`` is False, or it holds results without a manifest.
     """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise OutDirError(f"out: {str(out)!r} is a file, not a directory")
+    out = Path(out)  # a folder's path: the CLI's --out type has refused a file already
     out.mkdir(parents=True, exist_ok=True)
     this = {"command": command, "options": json.loads(json.dumps(options, default=str))}
     previous = _manifest(out)
