@@ -38,6 +38,7 @@ DIMENSIONS: dict[str, dict[str, float]] = {
     "kg/m": {"kg/m": 1.0, "g/m": 1e-3, "g/mm": 1.0, "kg/mm": 1e3},
     "V/s": {"V/s": 1.0, "V/ms": 1e3, "V/us": 1e6, "V/\u00b5s": 1e6, "kV/s": 1e3, "MV/s": 1e6},
     "N s/m": {"N s/m": 1.0, "Ns/m": 1.0, "N*s/m": 1.0, "kg/s": 1.0},
+    "N s/m/s": {"N s/m/s": 1.0, "Ns/m/s": 1.0, "N s/m/ms": 1e3, "Ns/m/ms": 1e3},  # a damping's rate of change
 }
 
 _NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")

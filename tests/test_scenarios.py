@@ -7,10 +7,11 @@ import pytest
 from scipy.integrate import solve_ivp
 
 from modalctl.cli import main
-from modalctl.hil.finger import Finger, FingerPlant
+from modalctl.hil.finger import FingerPlant
 from modalctl.hil.scenario import Perturbation
 from modalctl.hil.sim_device import SimDevice
 from modalctl.model.scenes import load_scene
+from modalctl.model.touch import Touch
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--quiet", "--no-plots", "--json"]
@@ -57,7 +58,7 @@ def test_the_device_plays_the_finger_where_it_rests():
     at = model.grid.points[30]
     u = np.random.default_rng(2).standard_normal((8, 500))
     _, velocity = _play(model, Perturbation(finger=0.5, finger_at=tuple(at)), u, 200e3)
-    direct = FingerPlant(model, Finger(30, 0.5), 200e3, hold="foh").step(u)
+    direct = FingerPlant(model, Touch(30, 0.5), 200e3, hold="foh").step(u)
     assert np.allclose(velocity, direct, rtol=0, atol=1e-12 * np.max(np.abs(direct)))
     assert np.max(np.abs(_play(model, Perturbation(), u, 200e3)[1] - direct)) > 1e-2 * np.max(np.abs(direct))
 

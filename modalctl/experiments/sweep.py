@@ -25,11 +25,11 @@ from functools import lru_cache
 
 import numpy as np
 
-from modalctl.hil.finger import Finger, added_damping
 from modalctl.hil.scenario import Perturbation
 from modalctl.hil.sim_device import SimDevice
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
+from modalctl.model.touch import Touch, added_decay
 from modalctl.options import THESIS_PLAN, LoopOptions, PlanOptions, RunOptions
 from modalctl.plan.planner import plan_shot
 from modalctl.plugin.manager import get_shape
@@ -145,7 +145,7 @@ def run_case(case: Case) -> dict:
     added = 0.0
     if case.finger > 0:
         modes = planned[1].modes
-        added = added_damping(device.truth, Finger(peak, case.finger))[modes] / device.truth.damping[modes]
+        added = added_decay(device.truth, Touch(peak, case.finger))[modes] / (device.truth.damping * device.truth.omega)[modes]
         added = float(np.max(added))
     row = {**asdict(case), "params": dict(case.params), "tau": shot.metrics.tau,
            "margin_ratio": shot.metrics.margin_ratio, "peak_voltage": shot.metrics.peak_voltage,

@@ -1,43 +1,44 @@
-"""A finger on the surface: a local viscous damper, which couples the modes.
+"""A finger on the surface, played exactly: the truth with a touch (:mod:`modalctl.model.touch`)
+that may land, slide, press harder and lift during the shot.
 
-A damper ``c`` (N s/m) at grid point ``x0`` adds the modal damping matrix ``c phi(x0) phi(x0)^T``
-(``phi`` mass-normalized, 1/sqrt(kg)): no longer diagonal, so the modes exchange energy and the
-structure's modes become complex. :class:`FingerPlant` keeps it exact: the first-order system
-``x' = A x + B u`` of all modes (displacements and velocities) is diagonalized once,
-``A = V diag(lambda) V^-1``, and each eigen-coordinate is propagated by the same exact hold
-discretization as :class:`modalctl.model.propagate.Plant`; the modal velocities are read back through ``V``.
+The touch couples the modes (a rank-one damping matrix, and stiffness and mass for a firm press),
+so the structure's modes become complex. :class:`FingerPlant` keeps it exact: the first-order
+system ``x' = A x + B u`` of all modes (:func:`~modalctl.model.touch.touched_system`) is
+diagonalized, ``A = V diag(lambda) V^-1``, and each eigen-coordinate is propagated by the same
+exact hold discretization as :class:`modalctl.model.propagate.Plant`; the modal velocities are read
+back through ``V``. When the touch changes between two chunks, the physical state (displacements
+and velocities) carries over into the new eigen-coordinates.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
 from modalctl.loops.schedule import HOLD
 from modalctl.model.modes import ModalModel, ModelError
+from modalctl.model.touch import Touch, touched_system
 
 from .block import Recursions, clip_rails
 
-__all__ = ["Finger", "FingerPlant", "added_damping"]
+__all__ = ["FingerPlant", "TouchPath"]
+
+#: Where the touch is at time ``t`` (s) of the shot: a :class:`~modalctl.model.touch.Touch` or None.
+TouchPath = Callable[[float], "Touch | None"]
 
 
-@dataclass(frozen=True)
-class Finger:
-    """A touch: viscous ``damping`` (N s/m) at grid point ``index``."""
+class _Settled:
+    """The touched system diagonalized: eigenvalues, ``V^-1 B``, the velocity rows of ``V``."""
 
-    index: int
-    damping: float
-
-    def matrix(self, model: ModalModel) -> np.ndarray:
-        """The modal damping matrix it adds, shape (k, k), 1/s."""
-        phi = model.shapes[:, self.index]
-        return self.damping * np.outer(phi, phi)
-
-
-def added_damping(model: ModalModel, finger: Finger) -> np.ndarray:
-    """First-order added damping ratio of every mode, ``c phi_k(x0)^2 / (2 w_k)``, shape (k,)."""
-    return np.diag(finger.matrix(model)) / (2 * model.omega)
+    def __init__(self, model: ModalModel, touch: Touch | None, sample_rate: float, hold: str):
+        a, b = touched_system(model, touch)
+        self.values, self.vectors = np.linalg.eig(a)
+        if np.any(self.values.real >= 0):
+            raise ModelError("finger plant: the touched system is not stable")
+        self.entry = np.linalg.solve(self.vectors, b)  # V^-1 B
+        self.exit = self.vectors[model.n_modes:]  # modal velocities from eigen-coordinates
+        self.coordinates = Recursions(self.values, sample_rate, hold)
 
 
 class FingerPlant:
@@ -47,7 +48,9 @@ class FingerPlant:
     ----------
     model : ModalModel
         The structure without the finger.
-    finger : Finger
+    touch : Touch, None or TouchPath
+        The finger: resting all shot, absent, or where it is at each time (s) of the shot (a
+        chunk plays the touch at its middle).
     sample_rate : float
         Hz.
     voltage_limit : float or None
@@ -56,28 +59,58 @@ class FingerPlant:
         The DAC's hold (the board's by default).
     """
 
-    def __init__(self, model: ModalModel, finger: Finger, sample_rate: float, voltage_limit: float | None = None,
+    CACHED = 64  # touches kept diagonalized (a finger lifting and landing again, a replayed shot)
+
+    def __init__(self, model: ModalModel, touch, sample_rate: float, voltage_limit: float | None = None,
                  hold: str = HOLD):
-        k = model.n_modes
-        damping = np.diag(2 * model.damping * model.omega) + finger.matrix(model)
-        a = np.block([[np.zeros((k, k)), np.eye(k)], [-np.diag(model.omega ** 2), -damping]])
-        self.values, self.vectors = np.linalg.eig(a)
-        if np.any(self.values.real >= 0):
-            raise ModelError("finger plant: the damped system is not stable")
-        self.entry = np.linalg.solve(self.vectors, np.vstack([np.zeros((k, model.actuator_gains.shape[1])),
-                                                              model.actuator_gains]))  # V^-1 B
-        self.exit = self.vectors[k:]  # modal velocities from eigen-coordinates
-        self.coordinates = Recursions(self.values, sample_rate, hold)
-        self.model, self.finger, self.sample_rate, self.voltage_limit = model, finger, float(sample_rate), voltage_limit
+        self.path: TouchPath = touch if callable(touch) else (lambda t, fixed=touch: fixed)
+        self.model, self.sample_rate, self.voltage_limit, self.hold = model, float(sample_rate), voltage_limit, hold
+        self._settled: dict = {}
         self.reset()
 
+    def _settle(self, touch: Touch | None) -> _Settled:
+        if touch not in self._settled:
+            if len(self._settled) >= self.CACHED:
+                self._settled.pop(next(iter(self._settled)))
+            self._settled[touch] = _Settled(self.model, touch, self.sample_rate, self.hold)
+        return self._settled[touch]
+
+    @property
+    def values(self) -> np.ndarray:
+        """Eigenvalues (1/s) of the system as touched now, shape (2k,)."""
+        return self._now.values
+
     def reset(self) -> None:
-        self.coordinates.reset()
-        self.clipped = 0
+        self.sample, self.clipped = 0, 0
+        self.touch = self.path(0.0)
+        self._now = self._settle(self.touch)
+        self._now.coordinates.reset()
+        self._last = None  # the last voltages played (a,)
 
     def step(self, voltages: np.ndarray) -> np.ndarray:
         """Modal velocities (k, n) for the next chunk of voltages (a, n), V."""
-        return (self.exit @ self.coordinates.run(self.entry @ clip_rails(self, voltages))).real
+        n = voltages.shape[1]
+        touch = self.path((self.sample + n / 2) / self.sample_rate)
+        if touch != self.touch:
+            self._move(touch)
+        u = clip_rails(self, voltages)
+        now = self._now
+        velocity = (now.exit @ now.coordinates.run(now.entry @ u)).real
+        self.sample += n
+        if n:
+            self._last = u[:, -1]
+        return velocity
+
+    def _move(self, touch: Touch | None) -> None:
+        """The finger moved, pressed or lifted: the same displacements and velocities, new eigen-coordinates."""
+        old, new = self._now, self._settle(touch)
+        if old.coordinates.last is None:  # at rest: nothing to carry
+            new.coordinates.reset()
+        else:
+            state = (old.vectors @ old.coordinates.z).real
+            new.coordinates.z = np.linalg.solve(new.vectors, state)
+            new.coordinates.last = new.entry @ self._last
+        self.touch, self._now = touch, new
 
     def retune(self, frequencies, damping=None) -> None:
         raise ModelError("finger plant: a drifting truth under a finger is not supported; perturb the model first")

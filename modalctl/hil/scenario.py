@@ -9,9 +9,11 @@ import numpy as np
 
 from modalctl.model.modes import ModalModel
 from modalctl.model.shape import Shape
+from modalctl.model.touch import touch_at
 
 __all__ = ["Perturbation", "perturb", "step", "ramp", "scan_noise", "DRIFT_MAX", "DRIFT_RATE_MAX",
-           "DAMPING_ERROR_MAX", "FINGER_MAX", "SNR_MAX"]
+           "DAMPING_ERROR_MAX", "FINGER_MAX", "SNR_MAX",
+           "FINGER_SLIDE_MAX", "FINGER_PRESS_MAX", "FINGER_TIME_MAX"]
 
 # The largest departures a simulated truth may take (bad input beyond them, refused at the edge):
 DRIFT_MAX = 0.5  # a resonance moved by half its frequency is another structure
@@ -19,6 +21,10 @@ DRIFT_RATE_MAX = 10.0  # 1/s: 25% over a 25 ms shot, far past any warming
 DAMPING_ERROR_MAX = 10.0  # eleven times the modelled damping
 FINGER_MAX = 100.0  # N s/m: a hundred times a pressing finger (0.1-1 N s/m)
 SNR_MAX = 200.0  # dB: beyond, the noise is below float64's round-off of the signal
+FINGER_SLIDE_MAX = 10.0  # m/s: a swipe; faster is no touch
+FINGER_PRESS_MAX = 1e4  # N s/m per s: from nothing to FINGER_MAX in 10 ms
+FINGER_TIME_MAX = 10.0  # s: a finger landing or lifting later than any shot lasts is a typo
+PRESS_STEP = 250e-6  # s: a pressing finger's damping is played in steps this long
 
 
 @dataclass(frozen=True)
@@ -53,6 +59,14 @@ class Perturbation:
         modes (:mod:`modalctl.hil.finger`).
     finger_at : tuple of float or None
         Where the finger rests (m; one coordinate on a beam, two on a plate).
+    finger_lands, finger_lifts : float or None
+        When the finger lands on the surface and lifts from it (s of the shot; None: at the
+        start, never).
+    finger_slide : float
+        The finger slides along the first axis at this speed (m/s), from where it landed, and
+        stops at the edge.
+    finger_press : float
+        The finger presses harder: its damping grows at this rate from when it landed (N s/m per s).
     scan_repeats : int
         The vibrometer measures each point this many times and keeps the mean (the thesis's way to
         raise its signal-to-noise ratio): its noise falls by the square root (the sensors' does not).
@@ -70,6 +84,10 @@ class Perturbation:
     drift_step_time: float = 0.0
     finger: float = 0.0
     finger_at: tuple | None = None
+    finger_lands: float | None = None
+    finger_lifts: float | None = None
+    finger_slide: float = 0.0
+    finger_press: float = 0.0
     scan_repeats: int = 1
 
     def __post_init__(self):
@@ -79,6 +97,11 @@ class Perturbation:
             raise ValueError(f"finger damping must be zero or more N s/m, got {self.finger!r}")
         if self.finger and self.finger_at is None:
             raise ValueError("a finger needs a place to rest (finger_at, m)")
+        touching = (self.finger_lands, self.finger_lifts, self.finger_slide or None, self.finger_press or None)
+        if not self.finger and any(x is not None for x in touching):
+            raise ValueError("the finger's landing, lifting, sliding and pressing need a finger (finger damping, N s/m)")
+        if self.finger_lands is not None and self.finger_lifts is not None and self.finger_lifts <= self.finger_lands:
+            raise ValueError(f"the finger lifts ({self.finger_lifts!r} s) before it lands ({self.finger_lands!r} s)")
         if self.finger and self.moving:
             raise ValueError("a finger on a structure whose resonances move during the shot is not simulated: "
                              "give a fixed drift with the finger")
@@ -103,6 +126,8 @@ class Perturbation:
                    amplifier_bandwidth=options.get("amplifier_bandwidth"), voltage_limit=options.get("rails"),
                    seed=options.get("seed", 0), drift_rate=options.get("drift_rate", 0.0), drift_step=step,
                    drift_step_time=step_time, finger=finger, finger_at=at,
+                   finger_lands=options.get("finger_lands"), finger_lifts=options.get("finger_lifts"),
+                   finger_slide=options.get("finger_slide", 0.0), finger_press=options.get("finger_press", 0.0),
                    scan_repeats=options.get("scan_repeats", 1))
 
     @property
@@ -113,6 +138,35 @@ class Perturbation:
     def shift(self, t: float) -> float:
         """Further relative shift of every resonance at time ``t`` (s) of the shot."""
         return float(ramp(0.0, self.drift_rate)(t, 1)[0] + step(self.drift_step_time, self.drift_step)(t, 1)[0])
+
+    @property
+    def touch_moves(self) -> bool:
+        """Whether the finger lands, lifts, slides or presses during the shot."""
+        return bool(self.finger) and (self.finger_lands is not None or self.finger_lifts is not None
+                                      or bool(self.finger_slide) or bool(self.finger_press))
+
+    def touch_path(self, model: ModalModel):
+        """Where the finger is at each time of the shot: a ``TouchPath`` (``t -> Touch | None``) for
+        :class:`~modalctl.hil.finger.FingerPlant`, the resting :class:`~modalctl.model.touch.Touch`
+        when it holds still, None without a finger. ModelError when it rests off the structure.
+        The press is played in steps of ``PRESS_STEP``."""
+        if not self.finger:
+            return None
+        rest = touch_at(model, self.finger_at, self.finger)
+        if not self.touch_moves:
+            return rest
+        lands = self.finger_lands or 0.0
+        lifts = np.inf if self.finger_lifts is None else self.finger_lifts
+        start, (low, high) = np.array(model.grid.points[rest.index], float), model.grid.bounds
+
+        def path(t: float):
+            if not lands <= t < lifts:
+                return None
+            held = PRESS_STEP * np.floor((t - lands) / PRESS_STEP)
+            at = start.copy()
+            at[0] = np.clip(at[0] + self.finger_slide * (t - lands), low[0], high[0])
+            return touch_at(model, at, self.finger + self.finger_press * held)
+        return path
 
     def schedule(self):
         """``drift(t, k) -> (k,)`` for the HIL board, or None when the resonances hold still."""
@@ -131,6 +185,10 @@ class Perturbation:
                  if self.drift_step else "",
                  f"finger {self.finger:g} N s/m at {', '.join(f'{1e3 * x:g}' for x in self.finger_at)} mm"
                  if self.finger else "",
+                 f"landing at {1e3 * self.finger_lands:g} ms" if self.finger_lands is not None else "",
+                 f"lifting at {1e3 * self.finger_lifts:g} ms" if self.finger_lifts is not None else "",
+                 f"sliding at {1e3 * self.finger_slide:g} mm/s" if self.finger_slide else "",
+                 f"pressing {self.finger_press:g} N s/m per s" if self.finger_press else "",
                  f"vibrometer mean of {self.scan_repeats}" if self.scan_repeats > 1 and self.snr_db is not None
                  else ""]
         return ", ".join(p for p in parts if p) or "perfect model"

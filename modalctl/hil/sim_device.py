@@ -13,7 +13,7 @@ from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import ParamError
 
-from .finger import Finger, FingerPlant
+from .finger import FingerPlant
 from .plant import HOLDS, Plant, truncation
 from .scenario import Perturbation, perturb, scan_noise
 
@@ -48,9 +48,11 @@ class SimDevice(Device):
         super().__init__(url)
         self.model, self.perturbation, self.hold, self.tol = model, perturbation, hold, tol
         self.truth = perturb(model, perturbation)
-        self.finger = _finger(model, perturbation, url)
+        self.finger = _finger(model, perturbation, url)  # a Touch, a TouchPath or None
         self.sample_rate = None
         self.info["truth"] = perturbation.describe()
+        if perturbation.finger:  # where the report draws it
+            self.info["finger_at_m"] = [float(x) for x in perturbation.finger_at]
         self._noise_sigma = None
         self._voltages = self._modal = self._board = None
         self._boards = 0  # phasor boards made so far
@@ -122,7 +124,7 @@ class SimDevice(Device):
         self._kept = kept
         self.info.update({"modes_simulated": int(kept.size), "modes_available": int(self.truth.n_modes),
                           "truncation_bound_m_s": dropped, "truncation_tol": self.tol})
-        chunk = max(1, int(round(DRIFT_STEP * self.sample_rate))) if p.moving else CHUNK
+        chunk = max(1, int(round(DRIFT_STEP * self.sample_rate))) if p.moving or p.touch_moves else CHUNK
         chunks = range(0, u.shape[1], chunk)
         bar = tqdm(chunks, desc="HIL shot", unit="chunk", disable=not progress or len(chunks) < 4, leave=False)
         base = plant.model.frequencies.copy()
@@ -191,19 +193,14 @@ class SimDevice(Device):
         return 0.0 if snr is None else peak / 10 ** (snr / 20)
 
 
-def _finger(model: ModalModel, p: Perturbation, url: str) -> Finger | None:
-    """The perturbation's finger on the grid point nearest to where it rests, or None."""
-    if not p.finger:
-        return None
-    at = np.atleast_1d(np.asarray(p.finger_at, float))
-    grid = model.grid
-    if at.size != grid.dim:
-        raise ParamError(f"{url}: the finger rests at {at.size} coordinate(s) on a {grid.dim}-D structure")
-    low, high = grid.bounds
-    if np.any(at < low - 1e-9) or np.any(at > high + 1e-9):
-        raise ParamError(f"{url}: the finger at {np.round(at * 1e3, 3).tolist()} mm is off the structure "
-                          f"({np.round(low * 1e3, 3).tolist()} to {np.round(high * 1e3, 3).tolist()} mm)")
-    return Finger(int(np.argmin(np.linalg.norm(grid.points - at, axis=1))), p.finger)
+def _finger(model: ModalModel, p: Perturbation, url: str):
+    """The perturbation's finger on the grid point nearest to where it rests (a
+    :class:`~modalctl.model.touch.Touch`), where it is at each time when it moves (a
+    :data:`~modalctl.hil.finger.TouchPath`), or None."""
+    try:
+        return p.touch_path(model)
+    except ModelError as exc:
+        raise ParamError(f"{url}: the finger: {exc}") from None
 
 
 def _structure(context: DeviceContext) -> ModalModel:

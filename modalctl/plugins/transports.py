@@ -9,7 +9,16 @@ from __future__ import annotations
 
 import argparse
 
-from modalctl.hil.scenario import DAMPING_ERROR_MAX, DRIFT_MAX, DRIFT_RATE_MAX, FINGER_MAX, SNR_MAX
+from modalctl.hil.scenario import (
+    DAMPING_ERROR_MAX,
+    DRIFT_MAX,
+    DRIFT_RATE_MAX,
+    FINGER_MAX,
+    FINGER_PRESS_MAX,
+    FINGER_SLIDE_MAX,
+    FINGER_TIME_MAX,
+    SNR_MAX,
+)
 from modalctl.io.device import Device, DeviceContext, TransportOptions
 from modalctl.plugin.spec import hookimpl
 from modalctl.units import number_type, quantity_type
@@ -70,6 +79,16 @@ def modalctl_add_options(options: TransportOptions):
                        help="a finger resting on the surface: its viscous damping, e.g. 0.5Ns/m")
     group.add_argument("--finger-at", type=quantity_type("m", "finger-at", point=True), metavar="POINT",
                        help="where the finger rests, e.g. 24mm or 30mm,20mm (default: the target's peak)")
+    group.add_argument("--finger-lands", type=quantity_type("s", "finger-lands", low=0, high=FINGER_TIME_MAX, low_open=False),
+                       help="the finger lands at this time of the shot, e.g. 10ms (default: it rests from the start)")
+    group.add_argument("--finger-lifts", type=quantity_type("s", "finger-lifts", low=0, high=FINGER_TIME_MAX),
+                       help="the finger lifts at this time of the shot, e.g. 20ms (default: it stays)")
+    group.add_argument("--finger-slide", default=0.0,
+                       type=quantity_type("m/s", "finger-slide", low=-FINGER_SLIDE_MAX, high=FINGER_SLIDE_MAX),
+                       help="the finger slides along x at this speed from where it landed, e.g. 50mm/s")
+    group.add_argument("--finger-press", default=0.0,
+                       type=quantity_type("N s/m/s", "finger-press", low=0, high=FINGER_PRESS_MAX, low_open=False),
+                       help="the finger presses harder: its damping grows at this rate, e.g. 40Ns/m/s")
     group.add_argument("--snr", type=number_type(float, "snr", low=0, high=SNR_MAX, low_open=False),
                        help="measurement noise, dB below the largest velocity")
     group.add_argument("--scan-repeats", type=number_type(int, "scan-repeats", low=1, high=1000, low_open=False), default=1,
