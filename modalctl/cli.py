@@ -160,7 +160,11 @@ def build_parser() -> argparse.ArgumentParser:
     loop.add_argument("--latency", type=number_type(int, "latency", low=0, high=1000, low_open=False), default=LOOP.latency,
                       help=f"extra periods the board takes to use a command ({LOOP.latency})")
     loop.add_argument("--controller", default=LOOP.controller,
-                      help=f"per-mode controller plugin: pi or lqg ({LOOP.controller})")
+                      help=f"per-mode controller plugin: pi, lqg, or touch (pi plus the force a finger takes, "
+                           f"estimated during the shot) ({LOOP.controller})")
+    loop.add_argument("--touch-at", type=quantity_type("m", "touch-at", point=True), metavar="POINT",
+                      help="touch controller: where a touch sensor says the finger rests, e.g. 0mm (default: "
+                           "the controller finds it)")
     loop.add_argument("--watchdog", type=number_type(int, "watchdog", low=1, high=10**6, low_open=False), default=LOOP.watchdog,
                       help=f"periods without a measurement before the supervisor stops the shot ({LOOP.watchdog})")
     loop.add_argument("--learn", nargs="?", const="record", choices=LEARN_FROM,
@@ -336,7 +340,8 @@ def _run_options(args, out: Path) -> RunOptions:
                        brake=not args.no_brake, after=args.after, sample_rate=args.sample_rate)
     loop = None if args.loop == "open" else LoopOptions(
         control_rate=args.control_rate, controller=args.controller, on_board=args.loop == "board",
-        authority=args.authority, latency=args.latency, slew_limit=args.slew_limit, watchdog=args.watchdog)
+        authority=args.authority, latency=args.latency, slew_limit=args.slew_limit, watchdog=args.watchdog,
+        touch_at=args.touch_at)
     return RunOptions(args.focus_time, plan, loop, args.learn, out / "log" if loop else None, not args.quiet)
 
 

@@ -246,6 +246,9 @@ class LoopOptions(_Options):
         mid-span sensor and its even modes: ratios of 1e14) and the loops chased the others' leak on
         a perfect model and diverged; with the limit they play the open loop's shot to 1e-8.
         plate-glass rests 3 of 17 loops (ratios 0.56-1.07) at no cost.
+    touch_at : tuple of float or None
+        Where a touch sensor says a finger rests (m); the ``touch`` controller then estimates only
+        its damping. None: it finds where the finger rests too.
     """
 
     control_rate: float = 20e3
@@ -261,6 +264,7 @@ class LoopOptions(_Options):
     lockin_fraction: float = 1.0
     lockin_image: float = 0.5
     leak_limit: float = 0.5
+    touch_at: tuple | None = None
 
     def __post_init__(self):
         if not self.control_rate > 0:

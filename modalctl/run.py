@@ -140,6 +140,9 @@ class LoopMetrics:
         ``shot_seconds`` over the time the shot plays.
     scan_seconds : float
         The field's scan after the shot (a measurement of it, not part of it).
+    learned : dict or None
+        What the controller learned during the shot (:meth:`~modalctl.loops.controller.Controller.summary`:
+        the ``touch`` controller's estimate of the touch).
     """
 
     controller: str
@@ -159,6 +162,7 @@ class LoopMetrics:
     shot_seconds: float
     real_time_factor: float
     scan_seconds: float
+    learned: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -431,7 +435,7 @@ def _loop_metrics(played: _Played, the_plan: Plan, loop: LoopOptions, sim_second
         crossover_hz=design.crossover_hz.tolist(), phase_margin_deg=design.phase_margin_deg.tolist(),
         gain_margin_db=design.gain_margin_db.tolist(), design_seconds=played.design_seconds,
         shot_seconds=played.seconds, real_time_factor=played.seconds / the_plan.duration,
-        scan_seconds=sim_seconds - played.design_seconds - played.seconds)
+        scan_seconds=sim_seconds - played.design_seconds - played.seconds, learned=played.parts.controller.summary())
 
 
 def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):

@@ -39,6 +39,15 @@ class LoopPlant:
         Relative resonance error expected.
     detuning : ndarray, shape (k,), optional
         Known offset of each resonance from its carrier (rad/s), e.g. from a tracker.
+    schedule : Schedule, optional
+        The shot's references, planned drive and planned velocity envelopes per period
+        (:class:`~modalctl.loops.schedule.Schedule`), for controllers that plan with them.
+    shapes : ndarray, shape (k, n), optional
+        The modes' shapes on the grid (1/sqrt(kg)) and ``points`` (n, d) the grid (m): where a
+        touch may rest.
+    points : ndarray, shape (n, d), optional
+    touch_at : int or None
+        Grid point where a touch sensor says a finger rests (None: unknown).
     """
 
     frequencies: np.ndarray
@@ -50,6 +59,10 @@ class LoopPlant:
     level: np.ndarray | None = None
     drift: float = 0.01
     detuning: np.ndarray | None = None
+    schedule: object | None = None
+    shapes: np.ndarray | None = None
+    points: np.ndarray | None = None
+    touch_at: int | None = None
 
 
 class Controller(ABC):
@@ -57,10 +70,13 @@ class Controller(ABC):
 
     Subclasses implement :meth:`reset` and :meth:`update` and set ``design`` (a
     :class:`LoopDesign`, for the report; its gains may be NaN where the law has none).
-    :meth:`scale` multiplies the feedback (a stability test) and is optional.
+    :meth:`scale` multiplies the feedback (a stability test) and is optional. A controller that
+    learns the plant during the shot sets ``observes`` and implements :meth:`observe`, and may say
+    what it learned in :meth:`summary`.
     """
 
     design: LoopDesign
+    observes: bool = False
 
     @abstractmethod
     def reset(self) -> None:
@@ -75,6 +91,15 @@ class Controller(ABC):
     def scale(self, factor: float) -> None:
         """Multiply every gain by ``factor`` (a stability test: a divergent loop must be caught)."""
         raise NotImplementedError(f"{type(self).__name__} cannot scale its gains")
+
+    def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
+        """Called before :meth:`update` when ``observes`` is set: the period's index, each mode's
+        own envelope as read (k,) (the other modes' planned share and the loops' leak removed,
+        m/s sqrt(kg)) and the commands sent at the end of the period before (k,)."""
+
+    def summary(self) -> dict | None:
+        """What the controller learned during the shot, for the shot's metrics (JSON-ready), or None."""
+        return None
 
 
 @dataclass(frozen=True)

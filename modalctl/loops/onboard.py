@@ -126,8 +126,9 @@ class BoardLoop:
 def board_loop(plan, parts) -> BoardLoop:
     """The board-side loops of ``plan`` with the gains, authority and leak of ``parts``
     (:class:`modalctl.loops.shot.LoopParts`, PI controller)."""
-    if not hasattr(parts.design, "kp"):
-        raise ValueError("a board runs PI loops: design the shot with the pi controller")
+    if not hasattr(parts.design, "kp") or parts.controller.observes:
+        raise ValueError("a board runs PI loops: design the shot with the pi controller, or run the others on the "
+                         "host (--loop closed)")
     drive = plan.drive
     if not isinstance(drive, EnvelopeDrive):
         raise ValueError(f"loops on the board follow envelope plans (the board recomputes each reference from its "

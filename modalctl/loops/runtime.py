@@ -249,10 +249,13 @@ class Runtime:
             return self.state
         reference = self._reference[n]
         error = reference - measured + self.leak * self.command
-        if self.tracker is not None:  # the mode's own answer: the other modes' predicted share removed
-            drive = (self.schedule.drive[:, n] + self.command) * self.held
-            own = measured - (reference - self.schedule.own[:, n]) - self.leak * self.command
-            self.tracker.update(own[:, None], drive[:, None])
+        if self.tracker is not None or self.controller.observes:
+            own = measured - (reference - self.schedule.own[:, n]) - self.leak * self.command  # the mode's own answer
+            if self.tracker is not None:
+                drive = (self.schedule.drive[:, n] + self.command) * self.held
+                self.tracker.update(own[:, None], drive[:, None])
+            if self.controller.observes:
+                self.controller.observe(n, own, self.command)
         wanted = self.controller.update(error, self._authority[n])
         fraction = self.supervisor.limit(self.command, wanted, n)
         self.command = wanted if fraction == 1.0 else fraction * wanted

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.fft import next_fast_len
+from scipy.signal import hilbert
 
 from modalctl.model.propagate import Plant
 
@@ -58,6 +60,10 @@ class Schedule:
         The feed-forward voltages the board plays (V).
     weights : ndarray, shape (a, k)
         Volts on each channel per unit modal command of each mode (the board's dispatch).
+    velocity : ndarray, shape (k, n), optional
+        Each kept mode's planned modal velocity as a complex envelope on its carrier at the end of
+        each period, unfiltered (the analytic signal's; m/s sqrt(kg)): what a touch damps, so what
+        a controller that gives it back must add (:mod:`modalctl.loops.touch`).
     """
 
     control_rate: float
@@ -70,6 +76,7 @@ class Schedule:
     own: np.ndarray
     feedforward: np.ndarray
     weights: np.ndarray
+    velocity: np.ndarray | None = None
 
     @property
     def periods(self) -> int:
@@ -108,9 +115,12 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     lockin = lambda signals: LockIn(bandwidths, fs, decimation, closing=True).demodulate(signals, phasors)  # noqa: E731
     reference = lockin(sensors @ expected.sensors(velocity))
     planned = lockin(drive)
-    own = lockin(velocity[plan.modes])
+    kept = velocity[plan.modes]
+    own = lockin(kept)
+    padded = hilbert(kept, next_fast_len(2 * t.size), axis=1)[:, :t.size]  # zeros after: no wrap-around
+    analytic = (padded * phasors.conj())[:, decimation - 1::decimation]  # at each period's end
     return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),
-                    reference, planned, own, volts, np.asarray(plan.weights))
+                    reference, planned, own, volts, np.asarray(plan.weights), analytic)
 
 
 def envelope_noise(sigma: float, sensors: np.ndarray, bandwidths: np.ndarray, sample_rate: float,

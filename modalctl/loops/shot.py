@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from modalctl.model.modes import ModalModel
+from modalctl.model.touch import touch_at
 from modalctl.options import LoopOptions
 from modalctl.plugin.manager import get_controller
 
@@ -68,9 +69,11 @@ def parts_for(s: Schedule, model: ModalModel, modes, options: LoopOptions, sigma
     modes = np.asarray(modes, int)
     noise = envelope_noise(sigma, s.sensors, s.bandwidths, s.control_rate * s.decimation)
     level = np.abs(s.reference).max(axis=1)
-    loops = get_controller(options.controller).create(LoopPlant(model.frequencies[modes], model.damping[modes],
-                                                                s.bandwidths, s.control_rate, 1 + options.latency,
-                                                                noise, level, options.drift))
+    sensed = None if options.touch_at is None else touch_at(model, options.touch_at).index
+    plant = LoopPlant(model.frequencies[modes], model.damping[modes], s.bandwidths, s.control_rate,
+                      1 + options.latency, noise, level, options.drift, schedule=s, shapes=model.shapes[modes],
+                      points=model.grid.points, touch_at=sensed)
+    loops = get_controller(options.controller).create(plant)
     excess, spread = np.abs(s.own) - 3 * noise[:, None], 7 * noise[:, None]
     trust = np.clip(np.divide(excess, spread, out=(excess > 0).astype(float), where=spread > 0), 0, 1)  # no noise: 1
     trust *= (leak_ratio(model, modes, s.sensors, s.weights) <= options.leak_limit)[:, None]

@@ -23,9 +23,19 @@ def _lqg(plant: LoopPlant, **options) -> Controller:
     return LQGControl(plant, **options)
 
 
+def _touch(plant: LoopPlant, inner: str = "pi", **options) -> Controller:
+    from modalctl.loops.touch import TouchControl
+    from modalctl.plugin.manager import get_controller
+
+    return TouchControl(plant, get_controller(inner).create(plant), **options)
+
+
 @hookimpl
 def modalctl_controllers():
     return [ControllerFactory("pi", "PI per mode, zero on the mode's pole, the highest crossover that keeps "
                                     "50 deg and 6 dB with the lock-in and the latency (default)", _pi),
             ControllerFactory("lqg", "per-mode Kalman observer of the envelope model (detuning, latency, lock-in) "
-                                     "with LQ state feedback and integral action", _lqg)]
+                                     "with LQ state feedback and integral action", _lqg),
+            ControllerFactory("touch", "PI per mode plus the force a touch takes: its damping and place estimated "
+                                       "from every mode's envelope during the shot, given back on the planned motion",
+                              _touch)]

@@ -1,0 +1,134 @@
+"""Loops that give back what a touch takes: the ``touch`` controller plugin.
+
+A finger on the focus is one damper at one point: it drains every mode that moves there, at the
+decay rate ``c phi_k(x0)^2 / 2`` (:mod:`modalctl.model.touch`). Per-mode loops alone see it as an
+error to integrate away, late, and with a loop slower than the drain (a finger of 1 N s/m at the
+middle of thesis-al-cc adds ten times mode 1's own damping). :class:`TouchControl` estimates the
+touch during the shot (:class:`~modalctl.loops.touch_estimator.TouchEstimator`, from every kept mode's
+envelope and the drive it received) and adds, to an inner per-mode controller's feedback, the
+force that cancels the touch's damping on the planned motion: in mode k's carrier frame
+``d_k y_k / r_k``, with ``d_k`` the decay the touch adds (its sure part: nothing while unsure),
+``y_k`` the planned velocity envelope when the command plays and ``r_k`` the velocity residue.
+Untouched, it is the inner controller. The commands the estimator is told of pass through the
+lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
+that the drive and the response meet in the lock-in's frame.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import control
+import numpy as np
+
+from modalctl.model.touch import velocity_residues
+
+from .controller import Controller, LoopPlant
+from .design import lockin_filter
+from .lockin import hold_gain
+from .schedule import HOLD
+from .touch_estimator import TouchEstimator
+
+__all__ = ["TouchControl", "CommandFilter"]
+
+
+class CommandFilter:
+    """Each mode's lock-in low-pass at the control rate, for inputs ramped linearly between periods.
+
+    Parameters
+    ----------
+    bandwidths : array_like, shape (k,)
+        Lock-in corners (Hz).
+    control_rate : float
+        Hz.
+    """
+
+    def __init__(self, bandwidths, control_rate: float):
+        systems = [control.c2d(lockin_filter(b), 1 / control_rate, method="foh") for b in np.atleast_1d(bandwidths)]
+        self.A = np.array([np.asarray(s.A, float) for s in systems])  # (k, o, o)
+        self.B = np.array([np.asarray(s.B, float)[:, 0] for s in systems])  # (k, o)
+        self.C = np.array([np.asarray(s.C, float)[0] for s in systems])  # (k, o)
+        self.D = np.array([float(np.asarray(s.D)[0, 0]) for s in systems])  # (k,)
+        self.reset()
+
+    def reset(self) -> None:
+        self.state = np.zeros(self.B.shape, complex)
+
+    def step(self, value: np.ndarray) -> np.ndarray:
+        """The filtered value (k,) at this sample of the input ``value`` (k,); the filter moves on."""
+        out = np.einsum("ko,ko->k", self.C, self.state) + self.D * value
+        self.state = np.einsum("kij,kj->ki", self.A, self.state) + self.B * value[:, None]
+        return out
+
+
+class TouchControl(Controller):
+    """An inner per-mode controller plus the force a touch estimated during the shot takes.
+
+    Parameters
+    ----------
+    plant : LoopPlant
+        With its ``schedule`` (planned velocity and drive envelopes), ``shapes`` and ``points``.
+    inner : Controller
+        The per-mode feedback (PI by default).
+    memory : float
+        The estimator's forgetting time (s).
+    """
+
+    observes = True
+
+    def __init__(self, plant: LoopPlant, inner: Controller, memory: float = 1e-3):
+        s = plant.schedule
+        if s is None or s.velocity is None or plant.shapes is None:
+            raise ValueError("the touch controller needs the shot's schedule (with its planned velocities) and the "
+                             "modes' shapes on the grid")
+        self.inner, self.design = inner, inner.design
+        self.estimator = TouchEstimator(plant.frequencies, plant.damping, plant.shapes, plant.control_rate, memory,
+                                        plant.touch_at)
+        self.filter = CommandFilter(plant.bandwidths, plant.control_rate)
+        self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
+        self.residues = velocity_residues(plant.frequencies, plant.damping)
+        self.held = hold_gain(s.carriers, s.control_rate * s.decimation, HOLD)
+        self.lead = max(1, int(round(plant.latency)))  # periods from a measurement to its command's playing
+        self.points, self.rate = plant.points, float(plant.control_rate)
+        self.reset()
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self.estimator.reset()
+        self.filter.reset()
+        k = self.residues.size
+        self._sent = deque([np.zeros(k, complex)] * (self.lead - 1))  # commands on their way to the board
+        self.period = -1
+        self.history: list[tuple[float, float, float]] = []  # (damping, stderr, sure) per period
+
+    def scale(self, factor: float) -> None:
+        self.inner.scale(factor)
+
+    def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
+        self._sent.append(np.asarray(sent, complex))
+        playing = self._sent.popleft()  # the command whose ramp ends with this period
+        drive = self.drive[:, min(period, self.drive.shape[1] - 1)] + self.held * self.filter.step(playing)
+        self.estimator.update(envelope, drive)
+        self.period = period
+        e = self.estimator.estimate
+        self.history.append((e.damping, e.stderr, e.sure))
+
+    def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        feedback = self.inner.update(error, limit)
+        if self.period < 0:
+            return feedback
+        n = min(self.period + self.lead, self.velocity.shape[1] - 1)
+        return feedback + self.estimator.added_decay() * self.velocity[:, n] / self.residues
+
+    def summary(self) -> dict | None:
+        """The touch as estimated at the end of the shot and every period's estimate."""
+        if not self.history:
+            return None
+        e = self.estimator.estimate
+        damping, stderr, sure = (np.array(v) for v in zip(*self.history))
+        sensed = np.flatnonzero(sure > 0)
+        return {"damping_n_s_per_m": e.damping, "stderr_n_s_per_m": e.stderr if np.isfinite(e.stderr) else None,
+                "sure_n_s_per_m": e.sure, "sensed": e.sensed,
+                "at_m": None if e.index is None or self.points is None else self.points[e.index].tolist(),
+                "first_sensed_s": None if not sensed.size else float((sensed[0] + 1) / self.rate),
+                "damping_per_period": damping.tolist(), "sure_per_period": sure.tolist()}

@@ -1,0 +1,166 @@
+"""Online estimation of a touch from the modes' envelopes while they are driven: its damping and where
+it rests, with a confidence, a control period at a time.
+
+A viscous touch ``c`` at ``x0`` adds ``c q_k(x0)``, ``q_k = phi_k(x0)^2 / 2``, to mode k's decay
+rate (:func:`modalctl.model.touch.added_decay`). In the mode's carrier frame its lock-in envelope
+``z`` and the lock-in envelope ``U`` of the modal force it receives obey ``z' = p z + r U - c q_k z``
+(the same low-pass on both keeps the relation), so over one control period ``T``, with ``a = exp(p T)``
+and the hold discretization ``(g0, g1)`` of :func:`modalctl.model.propagate.hold_coefficients`,
+
+    e_k[n] = z[n] - a z[n-1] - r (g0 U[n-1] + g1 U[n])  ~  -c q_k(x0) h_k[n],   h_k = T (a z[n-1] + z[n]) / 2.
+
+Every mode sees the same ``c``: one real unknown for all of them, found by least squares with
+exponential forgetting (a few sums per mode per period). A resonance drift adds ``j dw T z`` to
+``e_k``, at right angles to ``h_k``: it does not bias ``c``. Where the touch rests is the candidate
+point whose pattern ``q(x)`` over the modes explains the most of the residuals (a beam's symmetric
+points look alike; so does their damping of every mode, which is all a controller needs).
+The estimate's standard error comes from the residuals left; :attr:`TouchEstimate.sure` is the
+damping the estimate is confident of (``c - SURE * stderr``; zero below ``TOUCH_MIN`` or before
+``SETTLE`` memories of data): what a controller gives back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from modalctl.model.propagate import hold_coefficients
+from modalctl.model.touch import velocity_residues
+
+__all__ = ["TouchEstimate", "TouchEstimator", "CANDIDATES", "SURE", "TOUCH_MAX", "TOUCH_MIN", "SETTLE"]
+
+CANDIDATES = 512  # candidate points at most (evenly spread over the grid's)
+TOUCH_MAX = 20.0  # N s/m: no touch damps more (twenty times a pressing finger); near a node of every
+# mode a candidate would "explain" the residuals with an unbounded damping: it is not one
+SURE = 2.0  # standard errors taken off the estimate before it is given back
+TOUCH_MIN = 0.05  # N s/m: a lighter touch is not given back (a resting fingertip damps 0.1-1)
+SETTLE = 2.0  # memories of data before any touch is sure: the first envelopes are too small to tell
+
+
+@dataclass(frozen=True)
+class TouchEstimate:
+    """What the estimator believes of the touch now.
+
+    Attributes
+    ----------
+    damping : float
+        Least-squares damping (N s/m; 0 when none is seen).
+    stderr : float
+        Its standard error (N s/m; inf before any data).
+    index : int or None
+        Grid point where it rests (None before any data).
+    sure : float
+        ``max(0, damping - SURE * stderr)`` (N s/m).
+    """
+
+    damping: float
+    stderr: float
+    index: int | None
+    sure: float
+
+    @property
+    def sensed(self) -> bool:
+        """Whether a touch is there beyond doubt (its sure damping above zero)."""
+        return self.sure > 0
+
+
+class TouchEstimator:
+    """Least squares on the kept modes' envelopes for one touch's damping and position.
+
+    Parameters
+    ----------
+    frequencies, damping : array_like, shape (k,)
+        The model's kept modes (Hz, ratios): their carriers and untouched decay.
+    shapes : ndarray, shape (k, n)
+        The kept modes' mass-normalized shapes on the grid (1/sqrt(kg)).
+    control_rate : float
+        Hz.
+    memory : float
+        Forgetting time constant (s): a touch landing, pressing or lifting is followed within a
+        few of them.
+    at : int or None
+        Grid point where a touch sensor says it rests; None: the estimator finds it.
+    """
+
+    def __init__(self, frequencies, damping, shapes: np.ndarray, control_rate: float, memory: float = 1e-3,
+                 at: int | None = None):
+        f, z = np.asarray(frequencies, float), np.asarray(damping, float)
+        self.period = 1 / float(control_rate)
+        p = -2 * np.pi * f * z + 0j  # the untouched pole in the carrier's frame (1/s)
+        self.a, self.g0, self.g1 = hold_coefficients(p, self.period, "foh")
+        self.r = velocity_residues(f, z)
+        shapes = np.asarray(shapes, float)
+        if at is None:
+            self.candidates = np.unique(np.linspace(0, shapes.shape[1] - 1, min(CANDIDATES, shapes.shape[1]))
+                                        .round().astype(int))
+        else:
+            self.candidates = np.array([int(at)])
+        self.q = shapes[:, self.candidates].T ** 2 / 2  # (p, k)
+        self.forget = float(np.exp(-self.period / memory))
+        self.settle = SETTLE * memory / self.period  # periods
+        self.reset()
+
+    def reset(self) -> None:
+        k = self.a.size
+        self._s, self._rr, self._e = np.zeros(k), np.zeros(k), np.zeros(k)  # sum |h|^2, Re(h* e), |e|^2
+        self._n = 0.0  # weighted samples
+        self._periods = 0
+        self._prev = None  # z[n-1], U[n-1]
+        self._best = None
+
+    def update(self, envelope: np.ndarray, drive: np.ndarray) -> None:
+        """Learn from one period: each mode's own envelope (k,) and the lock-in envelope of the
+        modal force it received (k,), complex, at the period's end."""
+        z, u = np.asarray(envelope, complex), np.asarray(drive, complex)
+        if self._prev is not None:
+            z0, u0 = self._prev
+            e = z - self.a * z0 - self.r * (self.g0 * u0 + self.g1 * u)
+            h = self.period * (self.a * z0 + z) / 2
+            lam = self.forget
+            self._s = lam * self._s + np.abs(h) ** 2
+            self._rr = lam * self._rr + np.real(np.conj(h) * e)
+            self._e = lam * self._e + np.abs(e) ** 2
+            self._n = lam * self._n + 1
+            self._periods += 1
+            self._best = None
+        self._prev = (z, u)
+
+    @property
+    def estimate(self) -> TouchEstimate:
+        """The touch as the periods so far say it is."""
+        if self._best is None:
+            self._best = self._solve()
+        return self._best
+
+    def _solve(self) -> TouchEstimate:
+        num, den = self.q @ self._rr, (self.q ** 2) @ self._s  # (p,)
+        if not np.any(den > 0):
+            return TouchEstimate(0.0, np.inf, None, 0.0)
+        plausible = (den > 0) & (num < 0) & (-num <= TOUCH_MAX * den)
+        explained = np.where(plausible, num ** 2 / np.where(den > 0, den, 1), 0.0)
+        best = int(np.argmax(explained))
+        if explained[best] <= 0:  # no candidate sees added damping
+            return TouchEstimate(0.0, self._stderr(den[best] if den[best] > 0 else np.inf, 0.0),
+                                 int(self.candidates[best]), 0.0)
+        c = -num[best] / den[best]
+        stderr = self._stderr(den[best], explained[best])
+        sure = c - SURE * stderr if c >= TOUCH_MIN and self._periods >= self.settle else 0.0
+        return TouchEstimate(float(c), stderr, int(self.candidates[best]), float(max(0.0, sure)))
+
+    def _stderr(self, den: float, explained: float) -> float:
+        """Standard error of the damping (N s/m): the residual variance per complex sample over twice ``den``."""
+        samples = self._n * self.a.size
+        if samples <= 1 or not np.isfinite(den):
+            return np.inf
+        residual = max(float(np.sum(self._e)) - explained, 0.0) / (samples - 1)
+        return float(np.sqrt(residual / (2 * den)))
+
+    def added_decay(self, estimate: TouchEstimate | None = None, sure: bool = True) -> np.ndarray:
+        """Each kept mode's decay rate the touch adds (1/s), shape (k,): ``c q_k(x0)`` with the sure
+        damping (or the least-squares one)."""
+        estimate = self.estimate if estimate is None else estimate
+        if estimate.index is None:
+            return np.zeros(self.a.size)
+        row = int(np.flatnonzero(self.candidates == estimate.index)[0])
+        return (estimate.sure if sure else estimate.damping) * self.q[row]
