@@ -106,6 +106,18 @@ def test_the_touch_controller_gives_back_what_the_finger_takes(bump):
     assert (_peak(pi) - opened) / taken < 0.6
 
 
+def test_a_finger_pressing_three_times_harder_stays_stable_and_is_still_given_back(bump):
+    """3 N s/m on the focus (a firm press; open loop keeps a quarter of the peak): the touch
+    controller's shot ends normally and gives back more than 85% of what the finger took."""
+    finger = Perturbation(finger=3.0, finger_at=(0.0,))
+    free = _peak(_shot(bump, Perturbation(), closed=False))
+    opened = _peak(_shot(bump, finger, closed=False))
+    touch = _shot(bump, finger)
+    assert touch.loop.state == "inactive" and touch.fault is None
+    assert (_peak(touch) - opened) / (free - opened) > 0.85
+    assert abs(touch.loop.learned["damping_n_s_per_m"] / 3 - 1) < 0.05
+
+
 def test_a_lifted_finger_returns_the_loops_to_their_untouched_behaviour(bump):
     """The finger lifts at 12 ms: within 6 ms nothing is given back any more up to the focus (the
     touch controller's command is then its inner PI's, see the next test), a tenth of a finger at

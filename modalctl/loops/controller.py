@@ -63,6 +63,7 @@ class LoopPlant:
     shapes: np.ndarray | None = None
     points: np.ndarray | None = None
     touch_at: int | None = None
+    readable: np.ndarray | None = None
 
 
 class Controller(ABC):

@@ -83,7 +83,7 @@ class TouchControl(Controller):
                              "modes' shapes on the grid")
         self.inner, self.design = inner, inner.design
         self.estimator = TouchEstimator(plant.frequencies, plant.damping, plant.shapes, plant.control_rate, memory,
-                                        plant.touch_at)
+                                        plant.touch_at, plant.readable)
         self.filter = CommandFilter(plant.bandwidths, plant.control_rate)
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
         self.residues = velocity_residues(plant.frequencies, plant.damping)

@@ -81,10 +81,13 @@ class TouchEstimator:
         few of them.
     at : int or None
         Grid point where a touch sensor says it rests; None: the estimator finds it.
+    readable : ndarray of bool, shape (k,), optional
+        The modes whose envelopes it learns from (default all): a mode read mostly through the
+        others' answer says nothing reliable of its own damping.
     """
 
     def __init__(self, frequencies, damping, shapes: np.ndarray, control_rate: float, memory: float = 1e-3,
-                 at: int | None = None):
+                 at: int | None = None, readable=None):
         f, z = np.asarray(frequencies, float), np.asarray(damping, float)
         self.period = 1 / float(control_rate)
         p = -2 * np.pi * f * z + 0j  # the untouched pole in the carrier's frame (1/s)
@@ -97,6 +100,7 @@ class TouchEstimator:
         else:
             self.candidates = np.array([int(at)])
         self.q = shapes[:, self.candidates].T ** 2 / 2  # (p, k)
+        self.readable = np.ones(f.size, bool) if readable is None else np.asarray(readable, bool)
         self.forget = float(np.exp(-self.period / memory))
         self.settle = SETTLE * memory / self.period  # periods
         self.reset()
@@ -115,8 +119,8 @@ class TouchEstimator:
         z, u = np.asarray(envelope, complex), np.asarray(drive, complex)
         if self._prev is not None:
             z0, u0 = self._prev
-            e = z - self.a * z0 - self.r * (self.g0 * u0 + self.g1 * u)
-            h = self.period * (self.a * z0 + z) / 2
+            e = (z - self.a * z0 - self.r * (self.g0 * u0 + self.g1 * u)) * self.readable
+            h = self.period * (self.a * z0 + z) / 2 * self.readable
             lam = self.forget
             self._s = lam * self._s + np.abs(h) ** 2
             self._rr = lam * self._rr + np.real(np.conj(h) * e)
@@ -150,7 +154,7 @@ class TouchEstimator:
 
     def _stderr(self, den: float, explained: float) -> float:
         """Standard error of the damping (N s/m): the residual variance per complex sample over twice ``den``."""
-        samples = self._n * self.a.size
+        samples = self._n * np.count_nonzero(self.readable)
         if samples <= 1 or not np.isfinite(den):
             return np.inf
         residual = max(float(np.sum(self._e)) - explained, 0.0) / (samples - 1)
