@@ -28,7 +28,7 @@ from .recorder import Recorder
 from .runtime import LoopParts, PhasorBoard, RunResult, Runtime, log_fields
 from .schedule import Schedule, envelope_noise, schedule
 from .sensing import feedthrough, leak_ratio, sensor_weights
-from .supervisor import Limits, Supervisor
+from .supervisor import Limits, Supervisor, envelope_bound
 
 __all__ = ["LoopParts", "loop_parts", "parts_for", "loop_sensing", "loop_log", "closed_shot"]
 
@@ -108,7 +108,7 @@ def closed_shot(plan, board: PhasorBoard, parts: LoopParts, *, closed: bool = Tr
         A progress bar of the periods.
     """
     s = parts.schedule
-    supervisor = Supervisor(parts.limits, s, np.abs(s.reference).max(axis=1) + 5 * parts.noise, lead=parts.lead)
+    supervisor = Supervisor(parts.limits, s, envelope_bound(s.reference, parts.noise), lead=parts.lead)
     recorder = None if log is None else loop_log(plan, s, log, closed=closed,
                                                  voltage_limit_v=_finite_or_none(parts.limits.voltage),
                                                  slew_limit_v_per_s=parts.limits.slew)
