@@ -27,7 +27,7 @@ from .controller import Controller, LoopPlant
 from .design import lockin_filter
 from .lockin import hold_gain
 from .schedule import HOLD
-from .touch_estimator import TouchEstimator
+from .touch_estimator import MEMORY, TouchEstimator
 
 __all__ = ["TouchControl", "CommandFilter"]
 
@@ -76,7 +76,7 @@ class TouchControl(Controller):
 
     observes = True
 
-    def __init__(self, plant: LoopPlant, inner: Controller, memory: float = 1e-3):
+    def __init__(self, plant: LoopPlant, inner: Controller, memory: float = MEMORY):
         s = plant.schedule
         if s is None or s.velocity is None or plant.shapes is None:
             raise ValueError("the touch controller needs the shot's schedule (with its planned velocities) and the "
