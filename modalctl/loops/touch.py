@@ -111,7 +111,7 @@ class TouchControl(Controller):
         self.estimator.update(envelope, drive)
         self.period = period
         e = self.estimator.estimate
-        self.history.append((e.damping, e.stderr, e.sure))
+        self.history.append((e.damping, e.stderr, e.sure, e.fit))
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         feedback = self.inner.update(error, limit)
@@ -125,10 +125,10 @@ class TouchControl(Controller):
         if not self.history:
             return None
         e = self.estimator.estimate
-        damping, stderr, sure = (np.array(v) for v in zip(*self.history))
+        damping, stderr, sure, fit = (np.array(v) for v in zip(*self.history))
         sensed = np.flatnonzero(sure > 0)
         return {"damping_n_s_per_m": e.damping, "stderr_n_s_per_m": e.stderr if np.isfinite(e.stderr) else None,
                 "sure_n_s_per_m": e.sure, "sensed": e.sensed,
                 "at_m": None if e.index is None or self.points is None else self.points[e.index].tolist(),
                 "first_sensed_s": None if not sensed.size else float((sensed[0] + 1) / self.rate),
-                "damping_per_period": damping.tolist(), "sure_per_period": sure.tolist()}
+                "damping_per_period": damping.tolist(), "sure_per_period": sure.tolist(), "fit_per_period": fit.tolist()}

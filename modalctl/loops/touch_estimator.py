@@ -15,8 +15,10 @@ exponential forgetting (a few sums per mode per period). A resonance drift adds 
 point whose pattern ``q(x)`` over the modes explains the most of the residuals (a beam's symmetric
 points look alike; so does their damping of every mode, which is all a controller needs).
 The estimate's standard error comes from the residuals left; :attr:`TouchEstimate.sure` is the
-damping the estimate is confident of (``c - SURE * stderr``; zero below ``TOUCH_MIN`` or before
-``SETTLE`` memories of data): what a controller gives back.
+damping the estimate is confident of (``c - SURE * stderr``; zero below ``TOUCH_MIN``, before
+``SETTLE`` memories of data, or when one touch explains less than ``FIT_MIN`` of what the modes
+lost, as on plate-glass, whose close modes the touch couples: fit 0.01-0.3 there, 0.97 on
+thesis-al-cc): what a controller gives back.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 from modalctl.model.propagate import hold_coefficients
 from modalctl.model.touch import velocity_residues
 
-__all__ = ["TouchEstimate", "TouchEstimator", "CANDIDATES", "SURE", "TOUCH_MAX", "TOUCH_MIN", "SETTLE", "MEMORY", "PLACE_MEMORY"]
+__all__ = ["TouchEstimate", "TouchEstimator", "CANDIDATES", "SURE", "TOUCH_MAX", "TOUCH_MIN", "SETTLE", "MEMORY", "PLACE_MEMORY", "FIT_MIN"]
 
 CANDIDATES = 512  # candidate points at most (evenly spread over the grid's)
 TOUCH_MAX = 20.0  # N s/m: no touch damps more (twenty times a pressing finger); near a node of every
@@ -49,6 +51,7 @@ SETTLE = 2.0  # memories of data before any touch is sure: the first envelopes a
 # three standard errors are taken off (drift: 0.04 at most; resting 97%, landing 84%).
 MEMORY = 0.25e-3
 PLACE_MEMORY = 0.5e-3  # s: the place's forgetting time
+FIT_MIN = 0.5  # nothing is given back unless one touch explains this share of what the modes lost
 
 
 @dataclass(frozen=True)
@@ -65,12 +68,15 @@ class TouchEstimate:
         Grid point where it rests (None before any data).
     sure : float
         ``max(0, damping - SURE * stderr)`` (N s/m).
+    fit : float
+        Share of the residuals' energy the touch explains (0 to 1).
     """
 
     damping: float
     stderr: float
     index: int | None
     sure: float
+    fit: float = 0.0
 
     @property
     def sensed(self) -> bool:
@@ -165,8 +171,10 @@ class TouchEstimator:
             return TouchEstimate(0.0, self._stderr(den, 0.0), index, 0.0)
         c = min(-num / den, TOUCH_MAX)
         stderr = self._stderr(den, num ** 2 / den)
-        sure = c - SURE * stderr if c >= TOUCH_MIN and self._periods >= self.settle else 0.0
-        return TouchEstimate(float(c), stderr, index, float(max(0.0, sure)))
+        fit = float(num ** 2 / den / max(np.sum(self._e[0]), 1e-300))
+        trusted = c >= TOUCH_MIN and fit >= FIT_MIN and self._periods >= self.settle
+        sure = c - SURE * stderr if trusted else 0.0
+        return TouchEstimate(float(c), stderr, index, float(max(0.0, sure)), fit)
 
     def _place(self) -> int | None:
         """The candidate (row of ``q``) whose pattern over the modes explains the most of the slow
