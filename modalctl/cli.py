@@ -101,6 +101,7 @@ def _modes(text: str):
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="modalctl", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
+    parser.commands = sub.choices  # each command's parser, by name (its defaults: _identity_defaults)
 
     p = sub.add_parser("scenes", help="list the named scenes")
     p.add_argument("--json", action="store_true")
@@ -370,7 +371,7 @@ def _run(args) -> int:
     options = _run_options(args, out)
     model, shape = _model_and_shape(args)
     with _open_device(args, model, shape) as device:  # its options checked before the folder is made
-        claim(out, "run", _identity(args), args.force)
+        claim(out, "run", _identity(args), args.force, _identity_defaults("run"))
         try:
             shot = run(model, shape, device, options)
         except PlanError as refused:  # a result: why, on disk beside where the report would be
@@ -400,6 +401,13 @@ def _identity(args) -> dict:
     other options holds another run."""
     shown = {"quiet", "force", "json", "no_plots", "transports", "out", "command"}
     return {k: v for k, v in sorted(vars(args).items()) if k not in shown and not callable(v)}
+
+
+def _identity_defaults(command: str) -> dict:
+    """Every option of ``command`` at its default (the simulator's own included)."""
+    parser = build_parser().commands[command]
+    return {action.dest: parser.get_default(action.dest) for action in parser._actions
+            if action.dest != argparse.SUPPRESS}
 
 
 def _write_json(path: Path, value) -> None:
@@ -530,7 +538,7 @@ def _sweep(args) -> int:
     get_controller(args.controller)
     cases = [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
              for m in methods for values in itertools.product(*[v for _, v in axes])]
-    out = claim(Path(args.out), "sweep", _identity(args), args.force)
+    out = claim(Path(args.out), "sweep", _identity(args), args.force, _identity_defaults("sweep"))
     executor = executor_for(args.scheduler, args.workers)
     rows = executor.map(run_case, cases, progress=not args.quiet)
     summary = {"axes": {f: v for f, v in axes}, "methods": methods, "rows": rows,

@@ -30,8 +30,10 @@ class OutDirError(ValueError):
     """The folder cannot take this run (another run's results in it, a file in its place)."""
 
 
-def claim(out: Path, command: str, options: dict, force: bool = False) -> Path:
-    """Make ``out`` the folder of one run of ``command`` with ``options`` (JSON-ready).
+def claim(out: Path, command: str, options: dict, force: bool = False, defaults: dict | None = None) -> Path:
+    """Make ``out`` the folder of one run of ``command`` with ``options`` (JSON-ready). An option one
+    of the two runs does not record (a run made before the option existed) is taken at its value in
+    ``defaults``.
 
     Raises
     ------
@@ -41,13 +43,13 @@ def claim(out: Path, command: str, options: dict, force: bool = False) -> Path:
     """
     out = Path(out)  # a folder's path: the CLI's --out type has refused a file already
     out.mkdir(parents=True, exist_ok=True)
-    this = {"command": command, "options": json.loads(json.dumps(options, default=str))}
+    this = {"command": command, "options": _jsonable(options)}
     previous = _manifest(out)
     left = [name for name in RESULTS if (out / name).is_symlink() or (out / name).exists()]
     if previous is None and left and not force:
         raise OutDirError(f"out: {str(out)!r} holds results ({', '.join(left)}) of an unknown run; "
                           "--force replaces them, or give another --out")
-    if previous is not None and previous.get("run") != this and not force:
+    if previous is not None and not _same(previous.get("run"), this, _jsonable(defaults or {})) and not force:
         raise OutDirError(f"out: {str(out)!r} holds another run ({_describe(previous.get('run'), this)}); "
                           "--force replaces it, or give another --out")
     for name in [*left, *(previous or {}).get("files", [])]:
@@ -96,6 +98,18 @@ def _remove(out: Path, name: str) -> None:
     if Path(name).name != name or not (path.is_symlink() or path.is_file()):
         return
     path.unlink()
+
+
+def _jsonable(options: dict) -> dict:
+    return json.loads(json.dumps(options, default=str))
+
+
+def _same(previous, this: dict, defaults: dict) -> bool:
+    """Whether a manifest's run is ``this`` run, an option missing on one side taken at its default."""
+    if not isinstance(previous, dict) or previous.get("command") != this["command"]:
+        return False
+    old, new = previous.get("options") or {}, this["options"]
+    return all(old.get(k, defaults.get(k)) == new.get(k, defaults.get(k)) for k in set(old) | set(new))
 
 
 def _describe(previous, this: dict) -> str:

@@ -213,6 +213,24 @@ def test_a_folder_holding_another_run_is_refused_unless_forced(tmp_path, capsys)
     assert _metrics(out)["params"]["center"] == "30mm"
 
 
+def test_a_run_made_before_an_option_existed_is_the_same_run_at_its_default(tmp_path, capsys):
+    """A folder written by an older modalctl, whose manifest lacks an option added since (here the
+    finger's slide): rerunning the same command replaces it (make demo did not, after the finger's
+    scenario options came); with the new option away from its default it is another run."""
+    out = tmp_path / "out"
+    assert main([*QUICK, "--no-plots", "--out", str(out)]) == 0
+    manifest = out / "run.json"
+    data = json.loads(manifest.read_text())
+    del data["run"]["options"]["finger_slide"]
+    manifest.write_text(json.dumps(data))
+    assert main([*QUICK, "--no-plots", "--out", str(out)]) == 0
+    data = json.loads(manifest.read_text())
+    del data["run"]["options"]["finger_slide"]
+    manifest.write_text(json.dumps(data))
+    assert main([*QUICK, "--no-plots", "--finger", "1Ns/m", "--finger-slide", "50mm/s", "--out", str(out)]) == 2
+    assert "holds another run" in capsys.readouterr().err
+
+
 def test_a_rerun_that_fails_leaves_none_of_the_previous_runs_results(model, tmp_path, capsys):
     out = tmp_path / "out"
     assert main([*QUICK, "--out", str(out)]) == 0
