@@ -135,6 +135,7 @@ class TouchEstimator:
         self._periods = 0
         self._prev = None  # z[n-1], U[n-1]
         self._best = None
+        self._row = None
 
     def update(self, envelope: np.ndarray, drive: np.ndarray) -> None:
         """Learn from one period: each mode's own envelope (k,) and the lock-in envelope of the
@@ -161,7 +162,7 @@ class TouchEstimator:
         return self._best
 
     def _solve(self) -> TouchEstimate:
-        row = self._place()
+        row = self._row = self._place()
         if row is None:
             return TouchEstimate(0.0, np.inf, None, 0.0)
         q = self.q[row]
@@ -195,11 +196,7 @@ class TouchEstimator:
         residual = max(float(np.sum(self._e[0])) - explained, 0.0) / (samples - 1)
         return float(np.sqrt(residual / (2 * den)))
 
-    def added_decay(self, estimate: TouchEstimate | None = None, sure: bool = True) -> np.ndarray:
-        """Each kept mode's decay rate the touch adds (1/s), shape (k,): ``c q_k(x0)`` with the sure
-        damping (or the least-squares one)."""
-        estimate = self.estimate if estimate is None else estimate
-        if estimate.index is None:
-            return np.zeros(self.a.size)
-        row = int(np.flatnonzero(self.candidates == estimate.index)[0])
-        return (estimate.sure if sure else estimate.damping) * self.q[row]
+    def added_decay(self) -> np.ndarray:
+        """Each kept mode's decay rate (1/s) the touch surely adds, shape (k,): ``sure * q_k(x0)``."""
+        estimate = self.estimate  # solving places the touch on row self._row of q
+        return np.zeros(self.a.size) if self._row is None else estimate.sure * self.q[self._row]
