@@ -26,12 +26,19 @@ from modalctl.model.projection import mass_normalize
 
 from .frf import FRF, mobility
 
-__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "half_width",
-           "neighbours", "constants_of", "to_model",
-           "actuator_gains", "UNRESOLVED_ERROR", "NOISE_EXCESS"]
+__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "fair_fit",
+           "half_width", "neighbours", "constants_of", "to_model", "actuator_gains", "UNRESOLVED_ERROR",
+           "NOISE_EXCESS", "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows"]
 
-UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole above which a peak may be unresolved...
-NOISE_EXCESS = 3.0  # ...when the misfit is also this many times what the measurement noise explains
+UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole below which a mode is resolved whatever the noise...
+NOISE_EXCESS = 3.0  # ...or, above it, when the residual is within this many times the measurement noise...
+FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band explains no more (see fair_fit)
+SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
+NOISE_PEAK = 1.0  # a "mode" leaving more unexplained than itself (misfit above this) is a peak of the noise
+
+NO_HALF_POWER = "no half-power points: another peak or the band's edge comes first (close modes?)"
+RAN_AWAY = "the band fit ran away from the peak (no single pole here)"
+NOISE = "a peak of the noise: the fitted mode is smaller than what it leaves unexplained"
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,8 +57,11 @@ class Modes:
         Relative RMS misfit of one pole to the FRFs around the peak.
     resolved : ndarray of bool, shape (k,)
         False when one pole cannot explain the peak: misfit above ``UNRESOLVED_ERROR`` and
-        above ``NOISE_EXCESS`` times the measurement noise (the scatter between shots).
+        above ``NOISE_EXCESS`` times the measurement noise (the scatter between shots), and
+        above ``FAIR_ERROR`` or bettered by two poles (:func:`fair_fit`); or a doubtful pole.
     method : str
+    reasons : tuple of str, length k
+        Why each mode left out was left out ("" for a resolved mode).
     """
 
     frequencies: np.ndarray
@@ -60,6 +70,12 @@ class Modes:
     misfit: np.ndarray
     resolved: np.ndarray
     method: str
+    reasons: tuple = ()
+
+    def __post_init__(self):
+        if len(self.reasons) != self.frequencies.size:
+            why = tuple("" if r else "one pole cannot explain the peak (close modes?)" for r in self.resolved)
+            object.__setattr__(self, "reasons", why)
 
     @property
     def n_modes(self) -> int:
@@ -67,14 +83,26 @@ class Modes:
 
     def only_resolved(self) -> "Modes":
         """The resolved modes only."""
-        keep = self.resolved
+        return self.select(self.resolved)
+
+    def select(self, keep) -> "Modes":
+        """The modes at ``keep`` (a mask or indices), in that order."""
         return Modes(self.frequencies[keep], self.damping[keep], self.constants[keep], self.misfit[keep],
-                     self.resolved[keep], self.method)
+                     self.resolved[keep], self.method, tuple(np.array(self.reasons, object)[keep]))
+
+    def left_out(self, most: int = 10) -> list[str]:
+        """One line per mode left out, with why; peaks of the noise counted in one line, at most
+        ``most`` lines of the others."""
+        lines = [f"{f:.1f} Hz left out: {why}" for f, why, r in zip(self.frequencies, self.reasons, self.resolved)
+                 if not r and why != NOISE]
+        noise = sum(why == NOISE for why in self.reasons)
+        more = [f"and {len(lines) - most} more left out"] if len(lines) > most else []
+        return lines[:most] + more + ([f"{noise} peak(s) of the noise ignored"] if noise else [])
 
     def summary(self) -> list[dict]:
         """One row per mode, for tables and JSON."""
-        return [{"f_hz": float(f), "zeta": float(z), "misfit": float(e), "resolved": bool(r)}
-                for f, z, e, r in zip(self.frequencies, self.damping, self.misfit, self.resolved)]
+        return [{"f_hz": float(f), "zeta": float(z), "misfit": float(e), "resolved": bool(r), "reason": why}
+                for f, z, e, r, why in zip(self.frequencies, self.damping, self.misfit, self.resolved, self.reasons)]
 
 
 @dataclass(frozen=True)
@@ -93,11 +121,20 @@ class Identifier:
     identify: Callable[..., "Modes"]
 
 
-def _basis(freqs: np.ndarray, poles, centre: float) -> np.ndarray:
+def _basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -> np.ndarray:
     """One column per pole ``(f, zeta)`` plus a complex constant and slope for the modes outside
-    the band, shape (nb, len(poles) + 2)."""
+    the band, shape (nb, len(poles) + 2).
+
+    ``general`` adds a second column per pole, ``w_k^2 / (w_k^2 - w^2 + 2 j zeta_k w_k w)``:
+    with it a mode's mobility may have any first-order numerator, as a mode of a structure with
+    non-proportional damping (complex shapes) has; the poles are then fitted without bias.
+    """
     f, z = np.array(poles, float).reshape(-1, 2).T
-    return np.column_stack([mobility(freqs, f, z, np.eye(f.size)).T, np.ones(freqs.size), freqs / centre - 1])
+    columns = mobility(freqs, f, z, np.eye(f.size)).T
+    if general:
+        w, wk = 2 * np.pi * np.asarray(freqs)[:, None], 2 * np.pi * f[None, :]
+        columns = np.column_stack([columns, wk**2 / (wk**2 - w**2 + 2j * z[None, :] * wk * w)])
+    return np.column_stack([columns, np.ones(freqs.size), freqs / centre - 1])
 
 
 def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
@@ -133,7 +170,31 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     misfit = float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(np.abs(mode_part) ** 2)))
     noise = frf.noise(keep)
     excess = np.inf if noise is None else float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(noise ** 2)))
-    return constants, misfit, bool(misfit <= UNRESOLVED_ERROR or excess <= NOISE_EXCESS)
+    resolved = misfit <= UNRESOLVED_ERROR or excess <= NOISE_EXCESS
+    if not resolved and misfit <= FAIR_ERROR:
+        resolved = fair_fit(frf, f, zeta, half_width, others, resid)
+    return constants, misfit, bool(resolved)
+
+
+def fair_fit(frf: FRF, f: float, zeta: float, half_width: float, others, resid: np.ndarray) -> bool:
+    """Whether one pole is the best account of a band it explains only fairly.
+
+    A second pole is started where the residual of the first peaks and both are fitted
+    (:func:`fit_band`); one pole stands unless the two divide the residual by ``SPLIT_GAIN``
+    with the second inside the band: a graded rule in place of a cliff on the misfit.
+    """
+    keep = np.abs(frf.frequencies - f) <= half_width
+    freqs = frf.frequencies[keep]
+    seed = float(freqs[np.argmax(np.mean(np.abs(resid), axis=1))])
+    if abs(seed - f) < freqs[1] - freqs[0]:
+        return True
+    poles = fit_band(frf, [(f, zeta), (seed, zeta), *others], f, half_width)
+    if not all(abs(p - f) <= half_width and 0 < z < 0.5 for p, z in poles[:2]):
+        return True
+    h = frf.values[:, keep].T
+    b = _basis(freqs, poles, f)
+    coef, *_ = np.linalg.lstsq(b, h, rcond=None)
+    return bool(np.linalg.norm(h - b @ coef) * SPLIT_GAIN > np.linalg.norm(resid))
 
 
 def _half_power(freqs: np.ndarray, mag: np.ndarray, peak: int, level: float, others: np.ndarray):
@@ -202,7 +263,7 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
         peak_mag = 1 / np.sqrt(peak_inv) if peak_inv > 0 else mag[p]
         sides = _half_power(freqs, mag, p, peak_mag / np.sqrt(2), np.setdiff1d(peaks, [p]))
         if sides is None:
-            rows.append((f, np.nan, np.zeros(frf.values.shape[0]), np.inf, False))
+            rows.append((f, np.nan, np.zeros(frf.values.shape[0]), np.inf, False, NO_HALF_POWER))
             continue
         zeta = (sides[1] - sides[0]) / (2 * f)
         h_at = np.array([np.interp(f, freqs[top], row.real) for row in frf.values[:, top]])
@@ -211,12 +272,12 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
             _, misfit, resolved = modal_constants(frf, f, zeta, max(2 * zeta * f, 3 * df))
         except ModelError:
             misfit, resolved = np.inf, False
-        rows.append((f, zeta, constants, misfit, resolved))
-    return _modes(rows, frf.values.shape[0], "peaks")
+        rows.append((f, zeta, constants, misfit, resolved, misfit_reason(misfit, resolved)))
+    return modes_from_rows(rows, frf.values.shape[0], "peaks")
 
 
 def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int = 4,
-             max_bins: int = 256) -> np.ndarray:
+             max_bins: int = 256, fixed=(), general: bool = False) -> np.ndarray:
     """Poles ``[(f in Hz, zeta), ...]`` of the modes in ``centre +- half_width`` by a local
     least-squares fit to all points at once; returns them refined, shape (len(poles), 2).
 
@@ -224,7 +285,9 @@ def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int 
     (each mode's constant, a complex constant and slope); the poles minimize what is left.
     To keep it fast, the points are first reduced to their principal FRFs (the SVD of the
     band; ``components`` plus one per extra pole), which carry the modes whatever their
-    shapes, and the band to at most ``max_bins`` evenly spread bins.
+    shapes, and the band to at most ``max_bins`` evenly spread bins. Poles in ``fixed`` are
+    in the basis but not moved (modes outside the band that still reach into it);
+    ``general`` is passed to :func:`_basis`.
     """
     start = np.array(poles, float).reshape(-1, 2)
     keep = np.flatnonzero(np.abs(frf.frequencies - centre) <= half_width)
@@ -238,8 +301,10 @@ def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int 
         x = x.reshape(-1, 2)
         return np.column_stack([start[:, 0] * (1 + 1e-3 * x[:, 0]), start[:, 1] * np.exp(x[:, 1])])
 
+    fixed = np.array(fixed, float).reshape(-1, 2)
+
     def residual(x):
-        b = _basis(freqs, trial(x), centre)
+        b = _basis(freqs, np.vstack([trial(x), fixed]), centre, general)
         coef, *_ = np.linalg.lstsq(b, data, rcond=None)
         r = data - b @ coef
         return np.concatenate([r.real.ravel(), r.imag.ravel()])
@@ -264,19 +329,19 @@ def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
     df = frf.frequencies[1] - frf.frequencies[0]
     rows = []
     for i, (f, zeta) in enumerate(zip(start.frequencies, start.damping)):
-        if not start.resolved[i]:
-            rows.append((f, zeta, start.constants[i], start.misfit[i], False))
+        if not start.resolved[i] or not 0 < zeta < 0.5:
+            rows.append((f, zeta, start.constants[i], start.misfit[i], False, start.reasons[i] or RAN_AWAY))
             continue
         half = half_width(start.frequencies, start.damping, i, df, band)
         near = [j for j in neighbours(start.frequencies, start.damping, i, half) if start.resolved[j]]
         poles = fit_band(frf, [(f, zeta), *[(start.frequencies[j], start.damping[j]) for j in near]], f, half)
         f_fit, z_fit = poles[0]
         if abs(f_fit - f) > half or not 0 < z_fit < 0.5:  # the fit ran away: no single pole here
-            rows.append((f, zeta, start.constants[i], np.inf, False))
+            rows.append((f, zeta, start.constants[i], np.inf, False, RAN_AWAY))
             continue
         constants, misfit, resolved = modal_constants(frf, f_fit, z_fit, half, poles[1:])
-        rows.append((f_fit, z_fit, constants, misfit, resolved))
-    return _modes(rows, frf.values.shape[0], "sdof")
+        rows.append((f_fit, z_fit, constants, misfit, resolved, misfit_reason(misfit, resolved)))
+    return modes_from_rows(rows, frf.values.shape[0], "sdof")
 
 
 def half_width(frequencies: np.ndarray, damping: np.ndarray, i: int, df: float, band: float = 3.0) -> float:
@@ -301,12 +366,23 @@ def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
     return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])))
 
 
-def _modes(rows, n_points: int, method: str) -> Modes:
+def misfit_reason(misfit: float, resolved: bool) -> str:
+    """Why a mode with this misfit was left out ("" when it was not)."""
+    if resolved:
+        return ""
+    if misfit > NOISE_PEAK:
+        return NOISE
+    return f"one pole explains its band poorly (misfit {misfit:.2f}; close modes?)"
+
+
+def modes_from_rows(rows, n_points: int, method: str) -> Modes:
+    """:class:`Modes` from rows ``(f, zeta, constants, misfit, resolved, reason)``, by frequency."""
+    rows = sorted(rows, key=lambda r: r[0])
     if not rows:
         empty = np.zeros(0)
-        return Modes(empty, empty, np.zeros((0, n_points)), empty, np.zeros(0, bool), method)
-    f, z, c, e, r = zip(*rows)
-    return Modes(np.array(f), np.array(z), np.array(c), np.array(e), np.array(r, bool), method)
+        return Modes(empty, empty, np.zeros((0, n_points)), empty, np.zeros(0, bool), method, ())
+    f, z, c, e, r, why = zip(*rows)
+    return Modes(np.array(f), np.array(z), np.array(c), np.array(e), np.array(r, bool), method, tuple(why))
 
 
 def to_model(modes: Modes, grid: Grid, channels: int = 1, **meta) -> ModalModel:

@@ -1,8 +1,10 @@
-"""First-party identifiers: offline, the thesis's peak picking and a local SDOF fit; online, an RLS tracker."""
+"""First-party identifiers: offline, the thesis's peak picking, a local SDOF fit, LSCF (MDOF) and
+``auto`` (SDOF where it resolves, MDOF elsewhere); online, RLS trackers."""
 
 from __future__ import annotations
 
 from modalctl.identify.estimators import Identifier, peak_picking, sdof_fit
+from modalctl.identify.mdof import auto_fit, mdof_fit
 from modalctl.identify.trackers import PoleTracker, RLSTracker, TrackerFactory
 from modalctl.plugin.spec import hookimpl
 
@@ -13,7 +15,10 @@ def modalctl_identifiers():
         Identifier("peaks", "peak picking on the mean FRF, half-power damping, shapes at the peaks "
                             "(thesis chapter 3)", peak_picking),
         Identifier("sdof", "peak picking refined by a local single-mode least-squares fit of all FRFs "
-                           "(close or heavily damped modes)", sdof_fit),
+                           "(separated modes; robust to noise)", sdof_fit),
+        Identifier("mdof", "LSCF stabilization over octave bands, poles picked automatically and refined, "
+                           "LSFD constants (close and heavily damped modes, shoulders)", mdof_fit),
+        Identifier("auto", "sdof where one pole explains a peak, mdof everywhere else", auto_fit),
     ]
 
 

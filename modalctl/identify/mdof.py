@@ -1,0 +1,164 @@
+"""Identifiers for close and heavily damped modes: LSCF poles refined by a band fit, and ``auto``.
+
+``mdof_fit`` needs no peak: the measured band is cut into overlapping octaves, each gets its
+stabilization diagram (:mod:`.lscf`), the poles picked from it are refined by the nonlinear
+band fit with their neighbours (:func:`~.estimators.fit_band`), and the modal constants come by
+least squares with residual terms (LSFD, :func:`~.estimators.constants_of`). ``auto_fit``
+keeps what the SDOF fit resolves (it is faster and holds better under noise) and takes the
+MDOF fit's modes elsewhere: in the bands of unresolved peaks and on shoulders no peak shows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from modalctl.model.modes import ModelError
+
+from .estimators import NOISE_PEAK, Modes, constants_of, fit_band, half_width, misfit_reason, modes_from_rows, sdof_fit
+from .frf import FRF
+from .lscf import pick_poles, stabilization
+
+__all__ = ["mdof_fit", "auto_fit", "octave_bands", "refine", "MAX_ORDER", "OVERLAP"]
+
+MAX_ORDER = 80  # highest LSCF order per band
+OVERLAP = 0.25  # each octave is analysed this share wider on each side; its poles are kept in the octave only
+BAND = 3.0  # the refining fit covers this many half-power half-widths around each pole
+
+
+def octave_bands(f_low: float, f_high: float) -> list[tuple[float, float, float, float]]:
+    """Octaves covering ``[f_low, f_high]`` (Hz): ``(core_low, core_high, low, high)`` each,
+    the analysed band ``OVERLAP`` wider than its core on each side (within the measurement)."""
+    f_low = max(f_low, f_high / 2**12)
+    edges = f_low * 2.0 ** np.arange(0, np.ceil(np.log2(f_high / f_low)) + 1)
+    edges[-1] = f_high
+    return [(a, b, max(f_low, a / (1 + OVERLAP)), min(f_high, b * (1 + OVERLAP))) for a, b in zip(edges, edges[1:])]
+
+
+def refine(frf: FRF, poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Poles ``(f, zeta)`` refined by the band fit, groups of overlapping bands fitted together.
+
+    Returns
+    -------
+    refined : ndarray, shape (k, 2)
+    converged : ndarray of bool, shape (k,)
+        False where the fit ran away (out of the band, or a damping outside (0, 0.5)).
+    """
+    df = frf.frequencies[1] - frf.frequencies[0]
+    poles = np.asarray(poles, float).reshape(-1, 2)
+    poles = poles[np.argsort(poles[:, 0])]
+    halves = np.array([half_width(poles[:, 0], poles[:, 1], i, df, BAND) for i in range(len(poles))])
+    refined, converged = poles.copy(), np.ones(len(poles), bool)
+    start = 0
+    while start < len(poles):
+        stop = start + 1
+        while stop < len(poles) and poles[stop, 0] - halves[stop] < poles[stop - 1, 0] + halves[stop - 1]:
+            stop += 1
+        lo, hi = poles[start, 0] - halves[start], poles[stop - 1, 0] + halves[stop - 1]
+        others = np.delete(poles, np.arange(start, stop), axis=0)
+        group = fit_band(frf, poles[start:stop], (lo + hi) / 2, (hi - lo) / 2, fixed=others, general=True)
+        refined[start:stop] = group
+        converged[start:stop] = (group[:, 0] > lo) & (group[:, 0] < hi) & (group[:, 1] > 0) & (group[:, 1] < 0.5)
+        start = stop
+    return refined, converged
+
+
+def _rows(frf: FRF, poles: np.ndarray) -> list:
+    """``(f, zeta, constants, misfit, resolved, reason)`` of each stable, converged pole.
+
+    The diagram and the band fit have established the pole; the misfit of its real shape
+    (a structure with non-proportional damping has complex ones) only tells it from a peak of
+    the noise: a mode leaving more unexplained than itself is not returned.
+    """
+    rows = []
+    for k, (f, z) in enumerate(poles):
+        constants, misfit, _ = constants_of(frf, poles[:, 0], poles[:, 1], k, BAND)
+        resolved = misfit <= NOISE_PEAK
+        rows.append((f, z, constants, misfit, resolved, misfit_reason(misfit, resolved)))
+    return rows
+
+
+def band_poles(frf: FRF, core_low: float, core_high: float, low: float, high: float) -> tuple[np.ndarray, np.ndarray]:
+    """Poles and doubtful poles (``(f, zeta)`` rows) that LSCF stabilizes in ``[low, high]``,
+    those inside ``[core_low, core_high)`` only (Hz)."""
+    bins = int(np.count_nonzero((frf.frequencies >= low) & (frf.frequencies <= high)))
+    order = min(MAX_ORDER, 2 * ((bins - 2) // 4))
+    if order < 4:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    poles, doubtful = pick_poles(stabilization(frf, low, high, order))
+    inside = lambda p: p[(p[:, 0] >= core_low) & (p[:, 0] < core_high)]  # noqa: E731
+    return inside(poles), inside(doubtful)
+
+
+def distinct(poles: np.ndarray) -> np.ndarray:
+    """Poles ``(f, zeta)`` by frequency, one of each pair closer than a tenth of a half-power
+    half-width (a pole on the edge of two octaves is found by both)."""
+    poles = poles[np.argsort(poles[:, 0])]
+    keep = np.ones(len(poles), bool)
+    for i in range(1, len(poles)):
+        if poles[i, 0] - poles[i - 1, 0] < 0.1 * poles[i, 1] * poles[i, 0]:
+            keep[i] = False
+    return poles[keep]
+
+
+def mdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None) -> Modes:
+    """Modes from LSCF stabilization over octave bands, refined, with LSFD constants.
+
+    Parameters
+    ----------
+    frf : FRF
+    threshold_db : float
+        Unused (no peaks are picked); kept for the identifier interface.
+    min_frequency : float, optional
+        Ignore poles below this (Hz).
+    """
+    f_low = max(frf.frequencies[0], min_frequency or 0.0)
+    found, doubtful = [], []
+    for band in octave_bands(f_low, frf.frequencies[-1]):
+        p, d = band_poles(frf, *band)
+        found.append(p)
+        doubtful.append(d)
+    poles, doubtful = distinct(np.vstack(found)), np.vstack(doubtful)
+    rows = []
+    if len(poles):
+        refined, converged = refine(frf, poles)
+        for f, z in poles[~converged]:
+            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False,
+                         "stable in the LSCF diagram but the band fit ran away from it"))
+        rows += _rows(frf, refined[converged])
+    returned = np.array([r[0] for r in rows if r[4]])
+    for f, z in doubtful:
+        if returned.size == 0 or np.min(np.abs(returned - f)) > z * f:
+            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False,
+                         "doubtful: stable in too few LSCF orders"))
+    return modes_from_rows(rows, frf.values.shape[0], "mdof")
+
+
+def auto_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None) -> Modes:
+    """The SDOF fit where it resolves a peak, the MDOF fit everywhere else.
+
+    A mode of the MDOF fit is taken when no resolved SDOF mode lies within its half-power
+    half-width; an unresolved SDOF peak is dropped when an MDOF mode took its place (within its
+    half-power band), and reported otherwise.
+    """
+    single = sdof_fit(frf, threshold_db, min_frequency)
+    try:
+        multi = mdof_fit(frf, threshold_db, min_frequency)
+    except ModelError:
+        return single
+    sure = single.frequencies[single.resolved]
+    near_sure = lambda f, z: sure.size > 0 and np.min(np.abs(sure - f)) <= z * f  # noqa: E731
+    take = [i for i in range(multi.n_modes) if multi.resolved[i] and not near_sure(multi.frequencies[i],
+                                                                                   multi.damping[i])]
+    new = multi.frequencies[take]
+    rows = []
+    for i in range(single.n_modes):
+        f, z = single.frequencies[i], single.damping[i]
+        reach = 2 * (z if np.isfinite(z) else 0.05) * f
+        if single.resolved[i] or not np.any(np.abs(new - f) <= reach):
+            rows.append((f, z, single.constants[i], single.misfit[i], single.resolved[i], single.reasons[i]))
+    rows += [(multi.frequencies[i], multi.damping[i], multi.constants[i], multi.misfit[i], True, "") for i in take]
+    rows += [(multi.frequencies[i], multi.damping[i], multi.constants[i], multi.misfit[i], False, multi.reasons[i])
+             for i in range(multi.n_modes) if not multi.resolved[i] and not near_sure(multi.frequencies[i],
+                                                                                      multi.damping[i])
+             and multi.reasons[i].startswith("doubtful")]
+    return modes_from_rows(rows, frf.values.shape[0], "auto")
