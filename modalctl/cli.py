@@ -232,9 +232,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=0), default=15.0,
                    help="sweep peak voltage (15V)")
     p.add_argument("--step", type=quantity_type("m", "step", low=0), default=1e-3,
-                   help="spatial step of the scan (1mm)")
+                   help="spatial step of the scan, in each direction on a plate (1mm)")
     p.add_argument("--mass-per-length", type=quantity_type("kg/m", "mass-per-length", low=0),
-                   help="of the beam (kg/m); default from the scene")
+                   help="of a beam (kg/m); default from the scene")
+    p.add_argument("--mass-per-area", type=quantity_type("kg/m^2", "mass-per-area", low=0),
+                   help="of a plate (kg/m^2); default from the scene")
     p.add_argument("--method", default=SURVEY.method, help=f"identifier plugin: sdof or peaks ({SURVEY.method})")
     p.add_argument("--primary", type=number_type(int, "primary", low=0, low_open=False), default=SURVEY.primary,
                    help=f"actuator swept over the whole grid ({SURVEY.primary})")
@@ -583,27 +585,37 @@ def _emulate(args) -> int:
     return 0
 
 
+def _density(args, meta: dict, dim: int) -> float:
+    """Mass per length (beam, kg/m) or per area (plate, kg/m^2) for a survey on ``dim``-D points:
+    the option, or the scene's; the other option is refused."""
+    wanted, other = ("mass_per_length", "mass_per_area") if dim == 1 else ("mass_per_area", "mass_per_length")
+    flag = "--" + wanted.replace("_", "-")
+    if getattr(args, other) is not None:
+        raise ParamError(f"identify: the points are {'on a line' if dim == 1 else 'on a plate'}: give {flag}, "
+                         f"not --{other.replace('_', '-')}")
+    if getattr(args, wanted) is not None:
+        return getattr(args, wanted)
+    try:
+        per_area = meta["density_kg_m3"] * meta["thickness_m"]
+        return per_area if dim == 2 else per_area * meta["width_m"]
+    except KeyError:
+        unit = "kg/m" if dim == 1 else "kg/m^2"
+        raise ParamError(f"identify: give {flag} ({unit}): it scales the shapes and gains") from None
+
+
 def _identify(args) -> int:
     import numpy as np
 
     from modalctl.identify.frf import Sweep, read_uff58
-    from modalctl.identify.survey import beam_wavelength, identify_device, identify_frf
+    from modalctl.identify.survey import beam_wavelength, identify_device, identify_frf, scan_subset
 
     scene = load_scene(args.scene) if args.scene else None
     if args.frf is None and args.transport.startswith("sim") and scene is None:
         raise ModelError("identify: the simulator needs --scene (the structure to simulate)")
-    if scene is not None and scene.grid.dim != 1:
-        raise ModelError(f"identify: {args.scene} is {scene.grid.dim}-D; the scan and the shapes' scaling here are "
-                         f"for beams (a 1-D grid of points and a mass per length)")
     meta = scene.meta if scene is not None else {}
-    mass = args.mass_per_length
-    if mass is None:
-        try:
-            mass = meta["density_kg_m3"] * meta["width_m"] * meta["thickness_m"]
-        except KeyError:
-            raise ModelError("identify: give --mass-per-length (kg/m): it scales the shapes and gains") from None
     if args.frf:
-        survey = identify_frf(read_uff58(args.frf), mass, args.method, not args.no_orthogonalize)
+        frf = read_uff58(args.frf)
+        survey = identify_frf(frf, _density(args, meta, frf.points.shape[1]), args.method, not args.no_orthogonalize)
         points = np.arange(survey.model.grid.n)
     else:
         sweep = Sweep.design(args.f_low, args.f_high, args.resolution, args.amplitude)
@@ -611,12 +623,14 @@ def _identify(args) -> int:
                                 orthogonalize=not args.no_orthogonalize)
         with _open_device(args, scene) as device:
             caps = device.configure(sweep.sample_rate)
-            x = np.asarray(caps.scan_points, float)[:, 0]
-            points = np.flatnonzero(np.diff(np.floor((x - x[0]) / args.step + 1e-9), prepend=-1) > 0)
-            if points.size < SCAN_POINTS_MIN:  # said now, not after the whole survey
+            scan = np.asarray(caps.scan_points, float).reshape(len(caps.scan_points), -1)
+            density = _density(args, meta, scan.shape[1])
+            points = scan_subset(scan, args.step)
+            if points.size < SCAN_POINTS_MIN ** scan.shape[1]:  # said now, not after the whole survey
                 raise ParamError(f"identify: --step {args.step * 1e3:g} mm leaves {points.size} scan point(s) on "
-                                 f"{(x[-1] - x[0]) * 1e3:.0f} mm; at least {SCAN_POINTS_MIN} draw a mode shape")
-            survey = identify_device(device, sweep, points, mass, options, beam_wavelength(meta, args.f_high),
+                                 f"{' x '.join(f'{e * 1e3:.0f}' for e in np.ptp(scan, axis=0))} mm; at least "
+                                 f"{SCAN_POINTS_MIN} per direction draw a mode shape")
+            survey = identify_device(device, sweep, points, density, options, beam_wavelength(meta, args.f_high),
                                      progress=not args.quiet)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)

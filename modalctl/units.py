@@ -36,6 +36,8 @@ DIMENSIONS: dict[str, dict[str, float]] = {
     "1": {"": 1.0, "%": 1e-2, "ppm": 1e-6},
     "1/s": {"1/s": 1.0, "/s": 1.0, "%/s": 1e-2, "%/ms": 10.0, "ppm/s": 1e-6},
     "kg/m": {"kg/m": 1.0, "g/m": 1e-3, "g/mm": 1.0, "kg/mm": 1e3},
+    "kg/m^2": {"kg/m^2": 1.0, "kg/m2": 1.0, "kg/m\u00b2": 1.0, "g/m^2": 1e-3, "g/m2": 1e-3, "g/cm^2": 10.0,
+               "g/cm2": 10.0},
     "V/s": {"V/s": 1.0, "V/ms": 1e3, "V/us": 1e6, "V/\u00b5s": 1e6, "kV/s": 1e3, "MV/s": 1e6},
     "N s/m": {"N s/m": 1.0, "Ns/m": 1.0, "N*s/m": 1.0, "kg/s": 1.0},
     "N s/m/s": {"N s/m/s": 1.0, "Ns/m/s": 1.0, "N s/m/ms": 1e3, "Ns/m/ms": 1e3},  # a damping's rate of change

@@ -193,7 +193,7 @@ def test_uff58_round_trip(tmp_path):
     assert np.allclose(modes.frequencies, [1000, 2500], rtol=1e-5)
     from modalctl.identify.survey import identify_frf
 
-    model = identify_frf(back, mass_per_length=1.9).model
+    model = identify_frf(back, density=1.9).model
     assert model.n_modes == 2 and all(mac(model.shapes[k], s[2]) > 0.999 for k, s in enumerate(TWO_MODES))
 
 
@@ -225,7 +225,8 @@ def test_identify_cli_on_the_hil_and_bad_input(tmp_path):
 
 
 @pytest.mark.parametrize("args, words", [
-    (["--scene", "plate-glass"], "plate-glass is 2-D"),
+    (["--scene", "plate-glass", "--mass-per-length", "1kg/m"], "on a plate: give --mass-per-area"),
+    (["--scene", "plate-glass", "--step", "30mm"], "at least 5 per direction"),
     (["--scene", "thesis-al-cc", "--primary", "99"], "primary actuator 99: the device has 8 (0..7)"),
     (["--scene", "thesis-al-cc", "--resolution", "0Hz"], "resolution must lie in (0, inf)"),
     (["--scene", "thesis-al-cc", "--step=-1mm"], "step must lie in (0, inf)"),

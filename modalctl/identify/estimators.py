@@ -34,6 +34,7 @@ UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole below which a mode is 
 NOISE_EXCESS = 3.0  # ...or, above it, when the residual is within this many times the measurement noise...
 FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band explains no more (see fair_fit)
 SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
+BINS_PER_COLUMN = 3  # a band fit gets at least this many bins per unknown of each point (else it is widened)
 NOISE_PEAK = 1.0  # a "mode" leaving more unexplained than itself (misfit above this) is a peak of the noise
 
 NO_HALF_POWER = "no half-power points: another peak or the band's edge comes first (close modes?)"
@@ -138,15 +139,20 @@ def _basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -> np
 
 
 def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
-                    others=()) -> tuple[np.ndarray, float, bool]:
+                    others=(), general: bool = False) -> tuple[np.ndarray, float, bool]:
     """Real modal constants at every point for a known pole, and the relative misfit.
 
-    The FRFs within ``f +- half_width`` (Hz) are fitted by least squares with the mode, the
+    The FRFs within ``f +- half_width`` (Hz; widened to ``BINS_PER_COLUMN`` bins per unknown)
+    are fitted by least squares with the mode, the
     neighbouring poles ``others`` (``[(f, zeta), ...]``, close modes whose peaks reach into the
     band) and a complex constant and slope per point (the modes outside the band). The
     constants of a normal mode share one phase (zero for an ideal set-up; a DAC hold or a delay
     turns it by ``w`` times the delay): they are rotated by the phase that makes them most
     nearly real, and the misfit counts what one real shape and that phase cannot explain.
+
+    With ``general`` (see :func:`_basis`) the mode may have complex shapes (non-proportional
+    damping): the misfit is then the residual over what the pole, with any shape, explains
+    (the RMS it removes from the fit without it): a pole of the noise explains nothing.
 
     Returns
     -------
@@ -157,22 +163,33 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     resolved : bool
         Whether the poles explain the band (see :class:`Modes`).
     """
+    columns = (1 + len(others)) * (2 if general else 1) + 2
+    half_width = max(half_width, BINS_PER_COLUMN * columns * (frf.frequencies[1] - frf.frequencies[0]) / 2)
     keep = np.abs(frf.frequencies - f) <= half_width
-    if np.count_nonzero(keep) < 5:
-        raise ModelError(f"identify: fewer than 5 FRF bins within {half_width:g} Hz of {f:g} Hz")
+    if np.count_nonzero(keep) < 2 * columns:  # at the edge of the measurement
+        raise ModelError(f"identify: fewer than {2 * columns} FRF bins within {half_width:g} Hz of {f:g} Hz")
     h = frf.values[:, keep].T  # (nb, n_points)
     b = _basis(frf.frequencies[keep], [(f, zeta), *others], f)
     coef, *_ = np.linalg.lstsq(b, h, rcond=None)
     phase = np.exp(0.5j * np.angle(np.sum(coef[0] ** 2)))
     constants = (coef[0] / phase).real
-    mode_part = np.outer(b[:, 0], constants * phase)
-    resid = h - mode_part - b[:, 1:] @ coef[1:]
+    if general:  # what the mode explains: the residual without its columns less that with them
+        b = _basis(frf.frequencies[keep], [(f, zeta), *others], f, general)
+        resid = h - b @ np.linalg.lstsq(b, h, rcond=None)[0]
+        rest = np.delete(b, [0, 1 + len(others)], axis=1)
+        without = h - rest @ np.linalg.lstsq(rest, h, rcond=None)[0]
+        mode_part = np.sqrt(np.maximum(np.mean(np.abs(without) ** 2) - np.mean(np.abs(resid) ** 2), 1e-300))
+    else:
+        mode_part = np.outer(b[:, 0], constants * phase)
+        resid = h - mode_part - b[:, 1:] @ coef[1:]
+    # the residual of a least-squares fit is smaller than the noise by its degrees of freedom
+    raw, resid = resid, resid * np.sqrt(len(b) / (len(b) - columns))
     misfit = float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(np.abs(mode_part) ** 2)))
     noise = frf.noise(keep)
     excess = np.inf if noise is None else float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(noise ** 2)))
     resolved = misfit <= UNRESOLVED_ERROR or excess <= NOISE_EXCESS
     if not resolved and misfit <= FAIR_ERROR:
-        resolved = fair_fit(frf, f, zeta, half_width, others, resid)
+        resolved = fair_fit(frf, f, zeta, half_width, others, raw)
     return constants, misfit, bool(resolved)
 
 
@@ -358,12 +375,13 @@ def neighbours(frequencies: np.ndarray, damping: np.ndarray, i: int, half: float
 
 
 def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
-                 band: float = 3.0) -> tuple[np.ndarray, float, bool]:
+                 band: float = 3.0, general: bool = False) -> tuple[np.ndarray, float, bool]:
     """:func:`modal_constants` of mode ``k`` of a known set, in its band, with its neighbours."""
     df = frf.frequencies[1] - frf.frequencies[0]
     half = half_width(frequencies, damping, k, df, band)
     near = neighbours(frequencies, damping, k, half)
-    return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])))
+    return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])),
+                           general)
 
 
 def misfit_reason(misfit: float, resolved: bool) -> str:

@@ -34,8 +34,8 @@ from .frf import FRF
 __all__ = ["Stabilization", "stabilization", "pick_poles", "DAMPING_MAX", "SUPPORT", "DOUBTFUL", "COMPONENTS"]
 
 DAMPING_MAX = 0.3  # a pole damped more than this is taken as computational
-SUPPORT = 0.4  # share of the orders a pole must appear in to be returned...
-DOUBTFUL = 0.15  # ...and to be reported as doubtful (fewer: a computational pole, not reported)
+SUPPORT = 0.4  # share of the orders (upper half of the diagram) a pole must appear in to be returned...
+DOUBTFUL = 0.25  # ...and to be reported as doubtful (fewer: a computational pole, not reported)
 COMPONENTS = 12  # principal FRFs the denominator is fitted on (all rows share the poles)
 SCATTER = 0.5  # poles of one cluster lie within this share of their half-power half-width of each other
 SIGNIFICANT = 0.05  # principal FRFs below this share of the first are taken as noise
@@ -120,18 +120,20 @@ def stabilization(frf: FRF, f_low: float, f_high: float, max_order: int,
 def pick_poles(stab: Stabilization, support: float = SUPPORT) -> tuple[np.ndarray, np.ndarray]:
     """Poles that stabilize, and doubtful ones, from a diagram.
 
-    Every physical pole of every order is a point in ``(f, zeta)``; points closer than
+    Every physical pole of every order in the upper half of the diagram (the lower orders cannot
+    hold all of a band's modes and noise) is a point in ``(f, zeta)``; points closer than
     ``SCATTER`` half-power half-widths (``zeta f``) in frequency and a third in damping are one
     cluster (complete linkage: every pair of a cluster is that close).
 
     Returns
     -------
     poles : ndarray, shape (k, 2)
-        ``(f, zeta)`` medians of the clusters present in at least ``support`` of the orders.
+        ``(f, zeta)`` medians of the clusters present in at least ``support`` of those orders.
     doubtful : ndarray, shape (m, 2)
         Clusters present in fewer orders, but in ``DOUBTFUL`` of them (and two) at least.
     """
-    points = [(n, f, z) for n, p in zip(stab.orders, stab.poles) for f, z in p]
+    high = stab.orders[stab.orders > stab.orders.max() / 2]  # a band's modes all fit in the upper half only
+    points = [(n, f, z) for n, p in zip(stab.orders, stab.poles) if n in high for f, z in p]
     if len(points) < 2:
         return np.zeros((0, 2)), np.zeros((0, 2))
     order, f, z = np.array(points).T
@@ -146,9 +148,9 @@ def pick_poles(stab: Stabilization, support: float = SUPPORT) -> tuple[np.ndarra
         member = labels == label
         seen = np.unique(order[member]).size
         pole = (float(np.median(f[member])), float(np.median(z[member])))
-        if seen >= max(2, support * len(stab.orders)):
+        if seen >= max(2, support * len(high)):
             poles.append(pole)
-        elif seen >= max(2, DOUBTFUL * len(stab.orders)):
+        elif seen >= max(2, DOUBTFUL * len(high)):
             doubtful.append(pole)
     as_array = lambda p: np.array(sorted(p)).reshape(-1, 2)  # noqa: E731
     return as_array(poles), as_array(doubtful)

@@ -1,6 +1,6 @@
 """Identifiers for close and heavily damped modes: LSCF poles refined by a band fit, and ``auto``.
 
-``mdof_fit`` needs no peak: the measured band is cut into overlapping octaves, each gets its
+``mdof_fit`` needs no peak: the measured band is cut into overlapping half octaves, each gets its
 stabilization diagram (:mod:`.lscf`), the poles picked from it are refined by the nonlinear
 band fit with their neighbours (:func:`~.estimators.fit_band`), and the modal constants come by
 least squares with residual terms (LSFD, :func:`~.estimators.constants_of`). ``auto_fit``
@@ -14,22 +14,27 @@ import numpy as np
 
 from modalctl.model.modes import ModelError
 
-from .estimators import NOISE_PEAK, Modes, constants_of, fit_band, half_width, misfit_reason, modes_from_rows, sdof_fit
+from .estimators import FAIR_ERROR, Modes, constants_of, fit_band, half_width, misfit_reason, modes_from_rows, sdof_fit
 from .frf import FRF
 from .lscf import pick_poles, stabilization
 
-__all__ = ["mdof_fit", "auto_fit", "octave_bands", "refine", "MAX_ORDER", "OVERLAP"]
+EDGE_OF_BAND = "too few bins between the pole and the edge of the measurement"
+
+__all__ = ["mdof_fit", "auto_fit", "bands", "refine", "MAX_ORDER", "OVERLAP"]
 
 MAX_ORDER = 80  # highest LSCF order per band
-OVERLAP = 0.25  # each octave is analysed this share wider on each side; its poles are kept in the octave only
+RATIO = 2 ** 0.5  # bands are half octaves: few modes each, even on a plate
+OVERLAP = 0.25  # each band is analysed this share wider on each side; its poles are kept in the band only
+EDGE = 0.005  # relative slack of a band's core (the poles found twice are merged by distinct)
 BAND = 3.0  # the refining fit covers this many half-power half-widths around each pole
 
 
-def octave_bands(f_low: float, f_high: float) -> list[tuple[float, float, float, float]]:
-    """Octaves covering ``[f_low, f_high]`` (Hz): ``(core_low, core_high, low, high)`` each,
-    the analysed band ``OVERLAP`` wider than its core on each side (within the measurement)."""
+def bands(f_low: float, f_high: float) -> list[tuple[float, float, float, float]]:
+    """Bands in the ratio ``RATIO`` covering ``[f_low, f_high]`` (Hz): ``(core_low, core_high,
+    low, high)`` each, the analysed band ``OVERLAP`` wider than its core on each side (within
+    the measurement)."""
     f_low = max(f_low, f_high / 2**12)
-    edges = f_low * 2.0 ** np.arange(0, np.ceil(np.log2(f_high / f_low)) + 1)
+    edges = f_low * RATIO ** np.arange(0, np.ceil(np.log(f_high / f_low) / np.log(RATIO)) + 1)
     edges[-1] = f_high
     return [(a, b, max(f_low, a / (1 + OVERLAP)), min(f_high, b * (1 + OVERLAP))) for a, b in zip(edges, edges[1:])]
 
@@ -65,43 +70,48 @@ def refine(frf: FRF, poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _rows(frf: FRF, poles: np.ndarray) -> list:
     """``(f, zeta, constants, misfit, resolved, reason)`` of each stable, converged pole.
 
-    The diagram and the band fit have established the pole; the misfit of its real shape
-    (a structure with non-proportional damping has complex ones) only tells it from a peak of
-    the noise: a mode leaving more unexplained than itself is not returned.
+    The misfit is that of the pole with any shape (complex ones too: non-proportional
+    damping), :func:`~.estimators.modal_constants` with ``general``; a pole is returned when
+    it explains its band at least fairly (``FAIR_ERROR``) or to within the measurement noise.
     """
     rows = []
     for k, (f, z) in enumerate(poles):
-        constants, misfit, _ = constants_of(frf, poles[:, 0], poles[:, 1], k, BAND)
-        resolved = misfit <= NOISE_PEAK
+        try:
+            constants, misfit, resolved = constants_of(frf, poles[:, 0], poles[:, 1], k, BAND, general=True)
+        except ModelError:  # at the edge of the measurement
+            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False, EDGE_OF_BAND))
+            continue
+        resolved = resolved or misfit <= FAIR_ERROR
         rows.append((f, z, constants, misfit, resolved, misfit_reason(misfit, resolved)))
     return rows
 
 
 def band_poles(frf: FRF, core_low: float, core_high: float, low: float, high: float) -> tuple[np.ndarray, np.ndarray]:
     """Poles and doubtful poles (``(f, zeta)`` rows) that LSCF stabilizes in ``[low, high]``,
-    those inside ``[core_low, core_high)`` only (Hz)."""
+    those inside ``[core_low, core_high)`` (Hz, ``EDGE`` wider) only."""
     bins = int(np.count_nonzero((frf.frequencies >= low) & (frf.frequencies <= high)))
     order = min(MAX_ORDER, 2 * ((bins - 2) // 4))
     if order < 4:
         return np.zeros((0, 2)), np.zeros((0, 2))
     poles, doubtful = pick_poles(stabilization(frf, low, high, order))
-    inside = lambda p: p[(p[:, 0] >= core_low) & (p[:, 0] < core_high)]  # noqa: E731
+    slack = 1 + EDGE  # a pole on the edge of two bands may be estimated just outside either core
+    inside = lambda p: p[(p[:, 0] >= core_low / slack) & (p[:, 0] < core_high * slack)]  # noqa: E731
     return inside(poles), inside(doubtful)
 
 
 def distinct(poles: np.ndarray) -> np.ndarray:
-    """Poles ``(f, zeta)`` by frequency, one of each pair closer than a tenth of a half-power
-    half-width (a pole on the edge of two octaves is found by both)."""
+    """Poles ``(f, zeta)`` by frequency, one of each pair closer than a quarter of a half-power
+    half-width (a pole on the edge of two bands is found by both)."""
     poles = poles[np.argsort(poles[:, 0])]
     keep = np.ones(len(poles), bool)
     for i in range(1, len(poles)):
-        if poles[i, 0] - poles[i - 1, 0] < 0.1 * poles[i, 1] * poles[i, 0]:
+        if poles[i, 0] - poles[i - 1, 0] < 0.25 * poles[i, 1] * poles[i, 0]:
             keep[i] = False
     return poles[keep]
 
 
 def mdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None) -> Modes:
-    """Modes from LSCF stabilization over octave bands, refined, with LSFD constants.
+    """Modes from LSCF stabilization over half-octave bands, refined, with LSFD constants.
 
     Parameters
     ----------
@@ -113,7 +123,7 @@ def mdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
     """
     f_low = max(frf.frequencies[0], min_frequency or 0.0)
     found, doubtful = [], []
-    for band in octave_bands(f_low, frf.frequencies[-1]):
+    for band in bands(f_low, frf.frequencies[-1]):
         p, d = band_poles(frf, *band)
         found.append(p)
         doubtful.append(d)

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from modalctl.io.device import Device
-from modalctl.model.modes import Grid, ModalModel, quadrature_weights
+from modalctl.model.modes import Grid, ModalModel
 from modalctl.model.projection import crosstalk, orthonormalize_model
 from modalctl.options import SurveyOptions
 from modalctl.plugin.manager import get_identifier
@@ -26,7 +26,7 @@ from .acquire import measure_frf
 from .estimators import Modes, actuator_gains, constants_of, to_model
 from .frf import FRF, Sweep, bending_wavelength, check_spatial_step
 
-__all__ = ["Survey", "identify_device", "identify_frf"]
+__all__ = ["Survey", "identify_device", "identify_frf", "scan_subset"]
 
 
 @dataclass
@@ -64,19 +64,18 @@ class Survey:
     frfs: dict = field(default_factory=dict)
 
 
-def _unresolved(poles: Modes) -> list[str]:
-    return [f"unresolved peak at {f:.1f} Hz: one pole cannot explain it (close modes?); left out"
-            for f in poles.frequencies[~poles.resolved]]
+def scan_subset(scan: np.ndarray, step: float) -> np.ndarray:
+    """Indices of the scan points (n, d) on a lattice of ``step`` (m) in every direction: along a
+    line the first point of each step, on a plate the points whose x and y are both kept."""
+    keep = np.ones(len(scan), bool)
+    for axis in scan.T:
+        values = np.unique(axis)
+        chosen = values[np.diff(np.floor((values - values[0]) / step + 1e-9), prepend=-1) > 0]
+        keep &= np.isin(axis, chosen)
+    return np.flatnonzero(keep)
 
 
-def _grid(points: np.ndarray, mass_per_length: float) -> Grid:
-    x = np.asarray(points, float).reshape(len(points), -1)
-    if x.shape[1] != 1:
-        raise NotImplementedError("identify: plates (2-D grids) are not supported yet; measure along a line")
-    return Grid(x, mass_per_length * quadrature_weights(x[:, 0]))
-
-
-def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_length: float,
+def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: float,
                     options: SurveyOptions = SurveyOptions(), wavelength: float | None = None,
                     progress: bool = False) -> Survey:
     """Identify the structure behind ``device`` on the scan points ``points``.
@@ -87,9 +86,11 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
         Able to scan; configured here at ``sweep.sample_rate``.
     sweep : Sweep
     points : ndarray of int, shape (n,)
-        Scan indices of the measurement grid, ordered along the beam.
-    mass_per_length : float
-        Of the structure (kg/m): scales the mass-normalized shapes, hence the gains.
+        Scan indices of the measurement grid: ordered along a beam; on a plate a rectangular
+        grid stored x-fastest, or any scatter (see :meth:`Grid.measured`).
+    density : float
+        Mass per length of a beam (kg/m) or per area of a plate (kg/m^2): scales the
+        mass-normalized shapes, hence the gains.
     options : SurveyOptions
         The identifier, the primary actuator, the sparse grid, averages, Gram-Schmidt.
     wavelength : float, optional
@@ -134,14 +135,14 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
     misfit, resolved = good.misfit.copy(), good.resolved.copy()
     for k in range(good.n_modes):
         constants[k], misfit[k], resolved[k] = constants_of(full_frf[chooser[k]], good.frequencies, good.damping, k)
-    grid = _grid(positions, mass_per_length)
+    grid = Grid.measured(positions, density)
     notes = [f"mode at {f:.1f} Hz: actuator {primary} drives it at {100 * d[primary] / d.max():.1f}% of "
              f"actuator {int(np.argmax(d))}; shape from actuator {int(np.argmax(d))}"
              for f, d, w in zip(good.frequencies, drive, weak) if w]
     left = [(f, sweep.left_at_end(f, 2 * np.pi * f * z)) for f, z in zip(good.frequencies, good.damping)]
     notes += [f"mode at {f:.1f} Hz still rings at {r:.1e} of its peak when the record ends: its FRF leaks; "
               f"lengthen the tail" for f, r in left if r > 1e-3]
-    notes += _unresolved(poles)
+    notes += poles.left_out()
     shapes_modes = Modes(good.frequencies, good.damping, constants, misfit, resolved, good.method)
     model = to_model(shapes_modes, grid, caps.channels, source=f"identified through {device.url}",
                      sweep={"f_low": sweep.f_low, "f_high": sweep.f_high, "duration": sweep.duration,
@@ -165,17 +166,18 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, mass_per_l
                   {"sparse": sparse_frf, "full": full_frf})
 
 
-def identify_frf(frf: FRF, mass_per_length: float, method: str = "sdof", orthogonalize: bool = True,
-                 threshold_db: float = 3.0) -> Survey:
-    """A model from measured FRFs of one actuator along a beam (e.g. read from UFF 58)."""
+def identify_frf(frf: FRF, density: float, method: str = SurveyOptions.method, orthogonalize: bool = True,
+                 threshold_db: float = SurveyOptions.threshold_db) -> Survey:
+    """A model from measured FRFs of one actuator (e.g. read from UFF 58), on a beam (``density``
+    in kg/m) or a plate (kg/m^2); what was done to the data on the way in is in the notes."""
     start = time.perf_counter()
     poles = get_identifier(method).identify(frf, threshold_db=threshold_db)
-    model = to_model(poles, _grid(frf.points, mass_per_length), 1, source="identified from measured FRFs")
+    model = to_model(poles, Grid.measured(frf.points, density), 1, source="identified from measured FRFs")
     model = actuator_gains(model, frf, np.arange(frf.values.shape[0]))
     before = crosstalk(model.shapes, model.grid.mass)
     if orthogonalize:
         model = orthonormalize_model(model)
-    notes = _unresolved(poles)
+    notes = [*frf.notes, *poles.left_out()]
     return Survey(model, poles, np.ones((model.n_modes, 1)), np.zeros(model.n_modes, int), before,
                   crosstalk(model.shapes, model.grid.mass), notes,
                   {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},

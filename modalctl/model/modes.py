@@ -58,6 +58,22 @@ def quadrature_weights(x: np.ndarray) -> np.ndarray:
     return np.concatenate(rows)
 
 
+def delaunay_weights(points: np.ndarray) -> np.ndarray:
+    """Area (m^2) each of scattered 2-D ``points`` (n, 2) stands for: a third of each Delaunay
+    triangle it is a corner of, shape (n,). Exact for fields linear over each triangle."""
+    import scipy.spatial
+
+    if len(points) < 3:
+        raise ModelError(f"grid: need at least 3 points on a plate, got {len(points)}")
+    try:
+        tri = scipy.spatial.Delaunay(points)
+    except scipy.spatial.QhullError:
+        raise ModelError("grid: the plate's points lie on a line") from None
+    a, b, c = (points[tri.simplices[:, i]] for i in range(3))
+    area = 0.5 * np.abs((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    return np.bincount(tri.simplices.ravel(), np.repeat(area / 3, 3), minlength=len(points))
+
+
 @dataclass(frozen=True, eq=False)
 class Grid:
     """Points on the structure and the mass each stands for.
@@ -113,6 +129,27 @@ class Grid:
         xx, yy = np.meshgrid(x, y)  # shape (ny, nx): x fastest once raveled
         w = np.outer(quadrature_weights(y), quadrature_weights(x))
         return cls(np.column_stack([xx.ravel(), yy.ravel()]), mass_per_area * w.ravel(), (nx, ny))
+
+    @classmethod
+    def measured(cls, points: np.ndarray, density: float) -> "Grid":
+        """The grid of measured points (m), shape (n, 1) along a line or (n, 2) on a plate.
+
+        Along a line the points must increase (Simpson weights); on a plate they form a full
+        rectangular grid stored x-fastest (tensor Simpson weights, ``shape`` set), or else any
+        scatter, whose weights are the areas of its Delaunay triangles shared among their corners.
+        ``density`` is the mass per length (kg/m) or per area (kg/m^2).
+        """
+        points = np.asarray(points, float)
+        points = points[:, None] if points.ndim == 1 else points
+        if points.shape[1] == 1:
+            return cls(points, density * quadrature_weights(points[:, 0]))
+        x, y = np.unique(points[:, 0]), np.unique(points[:, 1])
+        xx, yy = np.meshgrid(x, y)
+        if x.size * y.size == len(points) and x.size > 1 and y.size > 1 and np.allclose(
+                points, np.column_stack([xx.ravel(), yy.ravel()])):
+            w = np.outer(quadrature_weights(y), quadrature_weights(x))
+            return cls(points, density * w.ravel(), (x.size, y.size))
+        return cls(points, density * delaunay_weights(points))
 
     @property
     def n(self) -> int:
