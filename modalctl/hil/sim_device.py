@@ -56,7 +56,7 @@ class SimDevice(Device):
         self._noise_sigma = None
         self._voltages = self._modal = self._board = None
         self._boards = 0  # phasor boards made so far
-        self._shots = 0  # open-loop shots played so far (each its own scan noise)
+        self._shots = 0  # open-loop shots triggered so far (each its own scan noise)
         self._kept = np.arange(model.n_modes)
         self._rng = np.random.default_rng(perturbation.seed + 1)
 
@@ -107,6 +107,7 @@ class SimDevice(Device):
         u, p = self._voltages, self.perturbation
         if self._played is None:  # the structure answers a repeated drive identically; only noise differs
             self._play(u, progress)
+        self._shots += 1  # every shot its own vibrometer noise (a repeated one too: averages average)
         sensors = self._played
         sensors = sensors + self._sigma(np.max(np.abs(sensors))) * self._rng.standard_normal(sensors.shape)
         times = np.arange(u.shape[1]) / self.sample_rate
@@ -134,7 +135,6 @@ class SimDevice(Device):
                 plant.retune(base * (1 + p.shift((i + chunk / 2) / self.sample_rate)))  # the chunk's middle
             played.append(plant.step(u[:, i:i + chunk]))
         self._modal = np.hstack(played)
-        self._shots += 1
         self.info["clipped_samples"] = plant.clipped
         self._noise_sigma = self._sigma(self._field_peak()) / np.sqrt(self.perturbation.scan_repeats)
         self._played = plant.sensors(self._modal)
