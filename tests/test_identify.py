@@ -239,3 +239,22 @@ def test_identify_refuses_what_it_cannot_do(capsys, tmp_path, args, words):
     except SystemExit as exit_:  # argparse's own refusals
         code = exit_.code
     assert code == 2 and words in capsys.readouterr().err and not (tmp_path / "m.npz").exists()
+
+
+def test_repeated_shots_have_their_own_noise_and_the_frf_knows_its_scatter():
+    """Averages average on the HIL (each trigger its own vibrometer noise, the same drive or not),
+    and the H1 noise estimate from the scatter between shots matches the difference of two
+    independent estimates (whose standard deviation is sqrt(2) times it)."""
+    from modalctl.identify.acquire import measure_frf
+
+    truth = load_scene("thesis-al-cc")
+    sweep = Sweep.design(100, 6e3, 4.0)
+    device = SimDevice(truth, Perturbation(snr_db=30, seed=3))
+    device.configure(sweep.sample_rate)
+    device.activate()
+    points = np.arange(0, truth.grid.n, 50)
+    a = measure_frf(device, sweep, 0, points, averages=3)
+    b = measure_frf(device, sweep, 0, points, averages=3)
+    assert np.all(a.noise_std > 0)
+    ratio = np.sqrt(np.mean(np.abs(a.values - b.values) ** 2) / np.mean(a.noise_std**2 + b.noise_std**2))
+    assert 0.8 < ratio < 1.25  # the difference of two estimates: variance the sum of theirs
