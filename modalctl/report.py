@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from modalctl.identify.estimators import NOISE  # noqa: E402
 from modalctl.outdir import atomic  # noqa: E402
 from modalctl.plan.decompose import Decomposition  # noqa: E402
 
@@ -402,10 +403,11 @@ def plot_identification(survey, stem) -> list[str]:
     fig, ax = plt.subplots(figsize=(10, 4))
     for a, frf in sorted(survey.frfs["sparse"].items()):
         ax.semilogy(frf.frequencies / 1e3, frf.mean_magnitude(), lw=0.7, label=f"actuator {a}")
-    for f, ok in zip(survey.poles.frequencies, survey.poles.resolved):
-        ax.axvline(f / 1e3, color="k" if ok else "r", lw=0.6, ls="-" if ok else "--")
+    for f, ok, why in zip(survey.poles.frequencies, survey.poles.resolved, survey.poles.reasons):
+        if ok or why != NOISE:
+            ax.axvline(f / 1e3, color="k" if ok else "r", lw=0.6, ls="-" if ok else "--")
     ax.set(xlabel="frequency (kHz)", ylabel="mean |H| over points (m/s/V)",
-           title=f"mean mobility per actuator; poles found ({model.n_modes} kept, red dashed: unresolved)")
+           title=f"mean mobility per actuator; poles found ({model.n_modes} kept, red dashed: left out)")
     ax.legend(fontsize=7, ncol=4)
     paths = [_save(fig, f"{stem}_frf.png")]
 
@@ -422,6 +424,12 @@ def plot_identification(survey, stem) -> list[str]:
     fig.colorbar(image, ax=axes, label="|cross-talk| (log)")
     paths.append(_save(fig, f"{stem}_crosstalk.png"))
 
+    fig = _plate_shapes(model) if model.grid.dim == 2 else _beam_shapes(model)
+    paths.append(_save(fig, f"{stem}_shapes.png"))
+    return [str(p) for p in paths]
+
+
+def _beam_shapes(model):
     fig, ax = plt.subplots(figsize=(10, 5))
     x = model.grid.x * 1e3
     for k in range(model.n_modes):
@@ -429,5 +437,23 @@ def plot_identification(survey, stem) -> list[str]:
         ax.plot(x, 0.4 * s - k, lw=0.8)
         ax.text(x[-1] + 1, -k, f"{model.frequencies[k] / 1e3:.2f} kHz", fontsize=7, va="center")
     ax.set(xlabel="x (mm)", yticks=[], title="identified mode shapes (normalized, Eq 3.13)")
-    paths.append(_save(fig, f"{stem}_shapes.png"))
-    return [str(p) for p in paths]
+    return fig
+
+
+def _plate_shapes(model):
+    """One map per mode over the measured points (triangulated: a scatter draws as well as a grid)."""
+    cols = min(6, model.n_modes)
+    rows = -(-model.n_modes // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 1.9 * rows + 0.6), squeeze=False)
+    x, y = model.grid.points.T * 1e3
+    for k, ax in enumerate(axes.ravel()):
+        ax.set_axis_off()
+        if k >= model.n_modes:
+            continue
+        s = model.shapes[k] / np.max(np.abs(model.shapes[k]))
+        ax.tripcolor(x, y, s, shading="gouraud", cmap="RdBu_r", vmin=-1, vmax=1)
+        ax.plot(x, y, ",k", alpha=0.4)
+        ax.set_aspect("equal")
+        ax.set_title(f"{k + 1}: {model.frequencies[k] / 1e3:.3f} kHz", fontsize=8)
+    fig.suptitle("identified mode shapes on the measured points (normalized, Eq 3.13)")
+    return fig

@@ -135,8 +135,8 @@ def test_fair_misfit_stands_unless_a_second_pole_explains_more():
     for h, expected in ((bent, True), (two, False)):
         frf = FRF(freqs, h, np.ones(h.shape), X[:, None])
         keep = np.abs(freqs - 1000) <= 30
-        from modalctl.identify.estimators import _basis  # the band's one-pole residual, as modal_constants has it
-        b = _basis(freqs[keep], [(1000.0, 0.01)], 1000.0)
+        from modalctl.identify.estimators import pole_basis  # the band's one-pole residual, as modal_constants has it
+        b = pole_basis(freqs[keep], [(1000.0, 0.01)], 1000.0)
         coef, *_ = np.linalg.lstsq(b, h[:, keep].T, rcond=None)
         resid = h[:, keep].T - b @ coef
         assert fair_fit(frf, 1000.0, 0.01, 30.0, (), resid) is expected

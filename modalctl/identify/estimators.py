@@ -122,7 +122,7 @@ class Identifier:
     identify: Callable[..., "Modes"]
 
 
-def _basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -> np.ndarray:
+def pole_basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -> np.ndarray:
     """One column per pole ``(f, zeta)`` plus a complex constant and slope for the modes outside
     the band, shape (nb, len(poles) + 2).
 
@@ -150,7 +150,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     turns it by ``w`` times the delay): they are rotated by the phase that makes them most
     nearly real, and the misfit counts what one real shape and that phase cannot explain.
 
-    With ``general`` (see :func:`_basis`) the mode may have complex shapes (non-proportional
+    With ``general`` (see :func:`pole_basis`) the mode may have complex shapes (non-proportional
     damping): the misfit is then the residual over what the pole, with any shape, explains
     (the RMS it removes from the fit without it): a pole of the noise explains nothing.
 
@@ -169,12 +169,12 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     if np.count_nonzero(keep) < 2 * columns:  # at the edge of the measurement
         raise ModelError(f"identify: fewer than {2 * columns} FRF bins within {half_width:g} Hz of {f:g} Hz")
     h = frf.values[:, keep].T  # (nb, n_points)
-    b = _basis(frf.frequencies[keep], [(f, zeta), *others], f)
+    b = pole_basis(frf.frequencies[keep], [(f, zeta), *others], f)
     coef, *_ = np.linalg.lstsq(b, h, rcond=None)
     phase = np.exp(0.5j * np.angle(np.sum(coef[0] ** 2)))
     constants = (coef[0] / phase).real
     if general:  # what the mode explains: the residual without its columns less that with them
-        b = _basis(frf.frequencies[keep], [(f, zeta), *others], f, general)
+        b = pole_basis(frf.frequencies[keep], [(f, zeta), *others], f, general)
         resid = h - b @ np.linalg.lstsq(b, h, rcond=None)[0]
         rest = np.delete(b, [0, 1 + len(others)], axis=1)
         without = h - rest @ np.linalg.lstsq(rest, h, rcond=None)[0]
@@ -200,6 +200,8 @@ def fair_fit(frf: FRF, f: float, zeta: float, half_width: float, others, resid: 
     (:func:`fit_band`); one pole stands unless the two divide the residual by ``SPLIT_GAIN``
     with the second inside the band: a graded rule in place of a cliff on the misfit.
     """
+    if not 0 < zeta < 0.5:  # no physical pole to start from
+        return False
     keep = np.abs(frf.frequencies - f) <= half_width
     freqs = frf.frequencies[keep]
     seed = float(freqs[np.argmax(np.mean(np.abs(resid), axis=1))])
@@ -209,7 +211,7 @@ def fair_fit(frf: FRF, f: float, zeta: float, half_width: float, others, resid: 
     if not all(abs(p - f) <= half_width and 0 < z < 0.5 for p, z in poles[:2]):
         return True
     h = frf.values[:, keep].T
-    b = _basis(freqs, poles, f)
+    b = pole_basis(freqs, poles, f)
     coef, *_ = np.linalg.lstsq(b, h, rcond=None)
     return bool(np.linalg.norm(h - b @ coef) * SPLIT_GAIN > np.linalg.norm(resid))
 
@@ -304,7 +306,7 @@ def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int 
     band; ``components`` plus one per extra pole), which carry the modes whatever their
     shapes, and the band to at most ``max_bins`` evenly spread bins. Poles in ``fixed`` are
     in the basis but not moved (modes outside the band that still reach into it);
-    ``general`` is passed to :func:`_basis`.
+    ``general`` is passed to :func:`pole_basis`.
     """
     start = np.array(poles, float).reshape(-1, 2)
     keep = np.flatnonzero(np.abs(frf.frequencies - centre) <= half_width)
@@ -321,7 +323,7 @@ def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int 
     fixed = np.array(fixed, float).reshape(-1, 2)
 
     def residual(x):
-        b = _basis(freqs, np.vstack([trial(x), fixed]), centre, general)
+        b = pole_basis(freqs, np.vstack([trial(x), fixed]), centre, general)
         coef, *_ = np.linalg.lstsq(b, data, rcond=None)
         r = data - b @ coef
         return np.concatenate([r.real.ravel(), r.imag.ravel()])

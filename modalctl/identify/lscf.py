@@ -63,9 +63,10 @@ class Stabilization:
 def _principal(values: np.ndarray, components: int) -> np.ndarray:
     """At most ``components`` principal FRFs of the rows, those above ``SIGNIFICANT`` of the
     first, shape (kept, nf): the poles of every row, less the noise of the other directions."""
-    u, s, vh = np.linalg.svd(values, full_matrices=False)
+    power, u = np.linalg.eigh(values @ values.conj().T)  # the rows' Gram matrix: far fewer rows than bins
+    s = np.sqrt(np.maximum(power[::-1], 0))
     keep = min(components, int(np.count_nonzero(s > SIGNIFICANT * s[0])))
-    return s[:keep, None] * vh[:keep]
+    return u[:, ::-1][:, :keep].conj().T @ values
 
 
 def stabilization(frf: FRF, f_low: float, f_high: float, max_order: int,

@@ -14,7 +14,16 @@ import numpy as np
 
 from modalctl.model.modes import ModelError
 
-from .estimators import FAIR_ERROR, Modes, constants_of, fit_band, half_width, misfit_reason, modes_from_rows, sdof_fit
+from .estimators import (
+    FAIR_ERROR,
+    Modes,
+    constants_of,
+    fit_band,
+    half_width,
+    misfit_reason,
+    modes_from_rows,
+    sdof_fit,
+)
 from .frf import FRF
 from .lscf import pick_poles, stabilization
 
