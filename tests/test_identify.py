@@ -258,3 +258,34 @@ def test_repeated_shots_have_their_own_noise_and_the_frf_knows_its_scatter():
     assert np.all(a.noise_std > 0)
     ratio = np.sqrt(np.mean(np.abs(a.values - b.values) ** 2) / np.mean(a.noise_std**2 + b.noise_std**2))
     assert 0.8 < ratio < 1.25  # the difference of two estimates: variance the sum of theirs
+
+
+def test_plate_identified_end_to_end_then_focused_with_its_model(tmp_path):
+    """``modalctl identify --scene plate-glass`` (the survey on a 2-D grid, every actuator), then
+    ``run --model`` with a 2-D shape on the identified model, the scene as the truth."""
+    import json
+
+    from modalctl.cli import main
+    from modalctl.model.modes import ModalModel
+
+    out = tmp_path / "plate.npz"
+    assert main(["identify", "--scene", "plate-glass", "--f-low", "300Hz", "--f-high", "3.5kHz", "--step", "10mm",
+                 "--out", str(out), "--quiet", "--no-plots", "--json"]) == 0
+    model, truth = ModalModel.load(out), load_scene("plate-glass")
+    assert model.grid.dim == 2 and model.grid.shape == (11, 8) and model.actuator_gains.shape == (5, 4)
+    assert np.allclose(model.frequencies, truth.frequencies[:5], rtol=1e-4)
+    index = [int(np.argmin(np.sum((truth.grid.points - p) ** 2, axis=1))) for p in model.grid.points]
+    for k in range(5):
+        assert mac(model.shapes[k], truth.shapes[k, index]) > 0.99
+    # gains: each patch's drive of each mode against the scene's (mass-normalized shapes; a shape's
+    # sign is a convention, the field a volt makes, gain times shape, is not)
+    sign = np.sign([model.shapes[k] @ truth.shapes[k, index] for k in range(5)])[:, None]
+    assert np.allclose(sign * model.actuator_gains, truth.actuator_gains[:5], rtol=0.05,
+                       atol=0.02 * np.abs(truth.actuator_gains[:5]).max())
+    focus = ["--shape", "gaussian", "--param", "width=40mm", "--focus-time", "25ms", "--modes", "5", "--margin",
+             "none", "--quiet", "--no-plots"]
+    assert main(["run", "--model", str(out), "--truth", "plate-glass", *focus, "--out", str(tmp_path / "model")]) == 0
+    tau = json.loads((tmp_path / "model" / "metrics.json").read_text())["tau"]
+    # the scene's own five modes on the same 11 x 8 points focus as well (a 40 mm Gaussian wants more modes)
+    assert main(["run", "--scene", "plate-glass", "--points", "11x8", *focus, "--out", str(tmp_path / "scene")]) == 0
+    assert abs(tau - json.loads((tmp_path / "scene" / "metrics.json").read_text())["tau"]) < 0.03
