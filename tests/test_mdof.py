@@ -140,3 +140,17 @@ def test_fair_misfit_stands_unless_a_second_pole_explains_more():
         coef, *_ = np.linalg.lstsq(b, h[:, keep].T, rcond=None)
         resid = h[:, keep].T - b @ coef
         assert fair_fit(frf, 1000.0, 0.01, 30.0, (), resid) is expected
+
+
+def test_a_heavily_damped_mode_on_the_shoulder_of_another_is_found():
+    """8% damping at 1120 Hz beside a 1% mode at 1000 Hz: no peak in the mean FRF (sdof never
+    lists it), the MDOF fit and auto return it exactly."""
+    freqs = np.arange(500, 2000, 1.0)
+    h = mobility(freqs, [1000.0, 1120.0], [0.01, 0.08], 1e3 * np.array([np.sin(np.pi * X), np.sin(2 * np.pi * X)]))
+    frf = FRF(freqs, h, np.ones(h.shape), X[:, None])
+    single = sdof_fit(frf)
+    assert np.allclose(single.frequencies, [1000.0], rtol=1e-4)  # one peak, one mode, the shoulder unseen
+    for method in (mdof_fit, auto_fit):
+        got = method(frf).only_resolved()
+        assert np.allclose(got.frequencies, [1000.0, 1120.0], rtol=1e-5)
+        assert np.allclose(got.damping, [0.01, 0.08], rtol=1e-3)
