@@ -28,10 +28,11 @@ from .frf import FRF, mobility
 
 __all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "fair_fit",
            "half_width", "neighbours", "constants_of", "to_model", "actuator_gains", "UNRESOLVED_ERROR",
-           "NOISE_EXCESS", "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows"]
+           "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows"]
 
 UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole below which a mode is resolved whatever the noise...
 NOISE_EXCESS = 3.0  # ...or, above it, when the residual is within this many times the measurement noise...
+SIGNIFICANCE = 25.0  # ...and the mode's energy this many times what a fit to noise alone gives...
 FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band explains no more (see fair_fit)
 SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
 BINS_PER_COLUMN = 3  # a band fit gets at least this many bins per unknown of each point (else it is widened)
@@ -57,9 +58,10 @@ class Modes:
     misfit : ndarray, shape (k,)
         Relative RMS misfit of one pole to the FRFs around the peak.
     resolved : ndarray of bool, shape (k,)
-        False when one pole cannot explain the peak: misfit above ``UNRESOLVED_ERROR`` and
-        above ``NOISE_EXCESS`` times the measurement noise (the scatter between shots), and
-        above ``FAIR_ERROR`` or bettered by two poles (:func:`fair_fit`); or a doubtful pole.
+        False when one pole cannot explain the peak: misfit above ``UNRESOLVED_ERROR``, a
+        residual not the measurement noise or a mode not standing out of it
+        (:func:`within_noise`), and a misfit above ``FAIR_ERROR`` or bettered by two poles
+        (:func:`fair_fit`); or a doubtful pole.
     method : str
     reasons : tuple of str, length k
         Why each mode left out was left out ("" for a resolved mode).
@@ -186,11 +188,22 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     raw, resid = resid, resid * np.sqrt(len(b) / (len(b) - columns))
     misfit = float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(np.abs(mode_part) ** 2)))
     noise = frf.noise(keep)
-    excess = np.inf if noise is None else float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(noise ** 2)))
-    resolved = misfit <= UNRESOLVED_ERROR or excess <= NOISE_EXCESS
+    resolved = misfit <= UNRESOLVED_ERROR or (noise is not None and within_noise(resid, mode_part, noise, general))
     if not resolved and misfit <= FAIR_ERROR:
         resolved = fair_fit(frf, f, zeta, half_width, others, raw)
     return constants, misfit, bool(resolved)
+
+
+def within_noise(resid: np.ndarray, mode_part, noise: np.ndarray, general: bool = False) -> bool:
+    """Whether a band's residual is the measurement's noise (within ``NOISE_EXCESS`` times it)
+    and the mode stands out of it: the energy of its part (``mode_part``, an array or its RMS)
+    at least ``SIGNIFICANCE`` times what fitting it to noise alone would give (one noise
+    variance per coefficient it has at each point)."""
+    variance = float(np.mean(noise**2))
+    excess = np.sqrt(np.mean(np.abs(resid) ** 2) / variance)
+    energy = np.mean(np.abs(mode_part) ** 2) * resid.size
+    coefficients = resid.shape[1] * (2 if general else 1)
+    return bool(excess <= NOISE_EXCESS and energy >= SIGNIFICANCE * coefficients * variance)
 
 
 def fair_fit(frf: FRF, f: float, zeta: float, half_width: float, others, resid: np.ndarray) -> bool:
