@@ -93,6 +93,11 @@ class Modes:
         return Modes(self.frequencies[keep], self.damping[keep], self.constants[keep], self.misfit[keep],
                      self.resolved[keep], self.method, tuple(np.array(self.reasons, object)[keep]))
 
+    def row(self, i: int) -> tuple:
+        """Mode ``i`` as ``(f, zeta, constants, misfit, resolved, reason)`` (see :func:`modes_from_rows`)."""
+        return (self.frequencies[i], self.damping[i], self.constants[i], self.misfit[i], bool(self.resolved[i]),
+                self.reasons[i])
+
     def left_out(self, most: int = 10) -> list[str]:
         """One line per mode left out, with why; peaks of the noise counted in one line, at most
         ``most`` lines of the others."""

@@ -28,6 +28,8 @@ from .frf import FRF
 from .lscf import pick_poles, stabilization
 
 EDGE_OF_BAND = "too few bins between the pole and the edge of the measurement"
+RAN_AWAY_FROM_LSCF = "stable in the LSCF diagram but the band fit ran away from it"
+DOUBTFUL = "doubtful: stable in too few LSCF orders"
 
 __all__ = ["mdof_fit", "auto_fit", "bands", "refine", "MAX_ORDER", "OVERLAP"]
 
@@ -141,23 +143,21 @@ def mdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
     if len(poles):
         refined, converged = refine(frf, poles)
         for f, z in poles[~converged]:
-            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False,
-                         "stable in the LSCF diagram but the band fit ran away from it"))
+            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False, RAN_AWAY_FROM_LSCF))
         rows += _rows(frf, refined[converged])
     returned = np.array([r[0] for r in rows if r[4]])
     for f, z in doubtful:
         if returned.size == 0 or np.min(np.abs(returned - f)) > z * f:
-            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False,
-                         "doubtful: stable in too few LSCF orders"))
+            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False, DOUBTFUL))
     return modes_from_rows(rows, frf.values.shape[0], "mdof")
 
 
 def auto_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None) -> Modes:
     """The SDOF fit where it resolves a peak, the MDOF fit everywhere else.
 
-    A mode of the MDOF fit is taken when no resolved SDOF mode lies within its half-power
-    half-width; an unresolved SDOF peak is dropped when an MDOF mode took its place (within its
-    half-power band), and reported otherwise.
+    A mode (or a doubtful pole) of the MDOF fit is taken when no resolved SDOF mode lies within
+    its half-power half-width; an unresolved SDOF peak is dropped when a mode taken from the MDOF
+    fit lies within its half-power band, and reported otherwise.
     """
     single = sdof_fit(frf, threshold_db, min_frequency)
     try:
@@ -165,19 +165,19 @@ def auto_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
     except ModelError:
         return single
     sure = single.frequencies[single.resolved]
-    near_sure = lambda f, z: sure.size > 0 and np.min(np.abs(sure - f)) <= z * f  # noqa: E731
-    take = [i for i in range(multi.n_modes) if multi.resolved[i] and not near_sure(multi.frequencies[i],
-                                                                                   multi.damping[i])]
-    new = multi.frequencies[take]
-    rows = []
-    for i in range(single.n_modes):
+
+    def seen_by_sdof(i: int) -> bool:
+        f, z = multi.frequencies[i], multi.damping[i]
+        return sure.size > 0 and bool(np.min(np.abs(sure - f)) <= z * f)
+
+    new = [i for i in range(multi.n_modes)
+           if (multi.resolved[i] or multi.reasons[i] == DOUBTFUL) and not seen_by_sdof(i)]
+    taken = multi.frequencies[[i for i in new if multi.resolved[i]]]
+
+    def replaced(i: int) -> bool:
         f, z = single.frequencies[i], single.damping[i]
         reach = 2 * (z if np.isfinite(z) else 0.05) * f
-        if single.resolved[i] or not np.any(np.abs(new - f) <= reach):
-            rows.append((f, z, single.constants[i], single.misfit[i], single.resolved[i], single.reasons[i]))
-    rows += [(multi.frequencies[i], multi.damping[i], multi.constants[i], multi.misfit[i], True, "") for i in take]
-    rows += [(multi.frequencies[i], multi.damping[i], multi.constants[i], multi.misfit[i], False, multi.reasons[i])
-             for i in range(multi.n_modes) if not multi.resolved[i] and not near_sure(multi.frequencies[i],
-                                                                                      multi.damping[i])
-             and multi.reasons[i].startswith("doubtful")]
+        return not single.resolved[i] and bool(np.any(np.abs(taken - f) <= reach))
+
+    rows = [single.row(i) for i in range(single.n_modes) if not replaced(i)] + [multi.row(i) for i in new]
     return modes_from_rows(rows, frf.values.shape[0], "auto")
