@@ -15,11 +15,11 @@ lies within 1% of it; a returned mode farther than 1% from every true mode is *w
    survey (``modalctl identify``: every actuator on a sparse subset, the primary on all points).
 2. ``peer``: sdypy-EMA's synthetic case, built by its own generator (its
    ``tests/test_tools/generate_synth_frf.py`` with pyLump: 5 masses, seed 6020), exact and with
-   noise at 40 and 20 dB below each FRF's peak; its tolerances: 1 Hz or 2% in frequency, 2% in
-   damping.
+   noise at 40 and 20 dB below each FRF's peak (its level known, as from four averages); its
+   tolerances: 1 Hz or 2% in frequency, 2% in damping.
 3. ``close``: two modes one and half a half-power bandwidth apart, 2 and 5% damping, between two
-   separated modes, on 12 points, at 40 and 20 dB; and a mode whose reference sits near its node
-   (3% of the others' drive).
+   separated modes, on 12 points, at 40 and 20 dB (the noise level known); and a mode whose
+   reference sits near its node (3% of the others' drive).
 4. ``plate``: the survey on plate-glass (21 modes, 748 Hz - 12 kHz; modes 11 and 12 1.2% apart),
    315 points at 5 mm, 40 dB.
 """
@@ -50,6 +50,7 @@ SNRS = (20, 40, 60)
 METHODS = ("peaks", "sdof", "mdof", "auto")
 STEP = 10  # every 10th point of the 1051-point scene grid: 1 mm
 REPEATS = 3  # timings are medians of this many runs
+AVERAGES = 4  # the synthetic FRFs' noise is known, as four averages' H1 knows it
 
 
 def mac(a: np.ndarray, b: np.ndarray) -> float:
@@ -123,13 +124,15 @@ def run_peer(frf_values, freqs, truth, order, frf_type="mobility", peer_toleranc
     return {**score(*truth, *found, peer_tolerance), "seconds": float(np.median(times))}
 
 
-def noisy(values: np.ndarray, snr_db: float | None, seed: int) -> np.ndarray:
-    """``values`` plus complex noise ``snr_db`` below each row's peak."""
+def noisy(values: np.ndarray, snr_db: float | None, seed: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``values`` plus complex noise ``snr_db`` below each row's peak, and its standard deviation
+    (what an H1 estimate knows from the scatter between its averages; None without noise)."""
     if snr_db is None:
-        return values
+        return values, None
     rng = np.random.default_rng(seed)
     sigma = np.abs(values).max(axis=1, keepdims=True) * 10 ** (-snr_db / 20)
-    return values + sigma * (rng.standard_normal(values.shape) + 1j * rng.standard_normal(values.shape)) / np.sqrt(2)
+    noise = sigma * (rng.standard_normal(values.shape) + 1j * rng.standard_normal(values.shape)) / np.sqrt(2)
+    return values + noise, np.broadcast_to(sigma, values.shape)
 
 
 def part_beam() -> dict:
@@ -183,9 +186,10 @@ def part_peer() -> dict:
     true = (f_nat, zeta, shapes * shapes[:, :1])  # the driving point's row: phi(p) phi(0)
     out = {"f_nat_hz": f_nat.tolist(), "zeta": zeta.tolist(), "band_hz": [float(freq[0]), float(freq[-1])]}
     for snr in (None, 40, 20):
-        values = noisy(receptance, snr, seed=7)
-        mob = values * 2j * np.pi * freq
-        frf = FRF(freq, mob, np.ones(mob.shape), np.arange(5.0)[:, None])
+        values, std = noisy(receptance, snr, seed=7)
+        jw = 2j * np.pi * freq
+        frf = FRF(freq, values * jw, np.ones(values.shape), np.arange(5.0)[:, None], 0, AVERAGES, 0.0,
+                  None if std is None else std * np.abs(jw))
         row = run_methods(frf, true, peer_tolerance=True)
         row["lscf"] = run_peer(values, freq, true, 60, "receptance", peer_tolerance=True)
         key = "exact" if snr is None else str(snr)
@@ -214,8 +218,8 @@ def part_close() -> dict:
     for separation, zeta, node in cases:
         freqs, values, true = close_case(separation, zeta, node)
         for snr in (None, 40, 20):
-            v = noisy(values, snr, seed=11)
-            frf = FRF(freqs, v, np.ones(v.shape), CLOSE_X[:, None])
+            v, std = noisy(values, snr, seed=11)
+            frf = FRF(freqs, v, np.ones(v.shape), CLOSE_X[:, None], 0, AVERAGES, 0.0, std)
             row = run_methods(frf, true)
             row["lscf"] = run_peer(v, freqs, true, 60)
             key = f"{separation:g} bw, {100 * zeta:g}%{', node' if node else ''}, " + (
@@ -299,7 +303,7 @@ def _table(rows: dict, names: dict, peer: bool = False) -> list[str]:
 
 
 NAMES = {"peaks": "peaks (thesis)", "sdof": "sdof", "mdof": "mdof (LSCF + band fit)", "auto": "auto",
-         "lscf": "sdypy-EMA LSCF (true f given)", "survey": "survey, all actuators (sdof)"}
+         "lscf": "sdypy-EMA LSCF (true f given)", "survey": "survey, all actuators (default: auto)"}
 
 
 def write_markdown(results: dict) -> None:

@@ -237,7 +237,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="of a beam (kg/m); default from the scene")
     p.add_argument("--mass-per-area", type=quantity_type("kg/m^2", "mass-per-area", low=0),
                    help="of a plate (kg/m^2); default from the scene")
-    p.add_argument("--method", default=SURVEY.method, help=f"identifier plugin: sdof or peaks ({SURVEY.method})")
+    p.add_argument("--method", default=SURVEY.method, help=f"identifier plugin: auto, sdof, mdof or peaks (see 'modalctl plugins'; {SURVEY.method})")
     p.add_argument("--primary", type=number_type(int, "primary", low=0, low_open=False), default=SURVEY.primary,
                    help=f"actuator swept over the whole grid ({SURVEY.primary})")
     p.add_argument("--averages", type=number_type(int, "averages", low=1, high=1000, low_open=False), default=SURVEY.averages,

@@ -340,7 +340,9 @@ class SurveyOptions(_Options):
     Attributes
     ----------
     method : str
-        Identifier plugin (``sdof``, ``peaks`` or a third party's).
+        Identifier plugin (``auto``, ``sdof``, ``mdof``, ``peaks`` or a third party's). ``auto``
+        by default: it is ``sdof`` wherever one pole explains a peak and finds close modes
+        (plate-glass's 11 and 12) where ``sdof`` reports them (benchmarks/identify_accuracy.py).
     primary : int
         The actuator swept over the whole grid; a mode it drives below ``weak_drive`` of the best
         actuator's drive is rescanned with that one.
@@ -356,7 +358,7 @@ class SurveyOptions(_Options):
         See ``primary``.
     """
 
-    method: str = "sdof"
+    method: str = "auto"
     primary: int = 0
     sparse: int = 5
     averages: int = 2
