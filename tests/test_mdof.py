@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from modalctl.identify.estimators import fair_fit, sdof_fit
+from modalctl.identify.estimators import one_pole_stands, sdof_fit
 from modalctl.identify.frf import FRF, mobility
 from modalctl.identify.lscf import Stabilization, pick_poles
 from modalctl.identify.mdof import auto_fit, mdof_fit
@@ -139,7 +139,7 @@ def test_fair_misfit_stands_unless_a_second_pole_explains_more():
         b = pole_basis(freqs[keep], [(1000.0, 0.01)], 1000.0)
         coef, *_ = np.linalg.lstsq(b, h[:, keep].T, rcond=None)
         resid = h[:, keep].T - b @ coef
-        assert fair_fit(frf, 1000.0, 0.01, 30.0, (), resid) is expected
+        assert one_pole_stands(frf, 1000.0, 0.01, 30.0, (), resid) is expected
 
 
 def test_a_heavily_damped_mode_on_the_shoulder_of_another_is_found():

@@ -26,19 +26,19 @@ from modalctl.model.projection import mass_normalize
 
 from .frf import FRF, mobility
 
-__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "fair_fit",
+__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "one_pole_stands",
            "half_width", "neighbours", "constants_of", "to_model", "actuator_gains", "UNRESOLVED_ERROR",
            "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows"]
 
 UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole below which a mode is resolved whatever the noise...
 NOISE_EXCESS = 3.0  # ...or, above it, when the residual is within this many times the measurement noise...
 SIGNIFICANCE = 25.0  # ...and the mode's energy this many times what a fit to noise alone gives...
-FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band explains no more (see fair_fit)
+FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band explains no more (one_pole_stands)
 SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
 BINS_PER_COLUMN = 3  # a band fit gets at least this many bins per unknown of each point (else it is widened)
 NOISE_PEAK = 1.0  # a "mode" leaving more unexplained than itself (misfit above this) is a peak of the noise
 
-NO_HALF_POWER = "no half-power points: another peak or the band's edge comes first (close modes?)"
+NO_HALF_POWER = "no half-power points with a physical damping: another peak or the band's edge comes first"
 RAN_AWAY = "the band fit ran away from the peak (no single pole here)"
 NOISE = "a peak of the noise: the fitted mode is smaller than what it leaves unexplained"
 
@@ -60,8 +60,8 @@ class Modes:
     resolved : ndarray of bool, shape (k,)
         False when one pole cannot explain the peak: misfit above ``UNRESOLVED_ERROR``, a
         residual not the measurement noise or a mode not standing out of it
-        (:func:`within_noise`), and a misfit above ``FAIR_ERROR`` or bettered by two poles
-        (:func:`fair_fit`); or a doubtful pole.
+        (:func:`within_noise`), and a misfit above ``FAIR_ERROR``; or bettered by two poles
+        (:func:`one_pole_stands`); or a doubtful pole.
     method : str
     reasons : tuple of str, length k
         Why each mode left out was left out ("" for a resolved mode).
@@ -195,7 +195,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     noise = frf.noise(keep)
     resolved = misfit <= UNRESOLVED_ERROR or (noise is not None and within_noise(resid, mode_part, noise, general))
     if not resolved and misfit <= FAIR_ERROR:
-        resolved = fair_fit(frf, f, zeta, half_width, others, raw)
+        resolved = one_pole_stands(frf, f, zeta, half_width, others, raw)
     return constants, misfit, bool(resolved)
 
 
@@ -203,20 +203,24 @@ def within_noise(resid: np.ndarray, mode_part, noise: np.ndarray, general: bool 
     """Whether a band's residual is the measurement's noise (within ``NOISE_EXCESS`` times it)
     and the mode stands out of it: the energy of its part (``mode_part``, an array or its RMS)
     at least ``SIGNIFICANCE`` times what fitting it to noise alone would give (one noise
-    variance per coefficient it has at each point)."""
-    variance = float(np.mean(noise**2))
-    excess = np.sqrt(np.mean(np.abs(resid) ** 2) / variance)
-    energy = np.mean(np.abs(mode_part) ** 2) * resid.size
+    variance per coefficient it has at each point). Each point counts by its own variance over
+    the band (``noise`` (n_points, nb), ``resid`` (nb, n_points)): a quiet point is not drowned
+    by a loud one."""
+    variance = np.mean(noise**2, axis=1)  # per point over the band: one shot's scatter is itself noisy
+    weight = 1 / np.maximum(variance, 1e-6 * np.mean(variance) + np.finfo(float).tiny)  # a silent point: no infinity
+    excess = np.sqrt(np.mean(np.abs(resid) ** 2 * weight))
+    energy = np.sum(np.abs(mode_part) ** 2 * weight)  # an RMS (general) counts at every value
     coefficients = resid.shape[1] * (2 if general else 1)
-    return bool(excess <= NOISE_EXCESS and energy >= SIGNIFICANCE * coefficients * variance)
+    return bool(excess <= NOISE_EXCESS and energy >= SIGNIFICANCE * coefficients)
 
 
-def fair_fit(frf: FRF, f: float, zeta: float, half_width: float, others, resid: np.ndarray) -> bool:
-    """Whether one pole is the best account of a band it explains only fairly.
+def one_pole_stands(frf: FRF, f: float, zeta: float, half_width: float, others, resid: np.ndarray) -> bool:
+    """Whether one pole is the best account of a band it explains only fairly: the graded rule
+    in place of a cliff on the misfit.
 
-    A second pole is started where the residual of the first peaks and both are fitted
-    (:func:`fit_band`); one pole stands unless the two divide the residual by ``SPLIT_GAIN``
-    with the second inside the band: a graded rule in place of a cliff on the misfit.
+    A second pole is started where the residual ``resid`` (nb, n_points) of the first peaks and
+    both are fitted (:func:`fit_band`); one pole stands unless the two divide the residual by
+    ``SPLIT_GAIN`` with the second inside the band.
     """
     if not 0 < zeta < 0.5:  # no physical pole to start from
         return False
@@ -303,10 +307,13 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
             rows.append((f, np.nan, np.zeros(frf.values.shape[0]), np.inf, False, NO_HALF_POWER))
             continue
         zeta = (sides[1] - sides[0]) / (2 * f)
+        if not 0 < zeta < 0.5:  # half-power points of a peak of the noise
+            rows.append((f, zeta, np.zeros(frf.values.shape[0]), np.inf, False, NO_HALF_POWER))
+            continue
         h_at = np.array([np.interp(f, freqs[top], row.real) for row in frf.values[:, top]])
         constants = 2 * zeta * 2 * np.pi * f * h_at
         try:
-            _, misfit, resolved = modal_constants(frf, f, zeta, max(2 * zeta * f, 3 * df))
+            _, misfit, resolved = modal_constants(frf, f, zeta, max(3 * zeta * f, 4 * df))
         except ModelError:
             misfit, resolved = np.inf, False
         rows.append((f, zeta, constants, misfit, resolved, misfit_reason(misfit, resolved)))
