@@ -316,7 +316,7 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
             _, misfit, resolved = modal_constants(frf, f, zeta, max(3 * zeta * f, 4 * df))
         except ModelError:
             misfit, resolved = np.inf, False
-        rows.append((f, zeta, constants, misfit, resolved, misfit_reason(misfit, resolved)))
+        rows.append((f, zeta, constants, misfit, resolved, misfit_reason(misfit, resolved, frf.noise_std is not None)))
     return modes_from_rows(rows, frf.values.shape[0], "peaks")
 
 
@@ -384,7 +384,7 @@ def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
             rows.append((f, zeta, start.constants[i], np.inf, False, RAN_AWAY))
             continue
         constants, misfit, resolved = modal_constants(frf, f_fit, z_fit, half, poles[1:])
-        rows.append((f_fit, z_fit, constants, misfit, resolved, misfit_reason(misfit, resolved)))
+        rows.append((f_fit, z_fit, constants, misfit, resolved, misfit_reason(misfit, resolved, frf.noise_std is not None)))
     return modes_from_rows(rows, frf.values.shape[0], "sdof")
 
 
@@ -411,11 +411,13 @@ def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
                            general)
 
 
-def misfit_reason(misfit: float, resolved: bool) -> str:
-    """Why a mode with this misfit was left out ("" when it was not)."""
+def misfit_reason(misfit: float, resolved: bool, noise_known: bool) -> str:
+    """Why a mode with this misfit was left out ("" when it was not): a peak of the noise when
+    the FRFs' noise is known and the mode is smaller than what it leaves unexplained; else one
+    pole explaining its band poorly (close modes, or noise nobody measured)."""
     if resolved:
         return ""
-    if misfit > NOISE_PEAK:
+    if misfit > NOISE_PEAK and noise_known:
         return NOISE
     return f"one pole explains its band poorly (misfit {misfit:.2f}; close modes?)"
 

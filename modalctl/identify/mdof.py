@@ -93,7 +93,7 @@ def _rows(frf: FRF, poles: np.ndarray) -> list:
             rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False, EDGE_OF_BAND))
             continue
         resolved = resolved or misfit <= FAIR_ERROR
-        rows.append((f, z, constants, misfit, resolved, misfit_reason(misfit, resolved)))
+        rows.append((f, z, constants, misfit, resolved, misfit_reason(misfit, resolved, frf.noise_std is not None)))
     return rows
 
 
