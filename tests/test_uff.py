@@ -163,3 +163,12 @@ def test_mixed_or_unknown_contents_are_refused(tmp_path):
         read_uff58(write(tmp_path / "p.uff", points, mobility(points), ordinate=15))  # pressure
     with pytest.raises(ModelError, match="directions"):
         read_uff58(write(tmp_path / "d.uff", points, mobility(points), rsp_dir=np.r_[3, 1, np.full(10, 3)]))
+
+
+def test_a_beam_along_a_diagonal_is_a_line(tmp_path):
+    t = np.linspace(0.0, 0.1, 21)
+    xyz = np.column_stack([t * 0.6, t * 0.8, np.zeros(21)])  # 100 mm along a diagonal of the x-y plane
+    values = mobility(np.column_stack([t, np.full(21, B / 2)]))
+    frf = read_uff58(write(tmp_path / "diag.uff", xyz[:, :2], values, xyz=xyz))
+    assert frf.points.shape == (21, 1)
+    assert np.allclose(np.diff(frf.points[:, 0]), 0.005)  # distances along the line kept

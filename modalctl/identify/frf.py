@@ -321,17 +321,23 @@ def _mobility_of(path, frfs: list[dict], freqs: np.ndarray) -> tuple[np.ndarray,
 
 
 def _plane_coordinates(path, xyz: np.ndarray) -> np.ndarray:
-    """Node coordinates (n, 3) as the axes they vary along (n, 1) or (n, 2); points on a tilted
-    line or plane are expressed in its own axes."""
+    """Node coordinates (n, 3) as positions along their line (n, 1) or on their plane (n, 2):
+    the axes they vary along when those are two at most and not collinear, else the line's or
+    the plane's own axes (a beam along a diagonal, a plate tilted in 3-D)."""
     varying = np.ptp(xyz, axis=0) > 1e-9 * max(float(np.ptp(xyz)), 1e-300)
-    if varying.sum() <= 2:
+    if varying.sum() <= 1:
         return xyz[:, varying] if varying.any() else xyz[:, :1]
     centred = xyz - xyz.mean(axis=0)
     _, s, vh = np.linalg.svd(centred, full_matrices=False)
-    if s[2] > 1e-6 * s[0]:
+    rank = int(np.count_nonzero(s > 1e-6 * s[0]))
+    if rank == 3:
         raise _uff_refuse(path, "the response nodes do not lie on a line or a plane")
-    rank = 1 if s[1] <= 1e-6 * s[0] else 2
-    return centred @ vh[:rank].T
+    if rank == 2 and varying.sum() == 2:
+        return xyz[:, varying]
+    if rank == 1:
+        along = vh[0] * np.sign(vh[0][np.argmax(np.abs(vh[0]))])  # its largest component positive
+        return (centred @ along)[:, None]
+    return centred @ vh[:2].T
 
 
 def read_uff58(path) -> FRF:
