@@ -30,6 +30,7 @@ from .lscf import pick_poles, stabilization
 EDGE_OF_BAND = "too few bins between the pole and the edge of the measurement"
 RAN_AWAY_FROM_LSCF = "stable in the LSCF diagram but the band fit ran away from it"
 DOUBTFUL = "doubtful: stable in too few LSCF orders"
+UNSEEN = "only the noise test holds it (misfit above the fair limit) and no LSCF order shows a pole there"
 
 __all__ = ["mdof_fit", "auto_fit", "bands", "refine", "MAX_ORDER", "OVERLAP"]
 
@@ -157,7 +158,10 @@ def auto_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
 
     A mode (or a doubtful pole) of the MDOF fit is taken when no resolved SDOF mode lies within
     its half-power half-width; an unresolved SDOF peak is dropped when a mode taken from the MDOF
-    fit lies within its half-power band, and reported otherwise.
+    fit lies within its half-power band, and reported otherwise. An SDOF mode that only the noise
+    test holds (its misfit above ``FAIR_ERROR``) is left out, said why, unless the MDOF fit saw a
+    pole there too: in a cluster of heavily damped modes hidden in the noise, one pole fits the
+    noise as well as three and lands between them.
     """
     single = sdof_fit(frf, threshold_db, min_frequency)
     try:
@@ -179,5 +183,11 @@ def auto_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
         reach = 2 * (z if np.isfinite(z) else 0.05) * f
         return not single.resolved[i] and bool(np.any(np.abs(taken - f) <= reach))
 
-    rows = [single.row(i) for i in range(single.n_modes) if not replaced(i)] + [multi.row(i) for i in new]
-    return modes_from_rows(rows, frf.values.shape[0], "auto")
+    def unseen_by_lscf(i: int) -> bool:  # held only by the noise test, and no LSCF order shows a pole there
+        f, z = single.frequencies[i], single.damping[i]
+        weak = single.resolved[i] and single.misfit[i] > FAIR_ERROR
+        return weak and not (multi.n_modes and np.min(np.abs(multi.frequencies - f)) <= z * f)
+
+    rows = [(*single.row(i)[:4], False, UNSEEN) if unseen_by_lscf(i) else single.row(i)
+            for i in range(single.n_modes) if not replaced(i)]
+    return modes_from_rows(rows + [multi.row(i) for i in new], frf.values.shape[0], "auto")
