@@ -209,7 +209,7 @@ def within_noise(resid: np.ndarray, mode_part, noise: np.ndarray, general: bool 
     variance = np.mean(noise**2, axis=1)  # per point over the band: one shot's scatter is itself noisy
     weight = 1 / np.maximum(variance, 1e-6 * np.mean(variance) + np.finfo(float).tiny)  # a silent point: no infinity
     excess = np.sqrt(np.mean(np.abs(resid) ** 2 * weight))
-    energy = np.sum(np.abs(mode_part) ** 2 * weight)  # an RMS (general) counts at every value
+    energy = np.sum(np.broadcast_to(np.abs(mode_part) ** 2, resid.shape) * weight)  # an RMS counts at every value
     coefficients = resid.shape[1] * (2 if general else 1)
     return bool(excess <= NOISE_EXCESS and energy >= SIGNIFICANCE * coefficients)
 
