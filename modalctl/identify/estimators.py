@@ -36,7 +36,7 @@ SIGNIFICANCE = 25.0  # ...and the mode's energy this many times what a fit to no
 FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band explains no more (one_pole_stands)
 SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
 BINS_PER_COLUMN = 3  # a band fit gets at least this many bins per unknown of each point (else it is widened)
-NOISE_PEAK = 1.0  # a "mode" leaving more unexplained than itself (misfit above this) is a peak of the noise
+NOISE_PEAK = 1.0  # a "mode" leaving more unexplained than itself (misfit above this), where the noise was measured, is a peak of it
 
 NO_HALF_POWER = "no half-power points with a physical damping: another peak or the band's edge comes first"
 RAN_AWAY = "the band fit ran away from the peak (no single pole here)"
