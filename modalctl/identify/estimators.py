@@ -26,9 +26,10 @@ from modalctl.model.projection import mass_normalize
 
 from .frf import FRF, mobility
 
-__all__ = ["Identifier", "Modes", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "one_pole_stands",
+__all__ = ["Identifier", "Modes", "BandFit", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "one_pole_stands",
            "half_width", "neighbours", "constants_of", "to_model", "actuator_gains", "UNRESOLVED_ERROR",
-           "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows"]
+           "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows",
+           "frequency_fixed", "FREQUENCY_TOLERANCE", "CONFIDENCE", "UNCERTAIN"]
 
 UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole below which a mode is resolved whatever the noise...
 NOISE_EXCESS = 3.0  # ...or, above it, when the residual is within this many times the measurement noise...
@@ -37,10 +38,14 @@ FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band exp
 SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
 BINS_PER_COLUMN = 3  # a band fit gets at least this many bins per unknown of each point (else it is widened)
 NOISE_PEAK = 1.0  # a "mode" leaving more unexplained than itself (misfit above this), where the noise was measured, is a peak of it
+FREQUENCY_TOLERANCE = 0.01  # where the noise is measured, a mode is returned only when it fixes its frequency within this...
+CONFIDENCE = 9.0  # ...: the noise-weighted chi-square, damping re-fitted, rises by this (3 sigma) before either end
 
 NO_HALF_POWER = "no half-power points with a physical damping: another peak or the band's edge comes first"
 RAN_AWAY = "the band fit ran away from the peak (no single pole here)"
 NOISE = "a peak of the noise: the fitted mode is smaller than what it leaves unexplained"
+UNCERTAIN = (f"the measured noise leaves its frequency uncertain by more than {FREQUENCY_TOLERANCE:.0%} (3 sigma): "
+             "one pole fits as well elsewhere (modes hidden in the noise?)")
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,6 +118,29 @@ class Modes:
                 for f, z, e, r, why in zip(self.frequencies, self.damping, self.misfit, self.resolved, self.reasons)]
 
 
+@dataclass(frozen=True, eq=False)
+class BandFit:
+    """What the fit of a band says of one pole (:func:`modal_constants`).
+
+    Attributes
+    ----------
+    constants : ndarray, shape (n_points,)
+        Real modal constants (m/s^2/V).
+    misfit : float
+        RMS of the residual over RMS of the mode's part of the fit.
+    reason : str
+        Why the pole is not returned as a mode; "" when it is.
+    """
+
+    constants: np.ndarray
+    misfit: float
+    reason: str = ""
+
+    @property
+    def resolved(self) -> bool:
+        return not self.reason
+
+
 @dataclass(frozen=True)
 class Identifier:
     """A modal parameter estimator, as plugins provide them (hook ``modalctl_identifiers``).
@@ -146,8 +174,9 @@ def pole_basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -
 
 
 def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
-                    others=(), general: bool = False) -> tuple[np.ndarray, float, bool]:
-    """Real modal constants at every point for a known pole, and the relative misfit.
+                    others=(), general: bool = False, counted: bool = False) -> BandFit:
+    """Real modal constants at every point for a known pole, the relative misfit, and whether
+    the pole is a mode.
 
     The FRFs within ``f +- half_width`` (Hz; widened to ``BINS_PER_COLUMN`` bins per unknown)
     are fitted by least squares with the mode, the
@@ -161,27 +190,23 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     damping): the misfit is then the residual over what the pole, with any shape, explains
     (the RMS it removes from the fit without it): a pole of the noise explains nothing.
 
-    Returns
-    -------
-    constants : ndarray, shape (n_points,)
-        m/s^2/V.
-    misfit : float
-        RMS of the residual over RMS of the mode's part of the fit.
-    resolved : bool
-        Whether the poles explain the band (see :class:`Modes`).
+    The pole is a mode when it explains the band (:class:`Modes`, ``resolved``; with
+    ``counted``, poles counted by a stabilization diagram, a fair misfit stands without the
+    split test) and, where the FRFs' noise is known, that noise fixes its frequency to
+    ``FREQUENCY_TOLERANCE`` (:func:`frequency_fixed`).
     """
     columns = (1 + len(others)) * (2 if general else 1) + 2
     half_width = max(half_width, BINS_PER_COLUMN * columns * (frf.frequencies[1] - frf.frequencies[0]) / 2)
     keep = np.abs(frf.frequencies - f) <= half_width
     if np.count_nonzero(keep) < 2 * columns:  # at the edge of the measurement
         raise ModelError(f"identify: fewer than {2 * columns} FRF bins within {half_width:g} Hz of {f:g} Hz")
-    h = frf.values[:, keep].T  # (nb, n_points)
-    b = pole_basis(frf.frequencies[keep], [(f, zeta), *others], f)
+    freqs, h = frf.frequencies[keep], frf.values[:, keep].T  # (nb, n_points)
+    b = pole_basis(freqs, [(f, zeta), *others], f)
     coef, *_ = np.linalg.lstsq(b, h, rcond=None)
     phase = np.exp(0.5j * np.angle(np.sum(coef[0] ** 2)))
     constants = (coef[0] / phase).real
     if general:  # what the mode explains: the residual without its columns less that with them
-        b = pole_basis(frf.frequencies[keep], [(f, zeta), *others], f, general)
+        b = pole_basis(freqs, [(f, zeta), *others], f, general)
         resid = h - b @ np.linalg.lstsq(b, h, rcond=None)[0]
         rest = np.delete(b, [0, 1 + len(others)], axis=1)
         without = h - rest @ np.linalg.lstsq(rest, h, rcond=None)[0]
@@ -195,8 +220,19 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     noise = frf.noise(keep)
     resolved = misfit <= UNRESOLVED_ERROR or (noise is not None and within_noise(resid, mode_part, noise, general))
     if not resolved and misfit <= FAIR_ERROR:
-        resolved = one_pole_stands(frf, f, zeta, half_width, others, raw)
-    return constants, misfit, bool(resolved)
+        resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw)
+    if not resolved:
+        return BandFit(constants, misfit, misfit_reason(misfit, False, noise is not None))
+    if noise is not None and not frequency_fixed(freqs, h, noise_weights(noise), f, zeta, others, general):
+        return BandFit(constants, misfit, UNCERTAIN)
+    return BandFit(constants, misfit)
+
+
+def noise_weights(noise: np.ndarray) -> np.ndarray:
+    """Per point, one over its noise variance over the band (``noise`` (n_points, nb) standard
+    deviations): one shot's scatter is itself noisy; a silent point gets no infinity."""
+    variance = np.mean(noise**2, axis=1)
+    return 1 / np.maximum(variance, 1e-6 * np.mean(variance) + np.finfo(float).tiny)
 
 
 def within_noise(resid: np.ndarray, mode_part, noise: np.ndarray, general: bool = False) -> bool:
@@ -206,12 +242,45 @@ def within_noise(resid: np.ndarray, mode_part, noise: np.ndarray, general: bool 
     variance per coefficient it has at each point). Each point counts by its own variance over
     the band (``noise`` (n_points, nb), ``resid`` (nb, n_points)): a quiet point is not drowned
     by a loud one."""
-    variance = np.mean(noise**2, axis=1)  # per point over the band: one shot's scatter is itself noisy
-    weight = 1 / np.maximum(variance, 1e-6 * np.mean(variance) + np.finfo(float).tiny)  # a silent point: no infinity
+    weight = noise_weights(noise)
     excess = np.sqrt(np.mean(np.abs(resid) ** 2 * weight))
     energy = np.sum(np.broadcast_to(np.abs(mode_part) ** 2, resid.shape) * weight)  # an RMS counts at every value
     coefficients = resid.shape[1] * (2 if general else 1)
     return bool(excess <= NOISE_EXCESS and energy >= SIGNIFICANCE * coefficients)
+
+
+def frequency_fixed(freqs: np.ndarray, h: np.ndarray, weight: np.ndarray, f: float, zeta: float,
+                    others=(), general: bool = False) -> bool:
+    """Whether the noise fixes a mode's frequency to ``FREQUENCY_TOLERANCE`` of ``f``: its
+    profile likelihood.
+
+    The chi-square of the band's fit (``h`` (nb, n_points) at ``freqs``; each point weighted by
+    ``weight``, one over its noise variance; the constants linear, the poles ``others`` fixed)
+    is minimized over the mode's frequency and damping (a complex residual is two real ones of
+    half its variance each: twice ``|r|^2 weight``). The frequency is fixed when that
+    minimum lies within the tolerance of ``f`` and the chi-square, damping re-fitted, is
+    ``CONFIDENCE`` above it at both ends of the tolerance. A single pole fitted to a cluster
+    of heavily damped modes hidden in the noise explains the band to the noise, as the cluster
+    does, and lands anywhere between them: its frequency is not fixed.
+    """
+    tol, log_z = FREQUENCY_TOLERANCE, np.log(zeta)
+
+    def chi2(shift: float, lz: float) -> float:
+        b = pole_basis(freqs, [(f * (1 + tol * shift), np.exp(lz)), *others], f, general)
+        r = h - b @ np.linalg.lstsq(b, h, rcond=None)[0]
+        return float(2 * np.sum(np.abs(r) ** 2 * weight))
+
+    best = scipy.optimize.minimize(lambda x: chi2(x[0], log_z + x[1]), np.zeros(2), method="Nelder-Mead",
+                                   options={"initial_simplex": [[0, 0], [0.25, 0], [0, 0.3]], "xatol": 0.01,
+                                            "fatol": 0.1})
+    if abs(best.x[0]) >= 1:
+        return False
+    for end in (-1.0, 1.0):
+        rise = scipy.optimize.minimize_scalar(lambda lz: chi2(end, lz), bounds=(log_z - 2, log_z + 2),
+                                              method="bounded", options={"xatol": 0.01}).fun - best.fun
+        if rise < CONFIDENCE:
+            return False
+    return True
 
 
 def one_pole_stands(frf: FRF, f: float, zeta: float, half_width: float, others, resid: np.ndarray) -> bool:
@@ -313,10 +382,10 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
         h_at = np.array([np.interp(f, freqs[top], row.real) for row in frf.values[:, top]])
         constants = 2 * zeta * 2 * np.pi * f * h_at
         try:
-            _, misfit, resolved = modal_constants(frf, f, zeta, max(3 * zeta * f, 4 * df))
+            fit = modal_constants(frf, f, zeta, max(3 * zeta * f, 4 * df))
         except ModelError:
-            misfit, resolved = np.inf, False
-        rows.append((f, zeta, constants, misfit, resolved, misfit_reason(misfit, resolved, frf.noise_std is not None)))
+            fit = BandFit(constants, np.inf, misfit_reason(np.inf, False, frf.noise_std is not None))
+        rows.append((f, zeta, constants, fit.misfit, fit.resolved, fit.reason))
     return modes_from_rows(rows, frf.values.shape[0], "peaks")
 
 
@@ -370,10 +439,11 @@ def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
         modes do not bias each other.
     """
     start = peak_picking(frf, threshold_db, min_frequency)
+    candidate = start.resolved | (np.array(start.reasons, object) == UNCERTAIN)  # the fit may fix a peak's frequency
     df = frf.frequencies[1] - frf.frequencies[0]
     rows = []
     for i, (f, zeta) in enumerate(zip(start.frequencies, start.damping)):
-        if not start.resolved[i] or not 0 < zeta < 0.5:
+        if not candidate[i] or not 0 < zeta < 0.5:
             rows.append((f, zeta, start.constants[i], start.misfit[i], False, start.reasons[i] or RAN_AWAY))
             continue
         half = half_width(start.frequencies, start.damping, i, df, band)
@@ -383,8 +453,8 @@ def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
         if abs(f_fit - f) > half or not 0 < z_fit < 0.5:  # the fit ran away: no single pole here
             rows.append((f, zeta, start.constants[i], np.inf, False, RAN_AWAY))
             continue
-        constants, misfit, resolved = modal_constants(frf, f_fit, z_fit, half, poles[1:])
-        rows.append((f_fit, z_fit, constants, misfit, resolved, misfit_reason(misfit, resolved, frf.noise_std is not None)))
+        fit = modal_constants(frf, f_fit, z_fit, half, poles[1:])
+        rows.append((f_fit, z_fit, fit.constants, fit.misfit, fit.resolved, fit.reason))
     return modes_from_rows(rows, frf.values.shape[0], "sdof")
 
 
@@ -402,13 +472,13 @@ def neighbours(frequencies: np.ndarray, damping: np.ndarray, i: int, half: float
 
 
 def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
-                 band: float = 3.0, general: bool = False) -> tuple[np.ndarray, float, bool]:
+                 band: float = 3.0, general: bool = False, counted: bool = False) -> BandFit:
     """:func:`modal_constants` of mode ``k`` of a known set, in its band, with its neighbours."""
     df = frf.frequencies[1] - frf.frequencies[0]
     half = half_width(frequencies, damping, k, df, band)
     near = neighbours(frequencies, damping, k, half)
     return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])),
-                           general)
+                           general, counted)
 
 
 def misfit_reason(misfit: float, resolved: bool, noise_known: bool) -> str:
@@ -463,6 +533,6 @@ def actuator_gains(model: ModalModel, frf: FRF, point_index: np.ndarray) -> Moda
     gains = np.array(model.actuator_gains, copy=True)
     phi = model.shapes[:, point_index]
     for k in range(model.n_modes):
-        constants, _, _ = constants_of(frf, model.frequencies, model.damping, k)
+        constants = constants_of(frf, model.frequencies, model.damping, k).constants
         gains[k, frf.actuator] = float(phi[k] @ constants / (phi[k] @ phi[k]))
     return replace(model, actuator_gains=gains)

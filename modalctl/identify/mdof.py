@@ -20,7 +20,6 @@ from .estimators import (
     constants_of,
     fit_band,
     half_width,
-    misfit_reason,
     modes_from_rows,
     sdof_fit,
 )
@@ -84,17 +83,17 @@ def _rows(frf: FRF, poles: np.ndarray) -> list:
 
     The misfit is that of the pole with any shape (complex ones too: non-proportional
     damping), :func:`~.estimators.modal_constants` with ``general``; a pole is returned when
-    it explains its band at least fairly (``FAIR_ERROR``) or to within the measurement noise.
+    it explains its band at least fairly (``FAIR_ERROR``; LSCF counted the poles) or to within
+    the measurement noise, and that noise fixes its frequency.
     """
     rows = []
     for k, (f, z) in enumerate(poles):
         try:
-            constants, misfit, resolved = constants_of(frf, poles[:, 0], poles[:, 1], k, BAND, general=True)
+            fit = constants_of(frf, poles[:, 0], poles[:, 1], k, BAND, general=True, counted=True)
         except ModelError:  # at the edge of the measurement
             rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False, EDGE_OF_BAND))
             continue
-        resolved = resolved or misfit <= FAIR_ERROR
-        rows.append((f, z, constants, misfit, resolved, misfit_reason(misfit, resolved, frf.noise_std is not None)))
+        rows.append((f, z, fit.constants, fit.misfit, fit.resolved, fit.reason))
     return rows
 
 

@@ -121,7 +121,7 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     drive = np.zeros((good.n_modes, caps.channels))
     for k in range(good.n_modes):
         for a, frf in sparse_frf.items():
-            drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k)[0] ** 2))
+            drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k).constants ** 2))
     weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
     chooser = np.where(weak, np.argmax(drive, axis=1), primary)
     compute += time.perf_counter() - t0
@@ -134,7 +134,8 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     constants = np.zeros((good.n_modes, points.size))
     misfit, resolved = good.misfit.copy(), good.resolved.copy()
     for k in range(good.n_modes):
-        constants[k], misfit[k], resolved[k] = constants_of(full_frf[chooser[k]], good.frequencies, good.damping, k)
+        fit = constants_of(full_frf[chooser[k]], good.frequencies, good.damping, k)
+        constants[k], misfit[k], resolved[k] = fit.constants, fit.misfit, fit.resolved
     grid = Grid.measured(positions, density)
     notes = [f"mode at {f:.1f} Hz: actuator {primary} drives it at {100 * d[primary] / d.max():.1f}% of "
              f"actuator {int(np.argmax(d))}; shape from actuator {int(np.argmax(d))}"
