@@ -1,0 +1,722 @@
+"""Finite-element Kirchhoff plates of any outline, from geometry to mass-normalized modes.
+
+A plate's outline (a polygon, or a rectangle with rounded corners; holes cut out of it) is
+meshed by gmsh with the piezo patches' outlines embedded, so that element edges follow them.
+scikit-fem assembles the Kirchhoff bending stiffness ``D [(1 - nu) w,ab v,ab + nu lap(w) lap(v)]``
+and the mass ``rho h w v`` on the 15-parameter nonconforming plate triangle (deflection and
+its gradient at the vertices, deflection and normal slope at mid-edges: any outline, no
+rotated degrees of freedom), and scipy's shift-invert Lanczos gives the lowest modes,
+mass-normalized on the FE mass matrix. Supports per edge: clamped (every degree of freedom
+on the edge held), simply supported (the deflection held), free, or an elastic rim
+(translational and rotational springs per unit length, on the edge's facets).
+
+"No more than a scene needs": the mesh is split (every triangle in four, halving h) until the
+kept modes have converged. The element's eigenvalues converge as h^2 (from below), so the
+finer mesh's frequency error is Richardson's ``(f_h - f_2h) / 3``; shapes converge when each
+of the finer mesh's modes lies in the span of the coarser mesh's modes of its frequency
+(a subspace MAC: degenerate pairs, as on a square, turn freely within their span).
+
+Piezo patches act by the pin-force model the analytic structures use: a uniform moment line
+density ``m`` (per volt) along the patch's rim, whose generalized force on a mode is
+``m * integral over the patch of lap(phi)``. Sensors read the velocity at a point.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse.linalg
+import scipy.spatial
+
+from .modes import Grid, ModalModel, ModelError
+from .structures import Piezo
+
+__all__ = ["Material", "MATERIALS", "Support", "SUPPORTS", "Hole", "Outline", "FEPlate", "Level", "Convergence",
+           "FREQUENCY_TOLERANCE", "SHAPE_TOLERANCE", "DOFS_MAX", "MODES_MAX"]
+
+FREQUENCY_TOLERANCE = 0.005  # kept modes' frequencies converged to this (relative, Richardson's estimate)...
+SHAPE_TOLERANCE = 0.99  # ...and their shapes to this subspace MAC between the last two meshes
+MODES_MAX = 500  # at most this many modes in a model
+DOFS_MAX = 400_000  # a mesh finer than this is refused: the band needs more than a plate model should cost
+ELEMENTS_PER_WAVELENGTH = 2.5  # the first mesh: this many elements per bending wavelength of the highest mode
+CURVATURE_ELEMENTS = 48  # an arc gets at least this many elements per turn (a 1 mm radius: 0.2% sagitta)
+SAMPLES_PER_CELL = 6  # grid weights: each lattice cell sampled this many times per direction
+RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimate is a rigid-body mode
+
+SUPPORTS = ("clamped", "simply-supported", "free", "elastic")
+
+
+@dataclass(frozen=True)
+class Material:
+    """An isotropic plate material: Young's modulus (Pa), density (kg/m^3), Poisson's ratio."""
+
+    modulus: float
+    density: float
+    poisson: float
+
+    def __post_init__(self):
+        for name in ("modulus", "density"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0:
+                raise ModelError(f"material.{name}: must be positive and finite, got {value!r}")
+        if not (np.isfinite(self.poisson) and 0 <= self.poisson < 0.5):
+            raise ModelError(f"material.poisson: must lie in [0, 0.5), got {self.poisson!r}")
+
+
+#: Named materials (handbook values).
+MATERIALS = {
+    "glass": Material(70e9, 2500.0, 0.22),  # soda-lime, as plate-glass
+    "aluminium": Material(69e9, 2700.0, 0.33),
+    "steel": Material(200e9, 7850.0, 0.30),
+    "pmma": Material(3.2e9, 1190.0, 0.35),
+    "polycarbonate": Material(2.4e9, 1200.0, 0.37),
+}
+
+
+@dataclass(frozen=True)
+class Support:
+    """How an edge is held: ``kind`` one of :data:`SUPPORTS`; an elastic rim's translational
+    stiffness (N/m per metre of edge, ``stiffness``) and rotational stiffness (N m/rad per
+    metre, ``rotational``)."""
+
+    kind: str = "clamped"
+    stiffness: float = 0.0
+    rotational: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in SUPPORTS:
+            raise ModelError(f"support: {self.kind!r} is not one of {', '.join(SUPPORTS)}")
+        for name in ("stiffness", "rotational"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value < 0:
+                raise ModelError(f"support.{name}: must be finite and not negative, got {value!r}")
+        if self.kind == "elastic" and self.stiffness == 0 and self.rotational == 0:
+            raise ModelError("support: an elastic rim needs a stiffness or a rotational stiffness")
+
+
+@dataclass(frozen=True)
+class Hole:
+    """A cut-out: a circle of ``radius`` (m) or a rectangle ``size`` = (width, height) (m) with
+    rounded corners of ``corner_radius``, centred at ``centre`` (m). Its edge is free."""
+
+    centre: tuple[float, float]
+    radius: float = 0.0
+    size: tuple[float, float] | None = None
+    corner_radius: float = 0.0
+
+    def __post_init__(self):
+        values = [*self.centre, self.radius, self.corner_radius, *(self.size or ())]
+        if not np.all(np.isfinite(values)):
+            raise ModelError(f"hole: every dimension must be finite, got {self}")
+        if (self.size is None) == (self.radius <= 0):
+            raise ModelError(f"hole: give either a radius > 0 (a circle) or a size (a rectangle), got {self}")
+        if self.size is not None and (min(self.size) <= 0 or not 0 <= self.corner_radius < min(self.size) / 2):
+            raise ModelError(f"hole: a rectangle needs a positive size and a corner radius below half its "
+                             f"smaller side, got {self}")
+
+    def boundary(self, n: int = 96) -> np.ndarray:
+        """Points along the hole's edge (m), shape (n, 2)."""
+        c = np.asarray(self.centre, float)
+        if self.size is None:
+            t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+            return c + self.radius * np.column_stack([np.cos(t), np.sin(t)])
+        return c + _rounded_rectangle(*self.size, self.corner_radius, n)
+
+    def contains(self, points: np.ndarray, grow: float = 0.0) -> np.ndarray:
+        """Whether each point (n, 2) lies inside the hole (grown by ``grow`` metres)."""
+        d = np.asarray(points, float) - np.asarray(self.centre, float)
+        if self.size is None:
+            return np.hypot(d[:, 0], d[:, 1]) < self.radius + grow
+        return _in_rounded_rectangle(d, self.size[0] + 2 * grow, self.size[1] + 2 * grow, self.corner_radius + grow)
+
+
+@dataclass(frozen=True)
+class Outline:
+    """A plate's outline: a polygon (``vertices`` (n, 2), m, in order; edges ``edge1`` from
+    vertex 1 to 2 and so on) or a rectangle with ``corner_radius``, and holes.
+
+    Use :meth:`rectangle` for a (rounded) rectangle centred on the origin: its edges are named
+    ``bottom``, ``right``, ``top``, ``left`` too.
+    """
+
+    vertices: np.ndarray
+    corner_radius: float = 0.0
+    holes: tuple[Hole, ...] = ()
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices, float)
+        if v.ndim != 2 or v.shape[1] != 2 or not 3 <= len(v) <= 1000:
+            raise ModelError(f"outline: expected 3 to 1000 vertices (x, y), got shape {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ModelError("outline: every vertex must be finite")
+        crossing = _self_intersection(v)
+        if crossing is not None:
+            raise ModelError(f"outline: edges {crossing[0] + 1} and {crossing[1] + 1} cross (a self-intersecting "
+                             f"outline)")
+        area = _signed_area(v)
+        if abs(area) <= 1e-12 * np.ptp(v, axis=0).prod() or abs(area) == 0:
+            raise ModelError("outline: the polygon encloses no area")
+        if area < 0:
+            v = v[::-1]  # counter-clockwise
+        if self.corner_radius and not self.is_rectangle(v):
+            raise ModelError("outline: rounded corners are for rectangles (Outline.rectangle)")
+        object.__setattr__(self, "vertices", v)
+        for i, hole in enumerate(self.holes):
+            ring = hole.boundary()
+            if not np.all(self.contains_outer(ring)) or _distance_to_edges(ring, v).min() <= 0:
+                raise ModelError(f"outline: hole {i + 1} at {tuple(hole.centre)} cuts the rim or lies outside "
+                                 f"the plate")
+            for j, other in enumerate(self.holes[:i]):
+                if np.any(other.contains(ring)) or np.any(hole.contains(other.boundary())):
+                    raise ModelError(f"outline: holes {j + 1} and {i + 1} overlap")
+
+    @classmethod
+    def rectangle(cls, a: float, b: float, corner_radius: float = 0.0, holes=()) -> "Outline":
+        """A rectangle ``a`` x ``b`` (m) centred on the origin, corners rounded to ``corner_radius``."""
+        if not (np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0):
+            raise ModelError(f"outline: a rectangle needs positive finite sides, got {a!r} x {b!r}")
+        if not (np.isfinite(corner_radius) and 0 <= corner_radius < min(a, b) / 2):
+            raise ModelError(f"outline: the corner radius must lie in [0, {min(a, b) / 2:g}) m, got {corner_radius!r}")
+        v = np.array([[-a / 2, -b / 2], [a / 2, -b / 2], [a / 2, b / 2], [-a / 2, b / 2]])
+        return cls(v, corner_radius, tuple(holes))
+
+    @staticmethod
+    def is_rectangle(v: np.ndarray) -> bool:
+        """Whether vertices ``v`` are an axis-aligned rectangle's, counter-clockwise from the lower left."""
+        lo, hi = v.min(axis=0), v.max(axis=0)
+        return len(v) == 4 and np.allclose(v, [[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]]])
+
+    @property
+    def edge_names(self) -> list[list[str]]:
+        """Names of each edge of the outer outline (``edgeN``; and the sides of a rectangle)."""
+        names = [[f"edge{i + 1}"] for i in range(len(self.vertices))]
+        if self.is_rectangle(self.vertices):
+            for n, side in zip(names, ("bottom", "right", "top", "left")):
+                n.append(side)
+        return names
+
+    @property
+    def diameter(self) -> float:
+        return float(np.hypot(*np.ptp(self.vertices, axis=0)))
+
+    def contains_outer(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point (n, 2) lies inside the outer outline (rounded corners included)."""
+        p = np.asarray(points, float)
+        if self.corner_radius:
+            lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+            return _in_rounded_rectangle(p - (lo + hi) / 2, *(hi - lo), self.corner_radius)
+        return _in_polygon(p, self.vertices)
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """Whether each point (n, 2) lies on the plate (inside the outline, outside every hole)."""
+        inside = self.contains_outer(points)
+        for hole in self.holes:
+            inside &= ~hole.contains(points)
+        return inside
+
+    @property
+    def area(self) -> float:
+        """Area of the plate (m^2), holes cut out."""
+        outer = abs(_signed_area(self.vertices)) - (4 - np.pi) * self.corner_radius**2
+        holes = sum(np.pi * h.radius**2 if h.size is None else h.size[0] * h.size[1] - (4 - np.pi) * h.corner_radius**2
+                    for h in self.holes)
+        return float(outer - holes)
+
+
+@dataclass(frozen=True)
+class Level:
+    """One mesh of the refinement: its size (m, largest element edge), degrees of freedom,
+    frequencies (Hz) and the seconds it took (meshing, assembly and eigensolution)."""
+
+    size: float
+    dofs: int
+    frequencies: np.ndarray
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Convergence:
+    """How the mesh converged: every level, then per kept mode the finer mesh's estimated
+    frequency error (relative) and shape subspace MAC against the coarser mesh."""
+
+    levels: list[Level]
+    frequency_error: np.ndarray
+    shape_mac: np.ndarray
+    tolerance: float
+    converged: bool
+
+    def to_dict(self) -> dict:
+        return {"levels": [{"size_m": float(lv.size), "dofs": int(lv.dofs), "seconds": float(lv.seconds),
+                            "frequencies_hz": lv.frequencies.tolist()} for lv in self.levels],
+                "frequency_error": self.frequency_error.tolist(), "shape_mac": self.shape_mac.tolist(),
+                "tolerance": self.tolerance, "converged": self.converged}
+
+
+@dataclass(frozen=True)
+class FEPlate:
+    """A Kirchhoff plate of any outline, thickness (m) and material, held per edge.
+
+    Attributes
+    ----------
+    outline : Outline
+    thickness : float
+        m.
+    material : Material
+    supports : dict
+        Edge name (``rim`` for every outer edge not named, ``holes`` for the holes' edges,
+        ``edgeN``; ``bottom``, ``right``, ``top``, ``left`` for a rectangle) to :class:`Support`.
+        Unnamed: a clamped rim, free holes.
+    patches : tuple of PlatePatch
+        Rectangular piezo patches on the back (m), wholly on the plate.
+    sensors : tuple of (x, y)
+        Velocity sensors (m), on the plate.
+    piezo : Piezo
+    """
+
+    outline: Outline
+    thickness: float
+    material: Material
+    supports: dict = field(default_factory=dict)
+    patches: tuple = ()
+    sensors: tuple = ()
+    piezo: Piezo = Piezo()
+
+    def __post_init__(self):
+        if not (np.isfinite(self.thickness) and self.thickness > 0):
+            raise ModelError(f"plate.thickness: must be positive and finite, got {self.thickness!r}")
+        if self.thickness > 0.2 * np.ptp(self.outline.vertices, axis=0).min():
+            raise ModelError("plate.thickness: above a fifth of the plate's width; a Kirchhoff plate is thin")
+        names = {n for names in self.outline.edge_names for n in names} | {"rim", "holes"}
+        for name, support in self.supports.items():
+            if name not in names:
+                raise ModelError(f"plate: no edge named {name!r}; edges are {', '.join(sorted(names))}")
+            if not isinstance(support, Support):
+                raise ModelError(f"plate: the support of {name!r} must be a Support, got {support!r}")
+        for i, p in enumerate(self.patches):
+            corners = _rectangle_ring(p.xlim, p.ylim)
+            inside = lambda q: (q[:, 0] > p.xlim[0]) & (q[:, 0] < p.xlim[1]) & (q[:, 1] > p.ylim[0]) & (  # noqa: E731
+                q[:, 1] < p.ylim[1])
+            if not (p.xlim[0] < p.xlim[1] and p.ylim[0] < p.ylim[1]) or not np.all(self.outline.contains(corners)) \
+                    or any(np.any(inside(h.boundary())) for h in self.outline.holes):
+                raise ModelError(f"plate: patch {p.name or i + 1} {p.xlim} x {p.ylim} m is not wholly on the plate")
+        for i, s in enumerate(self.sensors):
+            if not self.outline.contains(np.atleast_2d(np.asarray(s, float)))[0]:
+                raise ModelError(f"plate: sensor {i + 1} at {tuple(s)} m is not on the plate")
+
+    @property
+    def rigidity(self) -> float:
+        """Bending rigidity D = E h^3 / 12 (1 - nu^2) (N m)."""
+        m = self.material
+        return m.modulus * self.thickness**3 / (12 * (1 - m.poisson**2))
+
+    @property
+    def mass_per_area(self) -> float:
+        return self.material.density * self.thickness
+
+    def wavelength(self, frequency: float) -> float:
+        """Bending wavelength (m) at ``frequency`` (Hz): 2 pi (D / rho h)^(1/4) / sqrt(w)."""
+        return 2 * np.pi * (self.rigidity / self.mass_per_area) ** 0.25 / np.sqrt(2 * np.pi * frequency)
+
+    def modes_below(self, frequency: float) -> float:
+        """Weyl's estimate of the number of modes below ``frequency`` (Hz): A w sqrt(rho h / D) / 4 pi."""
+        return self.outline.area * 2 * np.pi * frequency * np.sqrt(self.mass_per_area / self.rigidity) / (4 * np.pi)
+
+    def frequency_of_mode(self, n: int) -> float:
+        """Weyl's estimate of the ``n``-th mode's frequency (Hz)."""
+        return n / self.modes_below(1.0)
+
+    def support_of(self, name: str) -> Support:
+        default = Support("free") if name == "holes" else self.supports.get("rim", Support("clamped"))
+        return self.supports.get(name, default)
+
+    # -- meshing and assembly -------------------------------------------------------------------
+
+    def mesh(self, size: float):
+        """A gmsh triangulation (skfem ``MeshTri``) with elements no larger than ``size`` (m),
+        patch outlines embedded."""
+        import gmsh
+        from skfem import MeshTri
+
+        gmsh.initialize(readConfigFiles=False, interruptible=False)
+        try:
+            gmsh.option.setNumber("General.Verbosity", 0)
+            gmsh.model.add("plate")
+            occ = gmsh.model.occ
+            v, r = self.outline.vertices, self.outline.corner_radius
+            if self.outline.is_rectangle(v):
+                lo, span = v.min(axis=0), np.ptp(v, axis=0)
+                surface = occ.addRectangle(lo[0], lo[1], 0, span[0], span[1], roundedRadius=r)
+            else:
+                points = [occ.addPoint(x, y, 0) for x, y in v]
+                lines = [occ.addLine(points[i], points[(i + 1) % len(points)]) for i in range(len(points))]
+                surface = occ.addPlaneSurface([occ.addCurveLoop(lines)])
+            cuts = []
+            for hole in self.outline.holes:
+                if hole.size is None:
+                    cuts.append((2, occ.addDisk(hole.centre[0], hole.centre[1], 0, hole.radius, hole.radius)))
+                else:
+                    w, h = hole.size
+                    cuts.append((2, occ.addRectangle(hole.centre[0] - w / 2, hole.centre[1] - h / 2, 0, w, h,
+                                                     roundedRadius=hole.corner_radius)))
+            shape = [(2, surface)]
+            if cuts:
+                shape, _ = occ.cut(shape, cuts)
+            patches = [(2, occ.addRectangle(p.xlim[0], p.ylim[0], 0, p.xlim[1] - p.xlim[0], p.ylim[1] - p.ylim[0]))
+                       for p in self.patches]
+            if patches:
+                occ.fragment(shape, patches)
+            occ.synchronize()
+            gmsh.option.setNumber("Mesh.MeshSizeMax", size)
+            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", CURVATURE_ELEMENTS)
+            gmsh.model.mesh.generate(2)
+            tags, coords, _ = gmsh.model.mesh.getNodes()
+            _, _, nodes = gmsh.model.mesh.getElements(2)
+        finally:
+            gmsh.finalize()
+        index = np.zeros(int(tags.max()) + 1, int)
+        index[tags.astype(int)] = np.arange(tags.size)
+        triangles = index[np.concatenate(nodes).astype(int)].reshape(-1, 3)
+        points = coords.reshape(-1, 3)[:, :2]
+        used = np.unique(triangles)  # gmsh may keep construction points no triangle uses
+        renumber = np.full(points.shape[0], -1)
+        renumber[used] = np.arange(used.size)
+        return MeshTri(np.ascontiguousarray(points[used].T), np.ascontiguousarray(renumber[triangles].T))
+
+    def _edges_of_facets(self, mesh) -> dict[str, np.ndarray]:
+        """Boundary facets by the edge they lie on: ``edgeN`` of the outer outline, ``holes``,
+        or ``rim`` (a rounded corner)."""
+        facets = mesh.boundary_facets()
+        mid = mesh.p[:, mesh.facets[:, facets]].mean(axis=1).T
+        tol = 1e-6 * self.outline.diameter
+        distance = _distance_to_edges(mid, self.outline.vertices, each=True)
+        on_hole = np.zeros(len(mid), bool)
+        for hole in self.outline.holes:
+            on_hole |= hole.contains(mid, grow=tol)
+        keys = np.where(distance.min(axis=1) <= tol, np.char.add("edge", (np.argmin(distance, axis=1) + 1).astype(str)),
+                        np.where(on_hole, "holes", "rim"))
+        return {str(k): facets[keys == k] for k in np.unique(keys)}
+
+    def _support_for_group(self, group: str) -> Support:
+        if group.startswith("edge"):
+            i = int(group[4:]) - 1
+            for name in self.outline.edge_names[i]:
+                if name in self.supports:
+                    return self.supports[name]
+            return self.support_of("rim")
+        return self.support_of(group)
+
+    def assemble(self, mesh):
+        """Stiffness and mass matrices (scipy sparse), the held degrees of freedom and the basis."""
+        from skfem import Basis, BilinearForm, ElementTri15ParamPlate, FacetBasis
+        from skfem.helpers import dd, ddot, dot, eye, grad, trace
+
+        m, h = self.material, self.thickness
+        basis = Basis(mesh, ElementTri15ParamPlate())
+
+        @BilinearForm
+        def bending(u, v, _):
+            def moment(t):
+                return m.modulus / (1 + m.poisson) * (t + m.poisson / (1 - m.poisson) * eye(trace(t), 2))
+            return h**3 / 12 * ddot(moment(dd(u)), dd(v))
+
+        @BilinearForm
+        def inertia(u, v, _):
+            return m.density * h * u * v
+
+        stiffness, mass = bending.assemble(basis), inertia.assemble(basis)
+        held = []
+        for group, facets in self._edges_of_facets(mesh).items():
+            support = self._support_for_group(group)
+            dofs = basis.get_dofs(facets=facets)
+            if support.kind == "clamped":
+                held.append(dofs.all())
+            elif support.kind == "simply-supported":
+                held += [dofs.nodal["u"], dofs.facet["u"]]
+            elif support.kind == "elastic":
+                rim = FacetBasis(mesh, basis.elem, facets=facets)
+
+                @BilinearForm
+                def springs(u, v, w, k=support.stiffness, kr=support.rotational):
+                    return k * u * v + kr * dot(grad(u), w.n) * dot(grad(v), w.n)
+
+                stiffness = stiffness + springs.assemble(rim)
+        held = np.unique(np.concatenate(held)) if held else np.zeros(0, int)
+        return stiffness, mass, held, basis
+
+    def solve(self, mesh, n_modes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, object]:
+        """The ``n_modes`` lowest elastic modes on ``mesh``: frequencies (Hz), mass-normalized
+        FE vectors (N, k), rigid-body vectors (N, r) and the basis."""
+        stiffness, mass, held, basis = self.assemble(mesh)
+        free = basis.complement_dofs(held)
+        k, m = stiffness[free][:, free].tocsc(), mass[free][:, free].tocsc()
+        rigid = 0 if len(held) else 3  # a plate held nowhere moves as a rigid body: 3 ways
+        shift = -(2 * np.pi * self.frequency_of_mode(1)) ** 2 * 0.1  # below zero: K may be singular
+        count = min(n_modes + rigid + 4, free.size - 2)
+        w2, x = scipy.sparse.linalg.eigsh(k, k=count, M=m, sigma=shift, which="LM")
+        order = np.argsort(w2)
+        w2, x = w2[order], x[:, order]
+        elastic = w2 > (2 * np.pi * RIGID_FRACTION * self.frequency_of_mode(1)) ** 2
+        full = np.zeros((basis.N, count))
+        full[free] = x
+        return (np.sqrt(w2[elastic])[:n_modes] / (2 * np.pi), full[:, elastic][:, :n_modes],
+                full[:, ~elastic], basis)
+
+    # -- the model ---------------------------------------------------------------------------
+
+    def grid(self, spacing: float, mesh=None) -> Grid:
+        """Focus grid: a lattice of ``spacing`` (m) over the plate. A plain rectangle gets the
+        tensor Simpson weights; any other outline the mass of each point's cell of the plate
+        (the plate sampled ``SAMPLES_PER_CELL``^2 times per cell, each sample to its nearest
+        point on the plate); points off the plate weigh nothing. With a ``mesh``, "on the
+        plate" is inside its boundary (a rounded corner as the mesh draws it)."""
+        lo, hi = self.outline.vertices.min(axis=0), self.outline.vertices.max(axis=0)
+        nx, ny = (np.ceil((hi - lo) / spacing).astype(int) + 1).tolist()
+        if self.outline.is_rectangle(self.outline.vertices) and not self.outline.corner_radius and not self.outline.holes:
+            return Grid.rectangle((lo[0], hi[0]), (lo[1], hi[1]), nx, ny, self.mass_per_area)
+        if mesh is None:
+            contains = self.outline.contains
+        else:
+            rim = mesh.p[:, mesh.facets[:, mesh.boundary_facets()]].transpose(2, 1, 0)  # (m, 2 ends, 2)
+            clear = 1e-6 * self.outline.diameter  # a point on the rim is off: the mesh may not find it
+
+            def contains(p):
+                inside = _in_segments(p, rim)
+                inside[inside] = _distance_to_segments(p[inside], rim).min(axis=1) > clear
+                return inside
+        x, y = np.linspace(lo[0], hi[0], nx), np.linspace(lo[1], hi[1], ny)
+        xx, yy = np.meshgrid(x, y)
+        points = np.column_stack([xx.ravel(), yy.ravel()])
+        on = contains(points)
+        s = SAMPLES_PER_CELL
+        dx, dy = x[1] - x[0], y[1] - y[0]
+        sx = np.linspace(lo[0], hi[0], (nx - 1) * s + 1)[:-1] + dx / (2 * s)
+        sy = np.linspace(lo[1], hi[1], (ny - 1) * s + 1)[:-1] + dy / (2 * s)
+        samples = np.column_stack([a.ravel() for a in np.meshgrid(sx, sy)])
+        samples = samples[contains(samples)]
+        _, nearest = scipy.spatial.cKDTree(points[on]).query(samples)
+        mass = np.zeros(len(points))
+        mass[np.flatnonzero(on)] = np.bincount(nearest, minlength=int(on.sum())) * dx * dy / s**2
+        return Grid(points, self.mass_per_area * mass, (nx, ny))
+
+    def _sample(self, basis, vectors: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """FE fields (N, k) at points (n, 2) on the plate, shape (k, n)."""
+        probes = basis.probes(np.ascontiguousarray(points.T))
+        return np.asarray((probes @ vectors).T)
+
+    def patch_loads(self, basis) -> np.ndarray:
+        """Per patch, the FE vector of ``m * integral over the patch of lap(v)`` (N, a), with m
+        the pin-force moment per volt."""
+        from skfem import Basis, LinearForm
+        from skfem.helpers import dd, trace
+
+        @LinearForm
+        def laplacian(v, _):
+            return trace(dd(v))
+
+        mesh = basis.mesh
+        centroids = mesh.p[:, mesh.t].mean(axis=1)
+        moment = self.piezo.moment_per_volt(self.material.modulus, self.thickness)
+        columns = []
+        for p in self.patches:
+            inside = np.flatnonzero((centroids[0] > p.xlim[0]) & (centroids[0] < p.xlim[1])
+                                    & (centroids[1] > p.ylim[0]) & (centroids[1] < p.ylim[1]))
+            part = Basis(mesh, basis.elem, elements=inside)
+            columns.append(moment * laplacian.assemble(part))
+        return np.column_stack(columns) if columns else np.zeros((basis.N, 0))
+
+    def modal_model(self, n_modes: int | None = None, *, band: float | None = None, spacing: float = 1e-3,
+                    damping: float = 0.01, tolerance: float = FREQUENCY_TOLERANCE, meta: dict | None = None,
+                    progress=None) -> tuple[ModalModel, Convergence]:
+        """The lowest ``n_modes`` modes, or every mode below ``band`` (Hz), converged to
+        ``tolerance`` on a mesh refined as far as needed; sampled on a lattice of ``spacing``.
+
+        Returns the model (mode shapes, actuator and sensor gains, modal ``damping``) and how
+        the mesh converged. Raises :class:`ModelError` when the mesh would need more than
+        ``DOFS_MAX`` degrees of freedom.
+        """
+        if (n_modes is None) == (band is None):
+            raise ModelError("fe plate: give either a number of modes or a band")
+        if n_modes is not None and not 1 <= n_modes <= MODES_MAX:
+            raise ModelError(f"fe plate: between 1 and {MODES_MAX} modes, got {n_modes}")
+        if band is not None and not (np.isfinite(band) and band > 0):
+            raise ModelError(f"fe plate: the band must be a positive frequency, got {band!r}")
+        if not (np.isfinite(tolerance) and 1e-5 <= tolerance <= 0.2):
+            raise ModelError(f"fe plate: the tolerance must lie in [1e-5, 0.2], got {tolerance!r}")
+        wanted = n_modes if n_modes is not None else max(1, int(np.ceil(1.3 * self.modes_below(band))) + 4)
+        top = band if band is not None else self.frequency_of_mode(wanted) * 1.2
+        size = min(self.wavelength(top) / ELEMENTS_PER_WAVELENGTH, self.outline.diameter / 8)
+        levels, history, mesh = [], [], None
+        while True:
+            start = time.perf_counter()
+            if mesh is None:  # refining splits triangles: the rim stays the first mesh's
+                mesh = self.mesh(size)
+                grid = self.grid(spacing, mesh)
+                on = grid.mass > 0
+            else:
+                mesh = mesh.refined()
+            dofs = mesh.nvertices * 3 + mesh.nfacets * 2
+            if dofs > DOFS_MAX:
+                raise ModelError(f"fe plate: converging {wanted} modes to {tolerance:.2%} needs a mesh above "
+                                 f"{DOFS_MAX} degrees of freedom (elements of {size * 1e3:.2g} mm): the band is "
+                                 f"too high for this plate, or the tolerance too tight")
+            freqs, vectors, rigid, basis = self.solve(mesh, wanted)
+            while band is not None and freqs[-1] < band and len(freqs) == wanted:
+                if wanted >= MODES_MAX:
+                    raise ModelError(f"fe plate: the band {band:g} Hz holds more than {MODES_MAX} modes")
+                wanted = min(MODES_MAX, int(wanted * 1.5) + 4)  # Weyl's estimate fell short
+                freqs, vectors, rigid, basis = self.solve(mesh, wanted)
+            levels.append(Level(size, dofs, freqs, time.perf_counter() - start))
+            shapes = np.zeros((len(freqs), grid.n))
+            shapes[:, on] = self._sample(basis, vectors, grid.points[on])
+            history.append((freqs, shapes, vectors, rigid, basis))
+            if progress is not None:
+                progress(levels[-1])
+            keep = len(freqs) if band is None else max(1, int(np.count_nonzero(freqs <= band)))
+            if len(history) >= 2:
+                error, mac = _convergence(history[-2], history[-1], keep, grid.mass)
+                if error.max() <= tolerance and mac.min() >= SHAPE_TOLERANCE:
+                    break
+            size /= 2
+        freqs, shapes, vectors, rigid, basis = history[-1]
+        keep = slice(0, keep)
+        convergence = Convergence(levels, error, mac, tolerance, True)
+        loads = self.patch_loads(basis)
+        sensors = np.asarray(self.sensors, float).reshape(-1, 2)
+        rigid_shapes = np.zeros((rigid.shape[1], grid.n))
+        if rigid.shape[1]:
+            rigid_shapes[:, on] = self._sample(basis, rigid, grid.points[on])
+        info = {"structure": "plate", "model": "finite-element Kirchhoff (scikit-fem, 15-parameter triangle)",
+                "outline_m": self.outline.vertices.tolist(), "corner_radius_m": self.outline.corner_radius,
+                "holes": [{"centre_m": list(h.centre), "radius_m": h.radius,
+                           "size_m": list(h.size) if h.size else None, "corner_radius_m": h.corner_radius}
+                          for h in self.outline.holes],
+                "supports": {name: vars(s) for name, s in self.supports.items()},
+                "thickness_m": self.thickness, "modulus_Pa": self.material.modulus,
+                "density_kg_m3": self.material.density, "poisson": self.material.poisson,
+                "actuators": [{"name": p.name or f"patch{i + 1}", "xlim_m": list(p.xlim), "ylim_m": list(p.ylim)}
+                              for i, p in enumerate(self.patches)],
+                "sensors": [{"name": f"sensor{i + 1}", "position_m": list(map(float, s))}
+                            for i, s in enumerate(sensors)],
+                "convergence": convergence.to_dict()}
+        info.update(meta or {})
+        model = ModalModel(grid=grid, frequencies=freqs[keep], damping=np.full(len(freqs[keep]), damping),
+                           shapes=shapes[keep], actuator_gains=(vectors.T @ loads)[keep],
+                           sensor_gains=self._sample(basis, vectors, sensors)[keep] if len(sensors) else None,
+                           rigid_shapes=rigid_shapes if rigid.shape[1] else None, meta=info)
+        return model, convergence
+
+
+def _convergence(coarse, fine, keep: int, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per kept mode of the finer mesh: Richardson's estimate of its frequency error (the
+    element converges as h^2: ``(f_h - f_2h) / 3``), and how much of its shape lies in the span
+    of the coarser mesh's modes within 2% of its frequency (mass-weighted on the grid)."""
+    fc, sc = coarse[0], coarse[1]
+    ff, sf = fine[0][:keep], fine[1][:keep]
+    error = np.full(keep, np.inf)
+    mac = np.zeros(keep)
+    for k in range(keep):
+        if k < len(fc):
+            error[k] = abs(ff[k] - fc[k]) / 3 / ff[k]
+        near = np.flatnonzero(np.abs(fc / ff[k] - 1) < 0.02)
+        if near.size:
+            basis = sc[near] * np.sqrt(mass)
+            q, _ = np.linalg.qr(basis.T)
+            v = sf[k] * np.sqrt(mass)
+            mac[k] = float(np.sum((q.T @ v) ** 2) / (v @ v))
+    return error, mac
+
+
+def _rectangle_ring(xlim, ylim, n: int = 8) -> np.ndarray:
+    """Points along a rectangle's edges, shape (4 n, 2)."""
+    t = np.linspace(0, 1, n, endpoint=False)
+    (x0, x1), (y0, y1) = xlim, ylim
+    return np.vstack([np.column_stack([x0 + (x1 - x0) * t, np.full(n, y0)]),
+                      np.column_stack([np.full(n, x1), y0 + (y1 - y0) * t]),
+                      np.column_stack([x1 - (x1 - x0) * t, np.full(n, y1)]),
+                      np.column_stack([np.full(n, x0), y1 - (y1 - y0) * t])])
+
+
+def _rounded_rectangle(width: float, height: float, radius: float, n: int) -> np.ndarray:
+    """Points along a rounded rectangle centred on the origin, shape (about n, 2)."""
+    if radius == 0:
+        return _rectangle_ring((-width / 2, width / 2), (-height / 2, height / 2), max(2, n // 4))
+    t = np.linspace(0, np.pi / 2, max(2, n // 4))
+    cx, cy = width / 2 - radius, height / 2 - radius
+    quarter = [(cx, cy, 0), (-cx, cy, np.pi / 2), (-cx, -cy, np.pi), (cx, -cy, 1.5 * np.pi)]
+    return np.vstack([np.column_stack([x + radius * np.cos(t + a), y + radius * np.sin(t + a)]) for x, y, a in quarter])
+
+
+def _in_rounded_rectangle(d: np.ndarray, width: float, height: float, radius: float) -> np.ndarray:
+    """Whether points ``d`` (n, 2), relative to the centre, lie inside the rounded rectangle."""
+    ax, ay = np.abs(d[:, 0]), np.abs(d[:, 1])
+    inside = (ax < width / 2) & (ay < height / 2)
+    corner = (ax > width / 2 - radius) & (ay > height / 2 - radius)
+    far = np.hypot(ax - (width / 2 - radius), ay - (height / 2 - radius)) >= radius
+    return inside & ~(corner & far)
+
+
+def _signed_area(v: np.ndarray) -> float:
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def _in_polygon(p: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Whether points ``p`` (n, 2) lie inside polygon ``v`` (m, 2)."""
+    return _in_segments(p, np.stack([v, np.roll(v, -1, axis=0)], axis=1))
+
+
+def _in_segments(p: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Even-odd rule: whether points ``p`` (n, 2) lie inside the closed loops that
+    ``segments`` (m, 2 ends, 2) draw (an outline and its holes at once)."""
+    x, y = p[:, :1], p[:, 1:]
+    x1, y1 = segments[:, 0, 0][None, :], segments[:, 0, 1][None, :]
+    x2, y2 = segments[:, 1, 0][None, :], segments[:, 1, 1][None, :]
+    inside = np.zeros(len(p), bool)
+    for chunk in range(0, len(p), 2048):  # (chunk, m) at a time: bounded memory
+        cy, cx = y[chunk:chunk + 2048], x[chunk:chunk + 2048]
+        straddle = (y1 > cy) != (y2 > cy)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cross = cx < x1 + (cy - y1) * (x2 - x1) / (y2 - y1)
+        inside[chunk:chunk + 2048] = np.count_nonzero(straddle & cross, axis=1) % 2 == 1
+    return inside
+
+
+def _distance_to_edges(p: np.ndarray, v: np.ndarray, each: bool = False) -> np.ndarray:
+    """Distance of points ``p`` (n, 2) to the polygon's edges: the nearest (n,), or to each (n, m)."""
+    d = _distance_to_segments(p, np.stack([v, np.roll(v, -1, axis=0)], axis=1))
+    return d if each else d.min(axis=1)
+
+
+def _distance_to_segments(p: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Distance of points ``p`` (n, 2) to each segment (m, 2 ends, 2), shape (n, m)."""
+    a, ab = segments[:, 0], segments[:, 1] - segments[:, 0]
+    length2 = np.maximum(np.einsum("mk,mk->m", ab, ab), np.finfo(float).tiny)
+    out = np.empty((len(p), len(segments)))
+    for i in range(0, len(p), 1024):  # (chunk, m, 2) at a time: bounded memory
+        rel = p[i:i + 1024, None, :] - a[None]
+        t = np.clip(np.einsum("nmk,mk->nm", rel, ab) / length2, 0, 1)
+        out[i:i + 1024] = np.linalg.norm(rel - t[..., None] * ab[None], axis=2)
+    return out
+
+
+def _self_intersection(v: np.ndarray) -> tuple[int, int] | None:
+    """The first pair of non-adjacent edges of polygon ``v`` that cross, or None."""
+    n = len(v)
+
+    def orient(a, b, c):
+        return np.sign((b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]))
+
+    for i in range(n):
+        a, b = v[i], v[(i + 1) % n]
+        for j in range(i + 1, n):
+            if j == i or (j + 1) % n == i or j == (i + 1) % n:
+                continue
+            c, d = v[j], v[(j + 1) % n]
+            if orient(a, b, c) * orient(a, b, d) <= 0 and orient(c, d, a) * orient(c, d, b) <= 0:
+                if orient(a, b, c) == orient(a, b, d) == 0 and (max(a[0], b[0]) < min(c[0], d[0]) or
+                                                                max(c[0], d[0]) < min(a[0], b[0])):
+                    continue  # collinear, apart
+                return i, j
+    return None

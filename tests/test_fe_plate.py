@@ -1,0 +1,118 @@
+"""Finite-element plates against published values and the analytic plate.
+
+Leissa, *Vibration of Plates* (NASA SP-160, 1969): the frequency parameter
+``lambda = w a^2 sqrt(rho h / D)`` of a clamped square (Table 4.23) and of a free square with
+nu = 0.3 (Table 4.61); the simply supported rectangle against ``modalctl``'s analytic Navier
+solution (frequencies, shapes, the patches' pin-force gains and the sensors).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from modalctl.model import fe_plate
+from modalctl.model.fe_plate import MATERIALS, FEPlate, Hole, Material, Outline, Support
+from modalctl.model.modes import ModelError
+from modalctl.model.structures import Plate, PlatePatch
+
+LEISSA_CLAMPED_SQUARE = np.array([35.992, 73.413, 73.413, 108.27, 131.64, 132.24])
+LEISSA_FREE_SQUARE_NU03 = np.array([13.468, 19.596, 24.270, 34.801, 34.801, 61.093])
+STEEL = Material(200e9, 7850.0, 0.3)
+PATCHES = tuple(PlatePatch((x - 0.006, x + 0.006), (y - 0.006, y + 0.006), f"patch{i + 1}")
+                for i, (x, y) in enumerate([(-0.035, -0.022), (0.035, -0.022), (-0.035, 0.022), (0.035, 0.022)]))
+SENSORS = ((0.01, 0.005), (0.02, 0.01))
+
+
+def frequency_parameter(plate: FEPlate, frequencies: np.ndarray, side: float) -> np.ndarray:
+    return 2 * np.pi * frequencies * side**2 * np.sqrt(plate.mass_per_area / plate.rigidity)
+
+
+def test_clamped_square_matches_leissa_within_half_a_percent():
+    plate = FEPlate(Outline.rectangle(0.1, 0.1), 1e-3, MATERIALS["glass"], {"rim": Support("clamped")})
+    model, convergence = plate.modal_model(6, spacing=2e-3)
+    lam = frequency_parameter(plate, model.frequencies, 0.1)
+    assert np.all(np.abs(lam / LEISSA_CLAMPED_SQUARE - 1) < 0.005), lam
+    assert convergence.converged and convergence.frequency_error.max() <= fe_plate.FREQUENCY_TOLERANCE
+    assert np.all(np.diff(lam) >= -1e-9)
+
+
+def test_free_square_matches_leissa_with_three_rigid_modes():
+    plate = FEPlate(Outline.rectangle(0.1, 0.1), 1e-3, STEEL, {"rim": Support("free")})
+    model, _ = plate.modal_model(6, spacing=2e-3)
+    lam = frequency_parameter(plate, model.frequencies, 0.1)
+    assert np.all(np.abs(lam / LEISSA_FREE_SQUARE_NU03 - 1) < 0.005), lam
+    assert model.rigid_shapes.shape[0] == 3  # heave and two rockings, kept apart at zero frequency
+    rigid = model.rigid_shapes * model.grid.mass @ model.rigid_shapes.T
+    assert np.allclose(rigid, np.eye(3), atol=0.02)  # mass-normalized, on the grid as on the mesh
+
+
+def test_simply_supported_rectangle_matches_the_analytic_plate():
+    """Frequencies within 0.1%, MAC >= 0.999 mode by mode, and the patches' gains and the
+    sensors' readings as Navier's series gives them (up to each mode's sign)."""
+    glass = MATERIALS["glass"]
+    plate = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, glass, {"rim": Support("simply-supported")},
+                    patches=PATCHES, sensors=SENSORS)
+    model, _ = plate.modal_model(21, spacing=1e-3)
+    exact = Plate(0.1, 0.07, 1e-3, glass.modulus, glass.density, glass.poisson).modal_model(
+        21, nx=101, ny=71, patches=PATCHES, sensors=list(SENSORS))
+    assert np.all(np.abs(model.frequencies / exact.frequencies - 1) < 1e-3)
+    w = model.grid.mass
+    overlap = model.shapes * w @ exact.shapes.T
+    mac = np.diag(overlap) ** 2 / (np.einsum("kn,n,kn->k", model.shapes, w, model.shapes)
+                                   * np.einsum("kn,n,kn->k", exact.shapes, w, exact.shapes))
+    assert mac.min() >= 0.999
+    sign = np.sign(np.diag(overlap))[:, None]
+    scale = np.abs(exact.actuator_gains).max()
+    assert np.allclose(sign * model.actuator_gains, exact.actuator_gains, atol=0.01 * scale)
+    assert np.allclose(sign * model.sensor_gains, exact.sensor_gains, atol=0.01 * np.abs(exact.sensor_gains).max())
+
+
+def test_stiff_elastic_rim_tends_to_clamped_and_a_soft_one_lies_between():
+    outline, glass = Outline.rectangle(0.1, 0.07), MATERIALS["glass"]
+    clamped, _ = FEPlate(outline, 1e-3, glass, {"rim": Support("clamped")}).modal_model(4, spacing=2e-3)
+    free, _ = FEPlate(outline, 1e-3, glass, {"rim": Support("free")}).modal_model(4, spacing=2e-3)
+    stiff, _ = FEPlate(outline, 1e-3, glass, {"rim": Support("elastic", 1e13, 1e7)}).modal_model(4, spacing=2e-3)
+    soft, _ = FEPlate(outline, 1e-3, glass, {"rim": Support("elastic", 1e6, 1.0)}).modal_model(4, spacing=2e-3)
+    assert np.allclose(stiff.frequencies, clamped.frequencies, rtol=0.01)
+    assert np.all(soft.frequencies < clamped.frequencies)
+    assert soft.frequencies[0] > free.frequencies[0] * 0.5  # held by springs: not a free plate's rigid motion
+
+
+def test_rounded_panel_with_a_cut_out_weighs_what_it_should():
+    """The lattice's weights add up to the panel's mass (holes and rounded corners cut out) and
+    the shapes, normalized on the FE mass matrix, are normalized on the grid too."""
+    outline = Outline.rectangle(0.09, 0.06, 0.008, holes=(Hole((0.025, 0.0), radius=0.006),))
+    plate = FEPlate(outline, 0.7e-3, MATERIALS["glass"], patches=PATCHES[:2], sensors=((0.0, 0.0),))
+    model, _ = plate.modal_model(8, spacing=1e-3)
+    expected = plate.mass_per_area * (0.09 * 0.06 - (4 - np.pi) * 0.008**2 - np.pi * 0.006**2)
+    assert model.grid.mass.sum() == pytest.approx(expected, rel=0.005)
+    norms = np.einsum("kn,n,kn->k", model.shapes, model.grid.mass, model.shapes)
+    assert np.allclose(norms, 1, atol=0.01)
+    off = model.grid.mass == 0
+    assert np.all(model.shapes[:, off] == 0) and np.any(off)
+    assert np.all(np.abs(model.actuator_gains) > 0)
+
+
+@pytest.mark.parametrize("build, words", [
+    (lambda: Outline(np.array([[0, 0], [0.1, 0.1], [0.1, 0], [0, 0.1]])), "cross"),
+    (lambda: Outline.rectangle(0.1, 0.07, holes=(Hole((0.045, 0.0), radius=0.01),)), "cuts the rim"),
+    (lambda: FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"],
+                     patches=(PlatePatch((0.045, 0.06), (0.0, 0.01)),)), "not wholly on the plate"),
+    (lambda: FEPlate(Outline.rectangle(0.1, 0.07, holes=(Hole((0.0, 0.0), radius=0.01),)), 1e-3, MATERIALS["glass"],
+                     patches=(PlatePatch((-0.005, 0.005), (-0.005, 0.005)),)), "not wholly on the plate"),
+    (lambda: FEPlate(Outline.rectangle(0.1, 0.07, holes=(Hole((0.0, 0.0), radius=0.003),)), 1e-3, MATERIALS["glass"],
+                     patches=(PlatePatch((-0.005, 0.005), (-0.005, 0.005)),)), "not wholly on the plate"),
+    (lambda: FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"], {"north": Support("free")}), "no edge"),
+    (lambda: Support("glued"), "not one of"),
+])
+def test_bad_geometry_is_refused_with_what_is_wrong(build, words):
+    with pytest.raises(ModelError, match=words):
+        build()
+
+
+def test_a_band_too_high_for_the_mesh_budget_is_refused(monkeypatch):
+    monkeypatch.setattr(fe_plate, "DOFS_MAX", 3000)
+    plate = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"])
+    with pytest.raises(ModelError, match="degrees of freedom"):
+        plate.modal_model(band=40e3)
