@@ -192,8 +192,11 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
 
     The pole is a mode when it explains the band (:class:`Modes`, ``resolved``; with
     ``counted``, poles counted by a stabilization diagram, a fair misfit stands without the
-    split test) and, where the FRFs' noise is known, that noise fixes its frequency to
-    ``FREQUENCY_TOLERANCE`` (:func:`frequency_fixed`).
+    split test) and, where the FRFs' noise is known and the pole leaves more than
+    ``UNRESOLVED_ERROR`` of itself unexplained, that noise fixes its frequency to
+    ``FREQUENCY_TOLERANCE`` (:func:`frequency_fixed`). Below that misfit, noise and model error
+    together are a tenth of the mode over at least ``BINS_PER_COLUMN`` bins per unknown: its
+    frequency is fixed far better than 1% (about ``zeta * misfit`` over the root of the bins).
     """
     columns = (1 + len(others)) * (2 if general else 1) + 2
     half_width = max(half_width, BINS_PER_COLUMN * columns * (frf.frequencies[1] - frf.frequencies[0]) / 2)
@@ -223,7 +226,8 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
         resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw)
     if not resolved:
         return BandFit(constants, misfit, misfit_reason(misfit, False, noise is not None))
-    if noise is not None and not frequency_fixed(freqs, h, noise_weights(noise), f, zeta, others, general):
+    if noise is not None and misfit > UNRESOLVED_ERROR and not frequency_fixed(freqs, h, noise_weights(noise), f,
+                                                                                zeta, others, general):
         return BandFit(constants, misfit, UNCERTAIN)
     return BandFit(constants, misfit)
 
