@@ -174,7 +174,7 @@ def pole_basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -
 
 
 def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
-                    others=(), general: bool = False, counted: bool = False) -> BandFit:
+                    others=(), general: bool = False, counted: bool = False, frequency_check: bool = True) -> BandFit:
     """Real modal constants at every point for a known pole, the relative misfit, and whether
     the pole is a mode.
 
@@ -197,6 +197,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     ``FREQUENCY_TOLERANCE`` (:func:`frequency_fixed`). Below that misfit, noise and model error
     together are a tenth of the mode over at least ``BINS_PER_COLUMN`` bins per unknown: its
     frequency is fixed far better than 1% (about ``zeta * misfit`` over the root of the bins).
+    ``frequency_check`` False skips that check (the constants of a pole already judged).
     """
     columns = (1 + len(others)) * (2 if general else 1) + 2
     half_width = max(half_width, BINS_PER_COLUMN * columns * (frf.frequencies[1] - frf.frequencies[0]) / 2)
@@ -226,7 +227,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
         resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw)
     if not resolved:
         return BandFit(constants, misfit, misfit_reason(misfit, False, noise is not None))
-    if noise is not None and misfit > UNRESOLVED_ERROR and not frequency_fixed(freqs, h, noise_weights(noise), f,
+    if frequency_check and noise is not None and misfit > UNRESOLVED_ERROR and not frequency_fixed(freqs, h, noise_weights(noise), f,
                                                                                 zeta, others, general):
         return BandFit(constants, misfit, UNCERTAIN)
     return BandFit(constants, misfit)
@@ -268,11 +269,12 @@ def frequency_fixed(freqs: np.ndarray, h: np.ndarray, weight: np.ndarray, f: flo
     does, and lands anywhere between them: its frequency is not fixed.
     """
     tol, log_z = FREQUENCY_TOLERANCE, np.log(zeta)
+    scaled = h * np.sqrt(weight)  # the residual of a projection is what the basis's span leaves of the data
+    total = np.sum(np.abs(scaled) ** 2)
 
     def chi2(shift: float, lz: float) -> float:
-        b = pole_basis(freqs, [(f * (1 + tol * shift), np.exp(lz)), *others], f, general)
-        r = h - b @ np.linalg.lstsq(b, h, rcond=None)[0]
-        return float(2 * np.sum(np.abs(r) ** 2 * weight))
+        q, _ = np.linalg.qr(pole_basis(freqs, [(f * (1 + tol * shift), np.exp(lz)), *others], f, general))
+        return float(2 * (total - np.sum(np.abs(q.conj().T @ scaled) ** 2)))
 
     best = scipy.optimize.minimize(lambda x: chi2(x[0], log_z + x[1]), np.zeros(2), method="Nelder-Mead",
                                    options={"initial_simplex": [[0, 0], [0.25, 0], [0, 0.3]], "xatol": 0.01,
@@ -338,7 +340,8 @@ def _top(mag: np.ndarray, p: int, fraction: float = 0.9) -> np.ndarray:
     return np.arange(min(lo, p - 1), max(hi, p + 1) + 1)
 
 
-def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None) -> Modes:
+def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None,
+                 frequency_check: bool = True) -> Modes:
     """The thesis's method (3.1.2-3.1.3): peaks of the mean FRF, half-power damping, shapes at the peaks.
 
     Parameters
@@ -348,6 +351,9 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
         A peak must stand this much above the valleys around it (prominence, dB).
     min_frequency : float, optional
         Ignore peaks below this (Hz).
+    frequency_check : bool
+        Whether a peak must have its frequency fixed by the noise (:func:`modal_constants`);
+        off for the SDOF fit's starting points, which it checks once refined.
 
     Notes
     -----
@@ -386,7 +392,7 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
         h_at = np.array([np.interp(f, freqs[top], row.real) for row in frf.values[:, top]])
         constants = 2 * zeta * 2 * np.pi * f * h_at
         try:
-            fit = modal_constants(frf, f, zeta, max(3 * zeta * f, 4 * df))
+            fit = modal_constants(frf, f, zeta, max(3 * zeta * f, 4 * df), frequency_check=frequency_check)
         except ModelError:
             fit = BandFit(constants, np.inf, misfit_reason(np.inf, False, frf.noise_std is not None))
         rows.append((f, zeta, constants, fit.misfit, fit.resolved, fit.reason))
@@ -442,12 +448,11 @@ def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
         modes whose peaks reach into it are fitted with it (their poles too), so that close
         modes do not bias each other.
     """
-    start = peak_picking(frf, threshold_db, min_frequency)
-    candidate = start.resolved | (np.array(start.reasons, object) == UNCERTAIN)  # the fit may fix a peak's frequency
+    start = peak_picking(frf, threshold_db, min_frequency, frequency_check=False)  # checked once refined
     df = frf.frequencies[1] - frf.frequencies[0]
     rows = []
     for i, (f, zeta) in enumerate(zip(start.frequencies, start.damping)):
-        if not candidate[i] or not 0 < zeta < 0.5:
+        if not start.resolved[i] or not 0 < zeta < 0.5:
             rows.append((f, zeta, start.constants[i], start.misfit[i], False, start.reasons[i] or RAN_AWAY))
             continue
         half = half_width(start.frequencies, start.damping, i, df, band)
@@ -475,14 +480,14 @@ def neighbours(frequencies: np.ndarray, damping: np.ndarray, i: int, half: float
     return np.flatnonzero(reach)
 
 
-def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
-                 band: float = 3.0, general: bool = False, counted: bool = False) -> BandFit:
+def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int, band: float = 3.0,
+                 general: bool = False, counted: bool = False, frequency_check: bool = True) -> BandFit:
     """:func:`modal_constants` of mode ``k`` of a known set, in its band, with its neighbours."""
     df = frf.frequencies[1] - frf.frequencies[0]
     half = half_width(frequencies, damping, k, df, band)
     near = neighbours(frequencies, damping, k, half)
     return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])),
-                           general, counted)
+                           general, counted, frequency_check)
 
 
 def misfit_reason(misfit: float, resolved: bool, noise_known: bool) -> str:
@@ -537,6 +542,6 @@ def actuator_gains(model: ModalModel, frf: FRF, point_index: np.ndarray) -> Moda
     gains = np.array(model.actuator_gains, copy=True)
     phi = model.shapes[:, point_index]
     for k in range(model.n_modes):
-        constants = constants_of(frf, model.frequencies, model.damping, k).constants
+        constants = constants_of(frf, model.frequencies, model.damping, k, frequency_check=False).constants
         gains[k, frf.actuator] = float(phi[k] @ constants / (phi[k] @ phi[k]))
     return replace(model, actuator_gains=gains)

@@ -121,7 +121,7 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     drive = np.zeros((good.n_modes, caps.channels))
     for k in range(good.n_modes):
         for a, frf in sparse_frf.items():
-            drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k).constants ** 2))
+            drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k, frequency_check=False).constants ** 2))
     weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
     chooser = np.where(weak, np.argmax(drive, axis=1), primary)
     compute += time.perf_counter() - t0
