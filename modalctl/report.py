@@ -15,7 +15,8 @@ from modalctl.outdir import atomic  # noqa: E402
 from modalctl.plan.decompose import Decomposition  # noqa: E402
 
 __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
-           "plot_spectrogram", "plot_learning", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table"]
+           "plot_spectrogram", "plot_learning", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table",
+           "plot_identification", "plot_fe_plate"]
 
 
 def _save(fig, path) -> Path:
@@ -440,8 +441,9 @@ def _beam_shapes(model):
     return fig
 
 
-def _plate_shapes(model):
-    """One map per mode over the measured points (triangulated: a scatter draws as well as a grid)."""
+def _plate_shapes(model, title: str = "identified mode shapes on the measured points (normalized, Eq 3.13)"):
+    """One map per mode: on a lattice as an image (points that weigh nothing, off the plate,
+    left blank), on a scatter triangulated."""
     cols = min(6, model.n_modes)
     rows = -(-model.n_modes // cols)
     fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 1.9 * rows + 0.6), squeeze=False)
@@ -451,9 +453,47 @@ def _plate_shapes(model):
         if k >= model.n_modes:
             continue
         s = model.shapes[k] / np.max(np.abs(model.shapes[k]))
-        ax.tripcolor(x, y, s, shading="gouraud", cmap="RdBu_r", vmin=-1, vmax=1)
-        ax.plot(x, y, ",k", alpha=0.4)
+        if model.grid.shape is not None:
+            image = np.ma.masked_where(model.grid.mass == 0, s).reshape(model.grid.shape[::-1])
+            ax.imshow(image, origin="lower", extent=(x.min(), x.max(), y.min(), y.max()), cmap="RdBu_r",
+                      vmin=-1, vmax=1)
+        else:
+            ax.tripcolor(x, y, s, shading="gouraud", cmap="RdBu_r", vmin=-1, vmax=1)
+            ax.plot(x, y, ",k", alpha=0.4)
         ax.set_aspect("equal")
         ax.set_title(f"{k + 1}: {model.frequencies[k] / 1e3:.3f} kHz", fontsize=8)
-    fig.suptitle("identified mode shapes on the measured points (normalized, Eq 3.13)")
+    fig.suptitle(title)
     return fig
+
+
+def plot_fe_plate(model, convergence, stem) -> list[str]:
+    """A finite-element plate's pictures beside its model file: ``<stem>_shapes.png`` (every mode on
+    the focus grid, the patches and sensors drawn) and ``<stem>_convergence.png`` (each mode's
+    frequency on each mesh against the finest, and the estimated error of the finest)."""
+    stem = Path(stem)
+    fig = _plate_shapes(model, f"mode shapes: {model.meta.get('model', 'finite elements')}")
+    for ax in fig.axes[:model.n_modes]:
+        for patch in model.meta.get("actuators", []):
+            (x0, x1), (y0, y1) = np.array(patch["xlim_m"]) * 1e3, np.array(patch["ylim_m"]) * 1e3
+            ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], "k-", lw=0.5)
+        for sensor in model.meta.get("sensors", []):
+            ax.plot(*(np.array(sensor["position_m"]) * 1e3), "k+", ms=4)
+    paths = [_save(fig, f"{stem}_shapes.png")]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    finest = convergence.levels[-1].frequencies[:model.n_modes]
+    for level in convergence.levels[:-1]:
+        f = level.frequencies[:model.n_modes]
+        axes[0].semilogy(np.arange(1, f.size + 1), np.maximum(np.abs(f / finest[:f.size] - 1), 1e-7) * 100, "o-",
+                         ms=3, label=f"{level.size * 1e3:.2g} mm, {level.dofs} dofs, {level.seconds:.1f} s")
+    last = convergence.levels[-1]
+    axes[0].set(xlabel="mode", ylabel="|f / f(finest) - 1| (%)",
+                title=f"each mesh against the finest ({last.size * 1e3:.2g} mm, {last.dofs} dofs, "
+                      f"{last.seconds:.1f} s)")
+    axes[0].legend(fontsize=7)
+    axes[1].semilogy(np.arange(1, model.n_modes + 1), np.maximum(convergence.frequency_error, 1e-7) * 100, "o-", ms=3)
+    axes[1].axhline(convergence.tolerance * 100, color="r", ls="--", label=f"tolerance {convergence.tolerance:.2%}")
+    axes[1].set(xlabel="mode", ylabel="estimated error of the finest mesh (%)",
+                title="Richardson's estimate (f_h - f_2h) / 3")
+    axes[1].legend(fontsize=7)
+    paths.append(_save(fig, f"{stem}_convergence.png"))
+    return [str(p) for p in paths]

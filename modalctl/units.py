@@ -41,6 +41,10 @@ DIMENSIONS: dict[str, dict[str, float]] = {
     "V/s": {"V/s": 1.0, "V/ms": 1e3, "V/us": 1e6, "V/\u00b5s": 1e6, "kV/s": 1e3, "MV/s": 1e6},
     "N s/m": {"N s/m": 1.0, "Ns/m": 1.0, "N*s/m": 1.0, "kg/s": 1.0},
     "N s/m/s": {"N s/m/s": 1.0, "Ns/m/s": 1.0, "N s/m/ms": 1e3, "Ns/m/ms": 1e3},  # a damping's rate of change
+    "Pa": {"Pa": 1.0, "kPa": 1e3, "MPa": 1e6, "GPa": 1e9},
+    "kg/m^3": {"kg/m^3": 1.0, "kg/m3": 1.0, "kg/m\u00b3": 1.0, "g/cm^3": 1e3, "g/cm3": 1e3},
+    "N/m^2": {"N/m^2": 1.0, "N/m2": 1.0, "kN/m^2": 1e3, "MN/m^2": 1e6, "GN/m^2": 1e9},  # a rim's stiffness per length
+    "N": {"N": 1.0, "mN": 1e-3, "kN": 1e3, "Nm/m": 1.0, "N m/m": 1.0},  # a rim's rotational stiffness per length
 }
 
 _NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")

@@ -116,3 +116,76 @@ def test_a_band_too_high_for_the_mesh_budget_is_refused(monkeypatch):
     plate = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"])
     with pytest.raises(ModelError, match="degrees of freedom"):
         plate.modal_model(band=40e3)
+
+
+def fe_command(tmp_path, *extra) -> list[str]:
+    return ["model", "fe", "--thickness", "1mm", "--modes", "4", "--spacing", "4mm", "--no-plots",
+            "--out", str(tmp_path / "plate.npz"), *extra]
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--outline", "polygon:0,0;100mm,100mm;100mm,0;0,100mm"], "cross"),
+    (["--outline", "rect:100mm,70mm", "--hole", "circle:45mm,0,10mm"], "cuts the rim"),
+    (["--outline", "rect:100mm,70mm", "--patch", "40mm,60mm,0,10mm"], "not wholly on the plate"),
+    (["--outline", "rect:100mm,70mm", "--sensor", "0,50mm"], "not on the plate"),
+    (["--outline", "rect:100mm,70mm", "--boundary", "north=free"], "no edge"),
+    (["--outline", "rect:100mm,70mm", "--material", "E=70GPa,rho=2500kg/m^3,nu=0.6"], "poisson"),
+    (["--outline", "rect:100mm,70mm,r=40mm"], "corner radius"),
+    (["--outline", "circle:10mm"], "outline"),
+])
+def test_the_command_refuses_bad_geometry_with_exit_2(tmp_path, capsys, extra, words):
+    from modalctl.cli import main
+
+    try:
+        code = main(fe_command(tmp_path, *extra))
+    except SystemExit as refused:  # an option's own check, by argparse
+        code = refused.code
+    assert code == 2
+    assert words in capsys.readouterr().err
+    assert not (tmp_path / "plate.npz").exists()
+
+
+def test_the_command_refuses_a_band_the_mesh_budget_cannot_converge(tmp_path, capsys, monkeypatch):
+    from modalctl.cli import main
+
+    monkeypatch.setattr(fe_plate, "DOFS_MAX", 3000)
+    args = [a for a in fe_command(tmp_path, "--outline", "rect:100mm,70mm") if a not in ("--modes", "4")]
+    assert main([*args, "--band", "40kHz"]) == 2
+    assert "degrees of freedom" in capsys.readouterr().err
+
+
+def test_a_model_file_from_the_command_plays_a_focus(tmp_path, capsys):
+    """Geometry in, a model file out that ``run --model`` takes like a scene: a clamped rounded
+    panel with a hole and two patches, a bump focused on the HIL."""
+    import json
+
+    from modalctl.cli import main
+    from modalctl.model.modes import ModalModel
+
+    code = main(fe_command(tmp_path, "--outline", "rect:90mm,60mm,r=6mm", "--hole", "circle:25mm,0,5mm",
+                           "--patch=-35mm,-21mm,-20mm,-10mm", "--patch=-7mm,7mm,10mm,20mm", "--sensor", "0,0",
+                           "--json"))
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    model = ModalModel.load(summary["model_file"])
+    assert model.n_modes == 4 and model.actuator_gains.shape == (4, 2) and model.sensor_gains.shape == (4, 1)
+    assert summary["convergence"]["converged"]
+    code = main(["run", "--model", summary["model_file"], "--shape", "bump", "--param", "width=50mm",
+                 "--param", "center=-10mm,0", "--modes", "all", "--focus-time", "25ms",
+                 "--out", str(tmp_path / "run"), "--json"])
+    assert code == 0, capsys.readouterr().err
+    metrics = json.loads(capsys.readouterr().out)
+    assert 0.5 < metrics["tau"] <= 1.0
+
+
+def test_a_finite_element_scene_is_solved_once_then_read_from_the_cache(tmp_path, monkeypatch):
+    from modalctl.model.scenes import load_scene
+
+    monkeypatch.setenv("MODALCTL_CACHE", str(tmp_path))
+    first = load_scene("plate-glass-clamped", (26, 18))
+    kept = list(tmp_path.glob("plate-glass-clamped-*.npz"))
+    assert len(kept) == 1
+    again = load_scene("plate-glass-clamped", (26, 18))
+    assert np.array_equal(again.shapes, first.shapes) and np.array_equal(again.frequencies, first.frequencies)
+    kept[0].write_bytes(b"not a model")  # a damaged entry is solved again and replaced
+    assert np.allclose(load_scene("plate-glass-clamped", (26, 18)).frequencies, first.frequencies)

@@ -6,11 +6,16 @@ import pytest
 from modalctl.model.projection import gram
 from modalctl.model.scenes import SCENES, load_scene, thesis_tables
 
+#: How far from orthonormal on its grid each scene's modes may be: analytic shapes to rounding; a
+#: finite-element plate's, normalized on its mass matrix, to the grid's quadrature (Simpson on a
+#: rectangle; on a rounded panel with a cut-out, each point's cell of the plate).
+ORTHONORMAL = {"plate-glass-clamped": 1e-4, "panel-rounded": 0.01}
+
 
 @pytest.mark.parametrize("name", list(SCENES))
 def test_scene_builds_orthonormal_model(name):
     model = load_scene(name)
-    assert np.abs(gram(model.shapes, model.grid.mass) - np.eye(model.n_modes)).max() < 1e-6
+    assert np.abs(gram(model.shapes, model.grid.mass) - np.eye(model.n_modes)).max() < ORTHONORMAL.get(name, 1e-6)
     assert model.actuator_gains.shape[1] >= 1 and np.all(np.isfinite(model.actuator_gains))
 
 

@@ -36,6 +36,7 @@ from .structures import Piezo
 __all__ = ["Material", "MATERIALS", "Support", "SUPPORTS", "Hole", "Outline", "FEPlate", "Level", "Convergence",
            "FREQUENCY_TOLERANCE", "SHAPE_TOLERANCE", "DOFS_MAX", "MODES_MAX"]
 
+SOLVER_VERSION = 1  # bump when a change alters solved models: cached scenes are solved again
 FREQUENCY_TOLERANCE = 0.005  # kept modes' frequencies converged to this (relative, Richardson's estimate)...
 SHAPE_TOLERANCE = 0.99  # ...and their shapes to this subspace MAC between the last two meshes
 MODES_MAX = 500  # at most this many modes in a model

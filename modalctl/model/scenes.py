@@ -14,20 +14,27 @@ scene's ``meta`` (the thesis does not print it).
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
-from importlib import resources
+from importlib import metadata, resources
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
+from modalctl.outdir import atomic
+
+from . import fe_plate
+from .fe_plate import MATERIALS, FEPlate, Hole, Outline, Support
 from .modes import ModalModel, ModelError
 from .projection import gram
 from .structures import Beam, BeamPatch, Plate, PlatePatch
 
-__all__ = ["Scene", "SCENES", "load_scene", "thesis_tables", "UnknownScene"]
+__all__ = ["Scene", "SCENES", "load_scene", "thesis_tables", "UnknownScene", "cache_dir"]
 
 
 class UnknownScene(LookupError):
@@ -103,13 +110,77 @@ def _al_ff(n_points):
                         [0.0, 0.02], n_points)
 
 
+PLATE_PATCHES = [PlatePatch((x - 0.006, x + 0.006), (y - 0.006, y + 0.006), f"patch{i + 1}")
+                 for i, (x, y) in enumerate([(-0.035, -0.022), (0.035, -0.022), (-0.035, 0.022), (0.035, 0.022)])]
+PLATE_SENSORS = [(0.0, 0.0), (0.02, 0.01)]
+
+
 def _plate(n_points):
     nx, ny = (101, 71) if n_points is None else n_points
     plate = Plate(0.100, 0.070, 0.001, 70e9, 2500, 0.22)  # glass, the size of a small touch screen
-    patches = [PlatePatch((x - 0.006, x + 0.006), (y - 0.006, y + 0.006), f"patch{i + 1}")
-               for i, (x, y) in enumerate([(-0.035, -0.022), (0.035, -0.022), (-0.035, 0.022), (0.035, 0.022)])]
-    return plate.modal_model(21, nx=nx, ny=ny, patches=patches, sensors=[(0.0, 0.0), (0.02, 0.01)],
+    return plate.modal_model(21, nx=nx, ny=ny, patches=PLATE_PATCHES, sensors=PLATE_SENSORS,
                              damping=0.01, meta={"name": "plate-glass", "source": "analytic"})
+
+
+def _spacing(plate: FEPlate, n_points) -> float:
+    """The lattice spacing (m) that puts ``n_points`` = (nx, ny) across the plate's bounding box."""
+    span = np.ptp(plate.outline.vertices, axis=0)
+    return float(max(span[0] / (n_points[0] - 1), span[1] / (n_points[1] - 1)))
+
+
+def cache_dir() -> Path:
+    """Where finite-element scenes are kept once solved: ``$MODALCTL_CACHE``, else
+    ``$XDG_CACHE_HOME/modalctl``, else ``~/.cache/modalctl``."""
+    if os.environ.get("MODALCTL_CACHE"):
+        return Path(os.environ["MODALCTL_CACHE"])
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "modalctl"
+
+
+def _fe_scene(name: str, plate: FEPlate, n_points, **options) -> ModalModel:
+    """The FE plate's model, from the cache when this plate, these options and these solver
+    versions were solved before (an ``.npz`` model file: no pickle)."""
+    spacing = _spacing(plate, n_points)
+    key = json.dumps({"plate": repr(plate), "spacing": spacing, "options": options, "solver": fe_plate.SOLVER_VERSION,
+                      "versions": [metadata.version(p) for p in ("scikit-fem", "gmsh", "numpy", "scipy")]},
+                     sort_keys=True)
+    path = cache_dir() / f"{name}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
+    if path.is_file():
+        try:
+            return ModalModel.load(path)
+        except ModelError:
+            pass  # a damaged cache entry: solve again and replace it
+    model, _ = plate.modal_model(spacing=spacing, meta={"name": name, "source": "finite elements"}, **options)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic(path) as tmp:  # same suffix: save writes it as named
+            model.save(tmp)
+    except OSError as exc:
+        warnings.warn(f"{name}: could not keep the solved model in {path.parent} ({exc}); it will be solved again",
+                      UserWarning, stacklevel=3)
+    return model
+
+
+def _plate_clamped(n_points):
+    """plate-glass held on a clamped rim instead of simply supported: the two compare."""
+    plate = FEPlate(Outline.rectangle(0.100, 0.070), 0.001, MATERIALS["glass"], {"rim": Support("clamped")},
+                    patches=tuple(PLATE_PATCHES), sensors=tuple(PLATE_SENSORS))
+    return _fe_scene("plate-glass-clamped", plate, n_points or (101, 71), n_modes=21, damping=0.01)
+
+
+#: The touch panel's six patches (x, y centres, m): two rows along its long edges.
+PANEL_PATCHES = [(-0.040, -0.024), (0.0, -0.024), (0.040, -0.024), (-0.040, 0.024), (0.0, 0.024), (0.040, 0.024)]
+
+
+def _panel(n_points):
+    """A rounded touch panel: 120 x 70 x 1 mm glass, 8 mm corners, glued (clamped) on its rim, a
+    rounded 20 x 10 mm slot cut out near one end, six 14 x 10 mm patches; the modes below 12 kHz."""
+    outline = Outline.rectangle(0.120, 0.070, 0.008, holes=(Hole((0.042, 0.0), size=(0.020, 0.010),
+                                                                  corner_radius=0.004),))
+    patches = tuple(PlatePatch((x - 0.007, x + 0.007), (y - 0.005, y + 0.005), f"patch{i + 1}")
+                    for i, (x, y) in enumerate(PANEL_PATCHES))
+    plate = FEPlate(outline, 0.001, MATERIALS["glass"], {"rim": Support("clamped")}, patches=patches,
+                    sensors=((0.0, 0.0), (-0.02, 0.01)))
+    return _fe_scene("panel-rounded", plate, n_points or (121, 71), band=12e3, damping=0.01)
 
 
 @dataclass(frozen=True)
@@ -130,6 +201,10 @@ SCENES = {s.name: s for s in [
     Scene("thesis-al-ff", "aluminium beam 100x6x2 mm, free-free, 9 symmetric modes, 6 patches",
           _al_ff, 1001),
     Scene("plate-glass", "glass plate 100x70x1 mm, simply supported, 21 modes, 4 patches", _plate, (101, 71)),
+    Scene("plate-glass-clamped", "plate-glass clamped on its rim (finite elements), 21 modes, 4 patches",
+          _plate_clamped, (101, 71)),
+    Scene("panel-rounded", "touch panel 120x70x1 mm glass, 8 mm corners, a 20x10 mm slot, clamped rim (finite "
+          "elements), modes below 12 kHz, 6 patches", _panel, (121, 71)),
 ]}
 
 
