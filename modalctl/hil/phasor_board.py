@@ -282,7 +282,7 @@ class HILBoard(PhasorBoard):
         field = shapes[:, rows].T @ self.velocity[:, idx]
         if not self.scan_noise:
             return field
-        return field + scan_noise((self.setup.seed, SCAN_STREAM), idx, shapes.shape[1], self.scan_noise)[rows]
+        return field + scan_noise((self.setup.seed, SCAN_STREAM), idx, shapes.shape[1], self.scan_noise, rows)
 
     def _play(self, n: int, target: np.ndarray, measure: bool = True) -> np.ndarray | None:
         s, start = self.schedule, self.sample

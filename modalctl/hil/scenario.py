@@ -212,17 +212,27 @@ def ramp(start: float, rate: float):
     return lambda t, k: np.full(k, rate * max(t - start, 0.0))
 
 
-def scan_noise(key: tuple[int, ...], samples: np.ndarray, points: int, sigma: float) -> np.ndarray:
-    """The bench vibrometer's noise (points, len(samples)) on one shot's record at these sample
-    indices (m/s, standard deviation ``sigma``).
+NOISE_BLOCK = 4096  # the vibrometer's noise is drawn this many samples at a time, per point
 
-    Each sample's noise is drawn from a generator keyed by ``key`` (the shot) and the sample's
-    index, so the vibrometer's record of a shot is one record: a scan reads the same noise however
-    the host batches its requests (a transport asks a few thousand instants at a time).
+
+def scan_noise(key: tuple[int, ...], samples: np.ndarray, points: int, sigma: float, rows=None) -> np.ndarray:
+    """The bench vibrometer's noise (rows, len(samples)) on one shot's record at these sample
+    indices (m/s, standard deviation ``sigma``), at grid points ``rows`` (default all ``points``).
+
+    The noise of each point and each block of ``NOISE_BLOCK`` samples is drawn from a generator
+    keyed by ``key`` (the shot), the point and the block, so the vibrometer's record of a shot is
+    one record: a scan reads the same noise however the host batches its requests (a transport
+    asks a few thousand instants at a time) and whichever points it asks, and a scan of one point
+    draws that point's noise only.
     """
-    samples = np.asarray(samples, int)
-    unique, where = np.unique(samples, return_inverse=True)
-    drawn = np.empty((points, unique.size))
-    for j, index in enumerate(unique):
-        drawn[:, j] = np.random.default_rng((*key, int(index))).standard_normal(points)
-    return sigma * drawn[:, where.reshape(-1)]
+    samples = np.asarray(samples, int).reshape(-1)
+    rows = np.arange(points) if rows is None else np.atleast_1d(np.arange(points)[rows])
+    blocks, where = np.unique(samples // NOISE_BLOCK, return_inverse=True)
+    offset = samples % NOISE_BLOCK
+    out = np.empty((rows.size, samples.size))
+    for b, block in enumerate(blocks):
+        cols = np.flatnonzero(where.reshape(-1) == b)
+        for r, row in enumerate(rows):
+            draw = np.random.default_rng((*key, int(row), int(block))).standard_normal(NOISE_BLOCK)
+            out[r, cols] = draw[offset[cols]]
+    return sigma * out

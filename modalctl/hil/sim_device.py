@@ -175,7 +175,7 @@ class SimDevice(Device):
         field = shapes[:, rows].T @ self._modal[:, idx]
         if not self._noise_sigma:
             return field
-        return field + scan_noise((self.perturbation.seed, self._shots), idx, shapes.shape[1], self._noise_sigma)[rows]
+        return field + scan_noise((self.perturbation.seed, self._shots), idx, shapes.shape[1], self._noise_sigma, rows)
 
     def modal_truth(self) -> tuple[np.ndarray, np.ndarray]:
         """Simulation-only: the simulated modes (positional in the model) and their velocities (k, n)."""
