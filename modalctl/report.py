@@ -124,7 +124,8 @@ def plot_spacetime(shot, path, finger=None) -> Path:
     the largest on- and off-target |w| over the whole shot (where the margin is measured).
 
     1-D grids: velocity over x and t (T_F +- 4 ms) beside the whole shot's curves. 2-D grids: the
-    curves alone. ``finger``: where a finger rests (m, a point), marked on the field.
+    curves beside the plate's field in frames around T_F (a lattice grid). ``finger``: where a
+    finger rests (m, a point), marked on the field.
     """
     m, grid = shot.metrics, shot.decomposition.model.grid
     tf, sel = shot.plan.focus_time, _window(shot)
@@ -168,8 +169,38 @@ def plot_spacetime(shot, path, finger=None) -> Path:
         a.set_xlabel("t - T_F (ms)")
     if grid.dim != 1:
         right.axis("off")
+        if grid.shape is not None:
+            _plate_frames(fig, right, shot, mask, finger)
     fig.suptitle(title, fontsize=10)
     return _save(fig, path)
+
+
+FRAMES_MS = (-2.0, -1.0, 0.0, 1.0)  # a plate's field drawn at these times from the focus
+
+
+def _plate_frames(fig, where, shot, mask, finger=None) -> None:
+    """The plate's field at ``FRAMES_MS`` around T_F in the panel ``where``, one colour scale,
+    points off the plate blank, the target zone outlined, a resting finger marked."""
+    grid = shot.decomposition.model.grid
+    tf = shot.plan.focus_time
+    idx = [int(np.argmin(np.abs(shot.times - (tf + dt * 1e-3)))) for dt in FRAMES_MS]
+    vmax = np.max(np.abs(shot.field[:, idx])) * 1e3
+    x, y = grid.points.T * 1e3
+    extent = (x.min(), x.max(), y.min(), y.max())
+    shape = grid.shape[::-1]
+    cells = where.get_subplotspec().subgridspec(2, 2, hspace=0.35, wspace=0.1)
+    for k, (i, dt) in enumerate(zip(idx, FRAMES_MS)):
+        ax = fig.add_subplot(cells[k // 2, k % 2])
+        image = np.ma.masked_where(grid.mass == 0, shot.field[:, i] * 1e3).reshape(shape)
+        im = ax.imshow(image, origin="lower", extent=extent, cmap="RdBu_r", vmin=-vmax, vmax=vmax)
+        ax.contour(x.reshape(shape), y.reshape(shape), mask.reshape(shape).astype(float), levels=[0.5],
+                   colors="C2", linewidths=0.8)
+        if finger is not None and len(finger) == 2:
+            ax.plot(finger[0] * 1e3, finger[1] * 1e3, "k+", ms=6)
+        ax.set_title(f"T_F {dt:+g} ms", fontsize=8)
+        ax.tick_params(labelsize=6)
+        ax.set_aspect("equal")
+    fig.colorbar(im, ax=fig.axes[-4:], label="velocity (mm/s)", shrink=0.8)
 
 
 def plot_modal_bars(shot, path) -> Path:

@@ -33,7 +33,7 @@ import scipy.spatial
 from .modes import Grid, ModalModel, ModelError
 from .structures import Piezo
 
-__all__ = ["Material", "MATERIALS", "Support", "SUPPORTS", "Hole", "Outline", "FEPlate", "Level", "Convergence",
+__all__ = ["ELEMENTS", "Material", "MATERIALS", "Support", "SUPPORTS", "Hole", "Outline", "FEPlate", "Level", "Convergence",
            "FREQUENCY_TOLERANCE", "SHAPE_TOLERANCE", "DOFS_MAX", "MODES_MAX"]
 
 SOLVER_VERSION = 1  # bump when a change alters solved models: cached scenes are solved again
@@ -47,6 +47,11 @@ SAMPLES_PER_CELL = 6  # grid weights: each lattice cell sampled this many times 
 RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimate is a rigid-body mode
 
 SUPPORTS = ("clamped", "simply-supported", "free", "elastic")
+
+#: Plate triangles of scikit-fem: class name, degrees of freedom per vertex and per edge. The
+#: 15-parameter triangle is the default; Morley's (the classic nonconforming one, 6 dofs) is the
+#: peer it is measured against (benchmarks/fe_plate.py).
+ELEMENTS = {"15-parameter": ("ElementTri15ParamPlate", 3, 2), "morley": ("ElementTriMorley", 1, 1)}
 
 
 @dataclass(frozen=True)
@@ -283,10 +288,13 @@ class FEPlate:
     patches: tuple = ()
     sensors: tuple = ()
     piezo: Piezo = Piezo()
+    element: str = "15-parameter"
 
     def __post_init__(self):
         if not (np.isfinite(self.thickness) and self.thickness > 0):
             raise ModelError(f"plate.thickness: must be positive and finite, got {self.thickness!r}")
+        if self.element not in ELEMENTS:
+            raise ModelError(f"plate.element: {self.element!r} is not one of {', '.join(ELEMENTS)}")
         if self.thickness > 0.2 * np.ptp(self.outline.vertices, axis=0).min():
             raise ModelError("plate.thickness: above a fifth of the plate's width; a Kirchhoff plate is thin")
         names = {n for names in self.outline.edge_names for n in names} | {"rim", "holes"}
@@ -410,11 +418,12 @@ class FEPlate:
 
     def assemble(self, mesh):
         """Stiffness and mass matrices (scipy sparse), the held degrees of freedom and the basis."""
-        from skfem import Basis, BilinearForm, ElementTri15ParamPlate, FacetBasis
+        import skfem
+        from skfem import Basis, BilinearForm, FacetBasis
         from skfem.helpers import dd, ddot, dot, eye, grad, trace
 
         m, h = self.material, self.thickness
-        basis = Basis(mesh, ElementTri15ParamPlate())
+        basis = Basis(mesh, getattr(skfem, ELEMENTS[self.element][0])())
 
         @BilinearForm
         def bending(u, v, _):
@@ -434,7 +443,7 @@ class FEPlate:
             if support.kind == "clamped":
                 held.append(dofs.all())
             elif support.kind == "simply-supported":
-                held += [dofs.nodal["u"], dofs.facet["u"]]
+                held += [dofs.nodal["u"], *([dofs.facet["u"]] if "u" in dofs.facet else [])]
             elif support.kind == "elastic":
                 rim = FacetBasis(mesh, basis.elem, facets=facets)
 
@@ -546,6 +555,9 @@ class FEPlate:
         if not (np.isfinite(tolerance) and 1e-5 <= tolerance <= 0.2):
             raise ModelError(f"fe plate: the tolerance must lie in [1e-5, 0.2], got {tolerance!r}")
         wanted = n_modes if n_modes is not None else max(1, int(np.ceil(1.3 * self.modes_below(band))) + 4)
+        if wanted > MODES_MAX:
+            raise ModelError(f"fe plate: the band {band:g} Hz holds about {int(self.modes_below(band))} modes; at "
+                             f"most {MODES_MAX}")
         top = band if band is not None else self.frequency_of_mode(wanted) * 1.2
         size = min(self.wavelength(top) / ELEMENTS_PER_WAVELENGTH, self.outline.diameter / 8)
         levels, history, mesh = [], [], None
@@ -557,7 +569,7 @@ class FEPlate:
                 on = grid.mass > 0
             else:
                 mesh = mesh.refined()
-            dofs = mesh.nvertices * 3 + mesh.nfacets * 2
+            dofs = mesh.nvertices * ELEMENTS[self.element][1] + mesh.nfacets * ELEMENTS[self.element][2]
             if dofs > DOFS_MAX:
                 raise ModelError(f"fe plate: converging {wanted} modes to {tolerance:.2%} needs a mesh above "
                                  f"{DOFS_MAX} degrees of freedom (elements of {size * 1e3:.2g} mm): the band is "
@@ -588,7 +600,7 @@ class FEPlate:
         rigid_shapes = np.zeros((rigid.shape[1], grid.n))
         if rigid.shape[1]:
             rigid_shapes[:, on] = self._sample(basis, rigid, grid.points[on])
-        info = {"structure": "plate", "model": "finite-element Kirchhoff (scikit-fem, 15-parameter triangle)",
+        info = {"structure": "plate", "model": f"finite-element Kirchhoff (scikit-fem, {self.element} triangle)",
                 "outline_m": self.outline.vertices.tolist(), "corner_radius_m": self.outline.corner_radius,
                 "holes": [{"centre_m": list(h.centre), "radius_m": h.radius,
                            "size_m": list(h.size) if h.size else None, "corner_radius_m": h.corner_radius}
