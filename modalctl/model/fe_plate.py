@@ -24,6 +24,7 @@ density ``m`` (per volt) along the patch's rim, whose generalized force on a mod
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,6 +45,7 @@ DOFS_MAX = 400_000  # a mesh finer than this is refused: the band needs more tha
 ELEMENTS_PER_WAVELENGTH = 2.5  # the first mesh: this many elements per bending wavelength of the highest mode
 CURVATURE_ELEMENTS = 48  # an arc gets at least this many elements per turn (a 1 mm radius: 0.2% sagitta)
 SAMPLES_PER_CELL = 6  # grid weights: each lattice cell sampled this many times per direction
+KIRCHHOFF_WAVELENGTHS = 10  # a bending wavelength shorter than this many thicknesses: shear matters (a few %)
 RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimate is a rigid-body mode
 
 SUPPORTS = ("clamped", "simply-supported", "free", "elastic")
@@ -594,6 +596,11 @@ class FEPlate:
             size /= 2
         freqs, shapes, vectors, rigid, basis = history[-1]
         keep = slice(0, keep)
+        shortest = self.wavelength(freqs[keep][-1])
+        if shortest < KIRCHHOFF_WAVELENGTHS * self.thickness:
+            warnings.warn(f"fe plate: the highest mode kept ({freqs[keep][-1]:.0f} Hz) bends over "
+                          f"{shortest * 1e3:.2g} mm, less than {KIRCHHOFF_WAVELENGTHS:g} thicknesses: Kirchhoff's "
+                          f"theory (no shear, no rotary inertia) overestimates its frequency", UserWarning, stacklevel=2)
         convergence = Convergence(levels, error, mac, tolerance, True)
         loads = self.patch_loads(basis)
         sensors = np.asarray(self.sensors, float).reshape(-1, 2)
