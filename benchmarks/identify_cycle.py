@@ -2,7 +2,7 @@
 
     python benchmarks/identify_cycle.py   # writes benchmarks/results/identify_cycle.{json,md}
 
-`modalctl identify` (SNR 40 dB, sdof, 106 points) gives a model; each experiment of the thesis
+`modalctl identify` (SNR 40 dB, the survey's default identifier, 106 points) gives a model; each experiment of the thesis
 on thesis-al-cc is then run open loop on the HIL (the true beam, no perturbation) twice: planned
 with the identified model and with the true one on the same 106-point grid. Target: tau within
 0.02 of each other.
@@ -54,7 +54,8 @@ def main() -> None:
             "worst_abs_difference": worst, "notes": survey.notes}
     path = write_json("identify_cycle", data)
     md = ["# Closed cycle: identify the HIL beam, then focus with the identified model", "",
-          "Command: `python benchmarks/identify_cycle.py`. Identification: SNR 40 dB, all actuators, sdof, "
+          "Command: `python benchmarks/identify_cycle.py`. Identification: SNR 40 dB, all actuators, "
+          f"{survey.model.meta.get('identified_by', 'auto')}, "
           f"{points.size} points, {survey.model.n_modes} modes, {identify_seconds:.0f} s in all (simulated "
           "acquisition included). Runs: open loop, T_F 25 ms, the true beam with no perturbation, the thesis's "
           "mode sets (`auto` where the thesis gives none).", "",
