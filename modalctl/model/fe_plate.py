@@ -163,11 +163,8 @@ class Outline:
         if crossing is not None:
             raise ModelError(f"outline: edges {crossing[0] + 1} and {crossing[1] + 1} cross (a self-intersecting "
                              f"outline)")
-        area = _signed_area(v)
-        if abs(area) <= 1e-12 * np.ptp(v, axis=0).prod() or abs(area) == 0:
+        if abs(_signed_area(v)) <= 1e-12 * np.ptp(v, axis=0).prod():  # edges keep the user's numbering
             raise ModelError("outline: the polygon encloses no area")
-        if area < 0:
-            v = v[::-1]  # counter-clockwise
         if self.corner_radius and not self.is_rectangle(v):
             raise ModelError("outline: rounded corners are for rectangles (Outline.rectangle)")
         object.__setattr__(self, "vertices", v)
