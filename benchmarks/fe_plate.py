@@ -44,6 +44,7 @@ PRECISE_CLAMPED = [35.985, 73.394, 73.394, 108.22, 131.58, 132.20]  # the same, 
 LEISSA_FREE_NU03 = [13.468, 19.596, 24.270, 34.801, 34.801, 61.093]  # Table 4.61
 STEEL = Material(200e9, 7850.0, 0.3)
 GLASS = MATERIALS["glass"]
+SS_TOLERANCE = 5e-4  # the simply supported rectangle is held to 0.1% against the analytic plate: converged to 0.05%
 REPEATS = 3
 TAU = 0.95
 WIDTHS_MM = (20, 25, 30, 40, 50, 60)
@@ -79,7 +80,7 @@ def part_verify() -> dict:
                           "error": (lam / LEISSA_FREE_NU03 - 1).tolist(), "dofs": conv.levels[-1].dofs,
                           "rigid_modes": int(model.rigid_shapes.shape[0])}
     ss = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, GLASS, {"rim": Support("simply-supported")})
-    model, conv = ss.modal_model(21, spacing=1e-3)
+    model, conv = ss.modal_model(21, spacing=1e-3, tolerance=SS_TOLERANCE)
     exact = Plate(0.1, 0.07, 1e-3, GLASS.modulus, GLASS.density, GLASS.poisson).modal_model(21, nx=101, ny=71)
     w = model.grid.mass
     mac = (np.einsum("kn,n,kn->k", model.shapes, w, exact.shapes) ** 2
@@ -188,9 +189,10 @@ def report(data: dict, path=None) -> None:
             for i, (a, b) in enumerate(zip(v[key]["lambda"], v[key]["leissa"])):
                 lines.append(f"| {name} | {i + 1} | {a:.3f} | {b:.3f} | {100 * (a / b - 1):+.3f}% |")
         s = v["simply_supported"]
-        lines += ["", f"Simply supported 100 x 70 mm glass against the analytic plate, 21 modes: largest frequency "
+        lines += ["", f"Simply supported 100 x 70 mm glass against the analytic plate, 21 modes converged to "
+                      f"{SS_TOLERANCE:.2%}: largest frequency "
                       f"error {100 * s['max_frequency_error']:.3f}%, smallest MAC {s['min_mac']:.5f} "
-                      f"({s['dofs']} dofs). The free square has {v['free_square']['rigid_modes']} rigid-body "
+                      f"({s['dofs']:.0f} dofs). The free square has {v['free_square']['rigid_modes']} rigid-body "
                       f"modes, kept apart.", ""]
     s = data.get("speed")
     if s:
@@ -245,13 +247,13 @@ def plot(data: dict) -> None:
             rows = [r for r in s["rows"] if r["element"] == element]
             axes[1].plot([r["modes"] for r in rows], [r["seconds"] for r in rows], marker, label=f"{element}: time")
         axes[1].axhline(10, color="r", ls="--", lw=0.8, label="target 10 s (30 modes)")
-        axes[1].set(xlabel="modes converged to 0.5%", ylabel="median solve time (s)",
+        axes[1].set(yscale="log", xlabel="modes converged to 0.5%", ylabel="median solve time (s)",
                     title="clamped 100 x 70 mm: time against modes kept")
         twin = axes[1].twinx()
         rows = [r for r in s["rows"] if r["element"] == "15-parameter"]
         twin.plot([r["modes"] for r in rows], [r["memory_mb"] for r in rows], "C2^--", label="memory")
         twin.set_ylabel("peak memory (MB)", color="C2")
-        axes[1].legend(fontsize=8, loc="upper left")
+        axes[1].legend(fontsize=8, loc="center left")
     f = data.get("focus")
     if f:
         for scene, row in f.items():
