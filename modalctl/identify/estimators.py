@@ -227,8 +227,8 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
         resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw)
     if not resolved:
         return BandFit(constants, misfit, misfit_reason(misfit, False, noise is not None))
-    if frequency_check and noise is not None and misfit > UNRESOLVED_ERROR and not frequency_fixed(freqs, h, noise_weights(noise), f,
-                                                                                zeta, others, general):
+    judged = frequency_check and noise is not None and misfit > UNRESOLVED_ERROR
+    if judged and not frequency_fixed(freqs, h, noise_weights(noise), f, zeta, others, general):
         return BandFit(constants, misfit, UNCERTAIN)
     return BandFit(constants, misfit)
 
