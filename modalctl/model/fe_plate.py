@@ -481,7 +481,7 @@ class FEPlate:
         point on the plate); points off the plate weigh nothing. With a ``mesh``, "on the
         plate" is inside its boundary (a rounded corner as the mesh draws it)."""
         lo, hi = self.outline.vertices.min(axis=0), self.outline.vertices.max(axis=0)
-        nx, ny = (np.ceil((hi - lo) / spacing).astype(int) + 1).tolist()
+        nx, ny = (np.ceil((hi - lo) / spacing - 1e-9).astype(int) + 1).tolist()  # 70 mm / 1 mm: 71, not 72
         if self.outline.is_rectangle(self.outline.vertices) and not self.outline.corner_radius and not self.outline.holes:
             return Grid.rectangle((lo[0], hi[0]), (lo[1], hi[1]), nx, ny, self.mass_per_area)
         if mesh is None:
