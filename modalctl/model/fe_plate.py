@@ -35,12 +35,13 @@ from .modes import Grid, ModalModel, ModelError
 from .structures import Piezo
 
 __all__ = ["ELEMENTS", "Material", "MATERIALS", "Support", "SUPPORTS", "Hole", "Outline", "FEPlate", "Level", "Convergence",
-           "FREQUENCY_TOLERANCE", "SHAPE_TOLERANCE", "DOFS_MAX", "MODES_MAX"]
+           "FREQUENCY_TOLERANCE", "SHAPE_TOLERANCE", "DOFS_MAX", "MODES_MAX", "GRID_POINTS_MAX"]
 
 SOLVER_VERSION = 1  # bump when a change alters solved models: cached scenes are solved again
 FREQUENCY_TOLERANCE = 0.005  # kept modes' frequencies converged to this (relative, Richardson's estimate)...
 SHAPE_TOLERANCE = 0.99  # ...and their shapes to this subspace MAC between the last two meshes
 MODES_MAX = 500  # at most this many modes in a model
+GRID_POINTS_MAX = 1_000_000  # a focus grid of at most this many points (a 1000 x 1000 lattice)
 DOFS_MAX = 400_000  # a mesh finer than this is refused: the band needs more than a plate model should cost
 ELEMENTS_PER_WAVELENGTH = 2.5  # the first mesh: this many elements per bending wavelength of the highest mode
 CURVATURE_ELEMENTS = 48  # an arc gets at least this many elements per turn (a 1 mm radius: 0.2% sagitta)
@@ -335,6 +336,13 @@ class FEPlate:
         """Weyl's estimate of the ``n``-th mode's frequency (Hz)."""
         return n / self.modes_below(1.0)
 
+    def dofs_estimate(self, size: float) -> float:
+        """Degrees of freedom of a mesh of ``size`` (m) elements: about 2.3 area / size^2 triangles,
+        half as many vertices and 1.5 times as many edges."""
+        triangles = 2.3 * self.outline.area / size**2
+        per_vertex, per_edge = ELEMENTS[self.element][1:]
+        return triangles * (per_vertex / 2 + 1.5 * per_edge)
+
     def support_of(self, name: str) -> Support:
         default = Support("free") if name == "holes" else self.supports.get("rim", Support("clamped"))
         return self.supports.get(name, default)
@@ -482,6 +490,9 @@ class FEPlate:
         plate" is inside its boundary (a rounded corner as the mesh draws it)."""
         lo, hi = self.outline.vertices.min(axis=0), self.outline.vertices.max(axis=0)
         nx, ny = (np.ceil((hi - lo) / spacing - 1e-9).astype(int) + 1).tolist()  # 70 mm / 1 mm: 71, not 72
+        if nx * ny > GRID_POINTS_MAX:
+            raise ModelError(f"fe plate: a {spacing * 1e3:g} mm grid over {(hi - lo)[0] * 1e3:g} x {(hi - lo)[1] * 1e3:g} "
+                             f"mm has {nx * ny:,} points; at most {GRID_POINTS_MAX:,} (a coarser spacing)")
         if self.outline.is_rectangle(self.outline.vertices) and not self.outline.corner_radius and not self.outline.holes:
             return Grid.rectangle((lo[0], hi[0]), (lo[1], hi[1]), nx, ny, self.mass_per_area)
         if mesh is None:
@@ -555,10 +566,14 @@ class FEPlate:
             raise ModelError(f"fe plate: the tolerance must lie in [1e-5, 0.2], got {tolerance!r}")
         wanted = n_modes if n_modes is not None else max(1, int(np.ceil(1.3 * self.modes_below(band))) + 4)
         if wanted > MODES_MAX:
-            raise ModelError(f"fe plate: the band {band:g} Hz holds about {int(self.modes_below(band))} modes; at "
-                             f"most {MODES_MAX}")
+            raise ModelError(f"fe plate: the band {band:g} Hz holds about {int(self.modes_below(band))} modes, "
+                             f"{wanted} to solve with a margin to find them all; at most {MODES_MAX}")
         top = band if band is not None else self.frequency_of_mode(wanted) * 1.2
         size = min(self.wavelength(top) / ELEMENTS_PER_WAVELENGTH, self.outline.diameter / 8)
+        self.grid(spacing)  # its size checked before any mesh is made
+        if self.dofs_estimate(size) > DOFS_MAX:
+            raise ModelError(f"fe plate: {wanted} modes of this plate need elements of {size * 1e3:.2g} mm, about "
+                             f"{self.dofs_estimate(size):,.0f} degrees of freedom on the first mesh; at most {DOFS_MAX}")
         levels, history, mesh = [], [], None
         while True:
             start = time.perf_counter()
