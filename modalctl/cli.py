@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import io
 import json
 import math
@@ -410,7 +411,7 @@ def _model(args) -> int:
                               ("sensor", args.sensor, FE_SENSORS_MAX)):
         if len(items) > most:
             raise ParamError(f"model fe: at most {most} --{name} options, got {len(items)}")
-    outline = type(args.outline)(args.outline.vertices, args.outline.corner_radius, tuple(args.hole))
+    outline = dataclasses.replace(args.outline, holes=tuple(args.hole))  # the holes checked against it
     patches = tuple(PlatePatch(p.xlim, p.ylim, f"patch{i + 1}") for i, p in enumerate(args.patch))
     plate = FEPlate(outline, args.thickness, args.material, args.boundary, patches, tuple(args.sensor))
     say = None if args.quiet or args.json else (

@@ -226,7 +226,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     if not resolved and misfit <= FAIR_ERROR:
         resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw)
     if not resolved:
-        return BandFit(constants, misfit, misfit_reason(misfit, False, noise is not None))
+        return BandFit(constants, misfit, misfit_reason(misfit, noise is not None))
     judged = frequency_check and noise is not None and misfit > UNRESOLVED_ERROR
     if judged and not frequency_fixed(freqs, h, noise_weights(noise), f, zeta, others, general):
         return BandFit(constants, misfit, UNCERTAIN)
@@ -394,7 +394,7 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
         try:
             fit = modal_constants(frf, f, zeta, max(3 * zeta * f, 4 * df), frequency_check=frequency_check)
         except ModelError:
-            fit = BandFit(constants, np.inf, misfit_reason(np.inf, False, frf.noise_std is not None))
+            fit = BandFit(constants, np.inf, misfit_reason(np.inf, frf.noise_std is not None))
         rows.append((f, zeta, constants, fit.misfit, fit.resolved, fit.reason))
     return modes_from_rows(rows, frf.values.shape[0], "peaks")
 
@@ -490,12 +490,10 @@ def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
                            general, counted, frequency_check)
 
 
-def misfit_reason(misfit: float, resolved: bool, noise_known: bool) -> str:
-    """Why a mode with this misfit was left out ("" when it was not): a peak of the noise when
-    the FRFs' noise is known and the mode is smaller than what it leaves unexplained; else one
-    pole explaining its band poorly (close modes, or noise nobody measured)."""
-    if resolved:
-        return ""
+def misfit_reason(misfit: float, noise_known: bool) -> str:
+    """Why a pole that does not explain its band was left out: a peak of the noise when the FRFs'
+    noise is known and the mode is smaller than what it leaves unexplained; else one pole
+    explaining its band poorly (close modes, or noise nobody measured)."""
     if misfit > NOISE_PEAK and noise_known:
         return NOISE
     return f"one pole explains its band poorly (misfit {misfit:.2f}; close modes?)"

@@ -110,8 +110,13 @@ def _al_ff(n_points):
                         [0.0, 0.02], n_points)
 
 
-PLATE_PATCHES = [PlatePatch((x - 0.006, x + 0.006), (y - 0.006, y + 0.006), f"patch{i + 1}")
-                 for i, (x, y) in enumerate([(-0.035, -0.022), (0.035, -0.022), (-0.035, 0.022), (0.035, 0.022)])]
+def _patches(centres, width: float, height: float) -> list[PlatePatch]:
+    """Rectangular patches ``width`` x ``height`` (m) centred at ``centres`` [(x, y), ...] (m)."""
+    return [PlatePatch((x - width / 2, x + width / 2), (y - height / 2, y + height / 2), f"patch{i + 1}")
+            for i, (x, y) in enumerate(centres)]
+
+
+PLATE_PATCHES = _patches([(-0.035, -0.022), (0.035, -0.022), (-0.035, 0.022), (0.035, 0.022)], 0.012, 0.012)
 PLATE_SENSORS = [(0.0, 0.0), (0.02, 0.01)]
 
 
@@ -169,10 +174,8 @@ CLAMPED_PATCHES = [(-0.025, -0.015), (0.025, -0.015), (-0.025, 0.015), (0.025, 0
 def _plate_clamped(n_points):
     """plate-glass held on a clamped rim instead of simply supported: the same plate and sensors,
     its four patches moved inward (:data:`CLAMPED_PATCHES`)."""
-    patches = tuple(PlatePatch((x - 0.006, x + 0.006), (y - 0.006, y + 0.006), f"patch{i + 1}")
-                    for i, (x, y) in enumerate(CLAMPED_PATCHES))
     plate = FEPlate(Outline.rectangle(0.100, 0.070), 0.001, MATERIALS["glass"], {"rim": Support("clamped")},
-                    patches=patches, sensors=tuple(PLATE_SENSORS))
+                    patches=tuple(_patches(CLAMPED_PATCHES, 0.012, 0.012)), sensors=tuple(PLATE_SENSORS))
     return _fe_scene("plate-glass-clamped", plate, n_points or (101, 71), n_modes=21, damping=0.01)
 
 
@@ -185,10 +188,8 @@ def _panel(n_points):
     rounded 20 x 10 mm slot cut out near one end, six 14 x 10 mm patches; the modes below 12 kHz."""
     outline = Outline.rectangle(0.120, 0.070, 0.008, holes=(Hole((0.042, 0.0), size=(0.020, 0.010),
                                                                   corner_radius=0.004),))
-    patches = tuple(PlatePatch((x - 0.007, x + 0.007), (y - 0.005, y + 0.005), f"patch{i + 1}")
-                    for i, (x, y) in enumerate(PANEL_PATCHES))
-    plate = FEPlate(outline, 0.001, MATERIALS["glass"], {"rim": Support("clamped")}, patches=patches,
-                    sensors=((0.0, 0.0), (-0.02, 0.01)))
+    plate = FEPlate(outline, 0.001, MATERIALS["glass"], {"rim": Support("clamped")},
+                    patches=tuple(_patches(PANEL_PATCHES, 0.014, 0.010)), sensors=((0.0, 0.0), (-0.02, 0.01)))
     return _fe_scene("panel-rounded", plate, n_points or (121, 71), band=12e3, damping=0.01)
 
 
