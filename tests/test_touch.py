@@ -225,3 +225,60 @@ def test_what_one_touch_does_not_explain_is_not_given_back():
     e = estimator.estimate
     assert e.damping - SURE * e.stderr > 0  # least squares alone would give some back
     assert e.fit < FIT_MIN and e.sure == 0
+
+
+def _noisy_step(estimator, shapes, at, before, after, step, periods, noise, seed=3):
+    """Envelopes of every mode under a touch at ``at`` that changes from ``before`` to ``after`` N s/m
+    at period ``step``, the drive a steady carrier, white noise of ``noise`` times the largest
+    envelope added to what the estimator reads."""
+    from modalctl.model.propagate import hold_coefficients
+
+    rng = np.random.default_rng(seed)
+    k, period = estimator.a.size, estimator.period
+    p0 = np.log(estimator.a) / period
+    drive = (rng.standard_normal(k) + 1j * rng.standard_normal(k)) * 300
+    z, read = np.zeros(k, complex), []
+    for n in range(periods):
+        c = before if n < step else after
+        a, g0, g1 = hold_coefficients(p0 - c * shapes[:, at] ** 2 / 2, period, "foh")
+        z = a * z + estimator.r * (g0 + g1) * drive
+        read.append(z)
+    read = np.array(read)
+    read = read + noise * np.abs(read).max() * (rng.standard_normal(read.shape) + 1j * rng.standard_normal(read.shape))
+    return read, np.broadcast_to(drive, read.shape)
+
+
+def test_a_touch_that_stays_is_read_with_the_longest_memory_and_a_change_with_the_shortest():
+    """Lepski's rule on noisy envelopes (white noise on each period's reading): a touch resting from
+    the start is read with the longest memory, far steadier than the shortest memory alone; when it
+    presses from 0.5 to 1.5 N s/m the estimate is within 15% after 1 ms and within 10% after 5 ms and
+    stays there, which neither fixed memory does (the shortest is too noisy for 10% until 13 ms, the
+    longest still remembers the lighter touch 20 ms later)."""
+    from modalctl.loops.touch_estimator import MEMORIES, TouchEstimator
+
+    rng = np.random.default_rng(5)
+    shapes = rng.standard_normal((4, 64)) * 20
+    rate, step = 20e3, 600
+    z, u = _noisy_step(TouchEstimator([400.0, 1100.0, 2300.0, 3900.0], [0.01] * 4, shapes, rate), shapes, 31,
+                       0.5, 1.5, step=step, periods=1000, noise=2e-4)
+
+    def history(memories):
+        estimator = TouchEstimator([400.0, 1100.0, 2300.0, 3900.0], [0.01] * 4, shapes, rate, memories, at=31)
+        out = []
+        for n in range(z.shape[0]):
+            estimator.update(z[n], u[n])
+            out.append(estimator.estimate)
+        return out
+
+    def settled(estimates, within):  # seconds after the step from which every estimate is within
+        damping = np.array([e.damping for e in estimates])
+        late = [n for n in range(step, damping.size) if np.all(np.abs(damping[n:] / 1.5 - 1) < within)]
+        return (late[0] - step) / rate if late else np.inf
+
+    adaptive, shortest, longest = history(MEMORIES), history(MEMORIES[:1]), history(MEMORIES[-1:])
+    steady = adaptive[400:step]  # 20-30 ms: resting at 0.5 N s/m
+    assert all(e.memory == MEMORIES[-1] for e in steady)
+    assert np.std([e.damping for e in steady]) < 0.1 * np.std([e.damping for e in shortest[400:step]])
+    assert all(abs(e.damping / 0.5 - 1) < 0.02 for e in steady)
+    assert settled(adaptive, 0.15) < 1e-3 and settled(adaptive, 0.1) < 5.5e-3
+    assert settled(shortest, 0.1) > 2 * settled(adaptive, 0.1) and settled(longest, 0.1) == np.inf

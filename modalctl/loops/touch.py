@@ -27,7 +27,7 @@ from .controller import Controller, LoopPlant
 from .design import lockin_filter
 from .lockin import hold_gain
 from .schedule import HOLD
-from .touch_estimator import MEMORY, TouchEstimator
+from .touch_estimator import MEMORIES, TouchEstimator
 
 __all__ = ["TouchControl", "CommandFilter"]
 
@@ -70,19 +70,19 @@ class TouchControl(Controller):
         With its ``schedule`` (planned velocity and drive envelopes), ``shapes`` and ``points``.
     inner : Controller
         The per-mode feedback (PI by default).
-    memory : float
-        The estimator's forgetting time (s).
+    memories : sequence of float
+        The estimator's forgetting times (s, shortest first).
     """
 
     observes = True
 
-    def __init__(self, plant: LoopPlant, inner: Controller, memory: float = MEMORY):
+    def __init__(self, plant: LoopPlant, inner: Controller, memories=MEMORIES):
         s = plant.schedule
         if s is None or s.velocity is None or plant.shapes is None:
             raise ValueError("the touch controller needs the shot's schedule (with its planned velocities) and the "
                              "modes' shapes on the grid")
         self.inner, self.design = inner, inner.design
-        self.estimator = TouchEstimator(plant.frequencies, plant.damping, plant.shapes, plant.control_rate, memory,
+        self.estimator = TouchEstimator(plant.frequencies, plant.damping, plant.shapes, plant.control_rate, memories,
                                         plant.touch_at, plant.readable)
         self.filter = CommandFilter(plant.bandwidths, plant.control_rate)
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
@@ -99,7 +99,7 @@ class TouchControl(Controller):
         k = self.residues.size
         self._sent = deque([np.zeros(k, complex)] * (self.lead - 1))  # commands on their way to the board
         self.period = -1
-        self.history: list[tuple[float, float, float]] = []  # (damping, stderr, sure) per period
+        self.history: list[tuple] = []  # (damping, stderr, sure, fit, memory) per period
 
     def scale(self, factor: float) -> None:
         self.inner.scale(factor)
@@ -111,7 +111,7 @@ class TouchControl(Controller):
         self.estimator.update(envelope, drive)
         self.period = period
         e = self.estimator.estimate
-        self.history.append((e.damping, e.stderr, e.sure, e.fit))
+        self.history.append((e.damping, e.stderr, e.sure, e.fit, e.memory))
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         feedback = self.inner.update(error, limit)
@@ -125,10 +125,11 @@ class TouchControl(Controller):
         if not self.history:
             return None
         e = self.estimator.estimate
-        damping, stderr, sure, fit = (np.array(v) for v in zip(*self.history))
+        damping, stderr, sure, fit, memory = (np.array(v) for v in zip(*self.history))
         sensed = np.flatnonzero(sure > 0)
         return {"damping_n_s_per_m": e.damping, "stderr_n_s_per_m": e.stderr if np.isfinite(e.stderr) else None,
                 "sure_n_s_per_m": e.sure, "sensed": e.sensed,
                 "at_m": None if e.index is None or self.points is None else self.points[e.index].tolist(),
                 "first_sensed_s": None if not sensed.size else float((sensed[0] + 1) / self.rate),
-                "damping_per_period": damping.tolist(), "sure_per_period": sure.tolist(), "fit_per_period": fit.tolist()}
+                "damping_per_period": damping.tolist(), "sure_per_period": sure.tolist(), "fit_per_period": fit.tolist(),
+                "memory_per_period_s": memory.tolist()}
