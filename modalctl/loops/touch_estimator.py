@@ -21,8 +21,8 @@ The estimate's standard error comes from the residuals left; :attr:`TouchEstimat
 damping the estimate is confident of (``c - SURE * stderr``, and no more than any shorter memory is
 sure of: a lift shows in the shortest first; zero below ``TOUCH_MIN``, before
 ``SETTLE`` shortest memories of data, or when one touch explains less than ``FIT_MIN`` of what the modes
-lost, as on plate-glass, whose close modes the touch couples: fit 0.01-0.3 there, 0.97 on
-thesis-al-cc): what a controller gives back.
+lost, each at a rate of its own: as on plate-glass once its close modes, which the touch couples,
+take over the losses: fit 0.1-0.3 there from 15 ms, 0.97 on thesis-al-cc): what a controller gives back.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ class TouchEstimate:
     sure : float
         ``max(0, damping - SURE * stderr)``, and no more than any shorter memory's own (N s/m).
     fit : float
-        Share of the residuals' energy the touch explains (0 to 1).
+        Share of the modes' losses the touch explains, against a decay of each mode's own (0 to 1).
     memory : float
         The forgetting time the estimate was read with (s): the longest of :data:`MEMORIES` that
         agrees with all the shorter ones.
@@ -195,10 +195,20 @@ class TouchEstimator:
             return TouchEstimate(0.0, self._stderr(j, den, 0.0), index, 0.0, memory=memory)
         c = min(-num / den, TOUCH_MAX)
         stderr = self._stderr(j, den, num ** 2 / den)
-        fit = float(num ** 2 / den / max(np.sum(self._e[j]), 1e-300))
+        fit = self._fit(j, num ** 2 / den)
         trusted = c >= TOUCH_MIN and fit >= FIT_MIN and self._periods >= self.settle
         sure = min(c - SURE * stderr, self._floor) if trusted else 0.0
         return TouchEstimate(float(c), stderr, index, float(max(0.0, sure)), fit, memory)
+
+    def _fit(self, j: int, explained: float) -> float:
+        """Share of the modes' losses that one touch explains: ``explained`` (what the touch's
+        damping takes out of the residual energy) over what a decay of each mode's own would take
+        out (``sum_k Re(h_k* e_k)^2 / |h_k|^2``; at least as much, equal when the modes lose in the
+        touch's pattern). Residuals that are not losses (noise, a drift at right angles, a mode the
+        touch cannot reach that is read with others' noise) weigh in neither."""
+        s, rr = self._s[j], self._rr[j]
+        each = np.sum(np.divide(rr ** 2, s, out=np.zeros_like(s), where=s > 0))
+        return float(min(explained / each, 1.0)) if each > 0 else 0.0
 
     def _agreeing(self, q: np.ndarray) -> int:
         """The longest memory whose damping at the place ``q`` lies within ``AGREE`` standard errors
