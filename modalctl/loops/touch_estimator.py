@@ -188,7 +188,8 @@ class TouchEstimator:
             self._row = None
             return TouchEstimate(0.0, np.inf, None, 0.0)
         q = self._row = self.q[row]
-        j = self._chosen = self._agreeing(q)
+        j, floor = self._agreeing(q)
+        self._chosen = j
         num, den = q @ self._rr[j], q ** 2 @ self._s[j]
         index, memory = int(self.candidates[row]), float(self.memories[j])
         if not (den > 0 and num < 0):  # nothing damps the modes there now
@@ -197,7 +198,7 @@ class TouchEstimator:
         stderr = self._stderr(j, den, num ** 2 / den)
         fit = self._fit(j, num ** 2 / den)
         trusted = c >= TOUCH_MIN and fit >= FIT_MIN and self._periods >= self.settle
-        sure = min(c - SURE * stderr, self._floor) if trusted else 0.0
+        sure = min(c - SURE * stderr, floor) if trusted else 0.0
         return TouchEstimate(float(c), stderr, index, float(max(0.0, sure)), fit, memory)
 
     def _fit(self, j: int, explained: float) -> float:
@@ -210,10 +211,11 @@ class TouchEstimator:
         each = np.sum(np.divide(rr ** 2, s, out=np.zeros_like(s), where=s > 0))
         return float(min(explained / each, 1.0)) if each > 0 else 0.0
 
-    def _agreeing(self, q: np.ndarray) -> int:
+    def _agreeing(self, q: np.ndarray) -> tuple[int, float]:
         """The longest memory whose damping at the place ``q`` lies within ``AGREE`` standard errors
         of every shorter memory's (Lepski's rule): a touch that changed shows in the short memories
-        first, and the long ones that still remember the old touch fall outside them."""
+        first, and the long ones that still remember the old touch fall outside them. Returns its
+        index and the least damping any memory up to it is sure of (N s/m; ``c - SURE * stderr``)."""
         nums, dens = self._rr @ q, self._s @ q ** 2  # (m,)
         read = dens > 0
         damping = np.where(read, -nums / np.where(read, dens, 1), np.nan)
@@ -222,8 +224,7 @@ class TouchEstimator:
         chosen = next((j for j in range(damping.size - 1, 0, -1)
                        if read[j] and np.all(np.abs(damping[j] - damping[:j]) <= half[:j])), 0)
         # what every memory up to it is sure of: a lift shows in the shortest first
-        self._floor = float(np.min(damping[:chosen + 1] - SURE / AGREE * half[:chosen + 1]))
-        return chosen
+        return chosen, float(np.min(damping[:chosen + 1] - SURE / AGREE * half[:chosen + 1]))
 
     def _place(self) -> int | None:
         """The candidate (row of ``q``) whose pattern over the modes explains the most of the
