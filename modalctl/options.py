@@ -84,6 +84,11 @@ class ConvexOptions(_Options):
         The margin program gives up once its least energy provably exceeds this many times the
         least energy of the focus alone (a dual bound: DAQP's ``fval_bound``); the margin plans
         measured need 2-4 times, an unreachable margin climbs without end.
+    certify : bool
+        When the margin program is refused, find the smallest ratio a drive reaches (a bisection
+        of margin programs, the refusal's certificate: seconds on a beam, a minute or more on a
+        plate); False refuses at once, for callers that only need to know (the automatic mode
+        set's growing attempts).
     """
 
     early: float = 3e-3
@@ -99,6 +104,7 @@ class ConvexOptions(_Options):
     leak: float | None = None
     reference: str | None = None
     energy_bound: float = 1000.0
+    certify: bool = True
 
     def __post_init__(self):
         if self.reference not in (None, "envelope"):

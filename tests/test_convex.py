@@ -199,3 +199,25 @@ def test_a_correction_to_the_thesis_envelopes_holds_the_margin_and_the_focus(cas
     velocity = Plant(model, FS).simulate(corrected.voltages()[:, :focus + 1])[:, focus]
     np.testing.assert_allclose(model.shapes.T @ velocity, dec.reconstruction,
                                atol=1e-8 * np.abs(dec.reconstruction).max())
+
+
+def test_only_the_last_of_the_growing_attempts_seeks_a_certificate(case, monkeypatch):
+    """The automatic mode set adds modes while the margin is refused: the attempts followed by
+    another refuse at once (their certificate, a bisection of margin programs, took minutes on a
+    plate), and the last one's refusal still carries the smallest ratio, proven."""
+    from modalctl.plan.planner import plan_shot
+
+    model, shape, _ = case
+    calls = []
+    original = Program.smallest_ratio
+    monkeypatch.setattr(Program, "smallest_ratio", lambda self, *a, **k: calls.append(1) or original(self, *a, **k))
+    options = convex(voltage_limit=4.0, modes="auto", added_modes=2)
+    with pytest.raises(PlanError, match="cannot be held within voltage 4 V") as refused:
+        plan_shot(model, shape, TF, options)
+    assert len(calls) == 1 and refused.value.certificate["status"] == "infeasible"
+    assert refused.value.needed > 0.5
+    calls.clear()
+    with pytest.raises(PlanError, match="not certified") as unproven:
+        plan_shot(model, shape, TF, convex(voltage_limit=4.0, modes=9).but(
+            convex=PlanOptions().convex.but(certify=False)))
+    assert not calls and unproven.value.certificate["status"] == "not certified"

@@ -51,6 +51,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.signal import lfilter
+from tqdm.auto import tqdm
 
 from modalctl.model.modes import ModalModel
 from modalctl.model.propagate import Plant, hold_coefficients, poles
@@ -588,22 +589,28 @@ class Program:
         return Solution(x, ratios[0], ratios[1:], float(np.abs(volts).max()), slew, len(history), rows,
                         dict(self.seconds), status, history)
 
-    def smallest_ratio(self, low: float, rel_tol: float = 0.01) -> tuple[Solution | None, float]:
+    def smallest_ratio(self, low: float, rel_tol: float = 0.01,
+                       progress: bool = False) -> tuple[Solution | None, float]:
         """The smallest margin a drive within the limits (and ``energy_bound``) holds, by bisection
         on the margin program from ``low`` (refused there) to the least-energy drive's own ratio.
         Returns that drive's solution (None when no drive reaches the focus within the limits)
-        and the largest margin refused."""
+        and the largest margin refused. ``progress``: a bar over the bisection's programs."""
         free = self.solve(np.inf)
         if not free.holds(np.inf, self.options):
             return None, low
         best, high = free, max([free.ratio, *free.robust_ratios])
-        while high - low > rel_tol * high:
-            middle = 0.5 * (low + high)
-            found = self.solve(middle)
-            if found.holds(middle, self.options):
-                best, high = found, min(middle, max([found.ratio, *found.robust_ratios]))
-            else:
-                low = middle
+        steps = max(0, int(np.ceil(np.log2(max(high - low, 1e-300) / (rel_tol * high)))))
+        with tqdm(total=steps, desc="margin refused: the smallest ratio", unit="program", disable=not progress,
+                  leave=False) as bar:
+            while high - low > rel_tol * high:
+                middle = 0.5 * (low + high)
+                found = self.solve(middle)
+                if found.holds(middle, self.options):
+                    best, high = found, min(middle, max([found.ratio, *found.robust_ratios]))
+                else:
+                    low = middle
+                bar.set_postfix_str(f"{low:.3f} refused, {high:.3f} held")
+                bar.update()
         return best, min(low, high)
 
 
@@ -747,7 +754,7 @@ def plan_convex(dec: Decomposition, focus_time: float, options: PlanOptions = Pl
             "slew_limit": options.slew_limit, "robust_drift": options.robust_drift, "after_s": options.after,
             "reference": options.convex.reference, "program": _summary(program, solution)}
     if solution.status != "optimal":  # infeasible, or a solver that gave up on an infeasible program
-        raise _refusal(program, options, solution)
+        raise _refusal(program, options, solution, progress)
     if not solution.holds(program.margin, options):
         raise PlanError(f"the convex program stopped after {solution.rounds} rounds at a ratio of "
                         f"{solution.ratio:.4f} and {solution.peak_voltage:.1f} V (the margin or the limits not "
@@ -781,16 +788,21 @@ def _summary(program: Program, solution: Solution) -> dict:
             "hats": 0 if basis.hats is None else int(basis.hats.offsets.size), "history": solution.history}
 
 
-def _refusal(program: Program, options: PlanOptions, failed: Solution) -> PlanError:
+def _refusal(program: Program, options: PlanOptions, failed: Solution, progress: bool = False) -> PlanError:
     """The margin program did not solve: say why, with proof where there is one.
 
     Every drive that builds the focus has the focus's own side lobes at T_F: a margin below them is
     out of reach whatever the limits (exact). Otherwise the smallest margin a drive within the
     limits and the energy bound holds, by bisection on the margin program, says whether the margin
-    was out of reach (the answer above it) or the solver failed (at or below it).
+    was out of reach (the answer above it) or the solver failed (at or below it); without
+    ``ConvexOptions.certify`` the refusal is said at once, unproven.
     """
     margin, lobes, solver = options.margin, program.focus_lobes, options.convex.solver
-    best, refused = program.smallest_ratio(max(margin, lobes))
+    if not options.convex.certify:
+        return PlanError(f"the {margin:g} margin program was refused ({failed.status}; not certified)", None,
+                         margin, {"solver": solver, "margin_program": failed.status, "margin": margin,
+                                  "focus_lobes": lobes, "status": "not certified"})
+    best, refused = program.smallest_ratio(max(margin, lobes), progress=progress)
     limits = ", ".join(f"{name} {value:g} {unit}" for name, value, unit in
                        (("voltage", options.voltage_limit, "V"), ("slew", options.slew_limit, "V/s"))
                        if value is not None) or "no voltage limit"

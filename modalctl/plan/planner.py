@@ -267,11 +267,13 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
         dec = _keeping(dec, np.flatnonzero(below), "the gaps filled for the loops")
     grow = auto and options.margin is not None
     for added in range(options.added_modes + 1):
-        try:
-            return dec, plan(dec, focus_time, options, progress)
+        left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
+        last = not grow or left.size == 0 or added == options.added_modes
+        try:  # an attempt followed by another needs no certificate of its refusal
+            attempt = options if last else options.but(convex=options.convex.but(certify=False))
+            return dec, plan(dec, focus_time, attempt, progress)
         except PlanError as exc:
-            left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
-            if not grow or exc.limit != options.margin or left.size == 0 or added == options.added_modes:
+            if last or exc.limit != options.margin:
                 raise
             chosen = np.append(dec.modes_used, left[np.argmax(np.abs(dec.coefficients[left]))])
             dec = _keeping(dec, chosen, f"plus modes for the {options.margin:g} margin")
