@@ -282,3 +282,11 @@ def test_a_touch_that_stays_is_read_with_the_longest_memory_and_a_change_with_th
     assert all(abs(e.damping / 0.5 - 1) < 0.02 for e in steady)
     assert settled(adaptive, 0.15) < 1e-3 and settled(adaptive, 0.1) < 5.5e-3
     assert settled(shortest, 0.1) > 2 * settled(adaptive, 0.1) and settled(longest, 0.1) == np.inf
+
+
+@pytest.mark.parametrize("memories", [(), (0.0, 1e-3), (-1e-3,), (np.nan,), (np.inf,)])
+def test_the_estimator_refuses_memories_that_are_not_positive_finite_seconds(memories):
+    from modalctl.loops.touch_estimator import TouchEstimator
+
+    with pytest.raises(ValueError, match="memories"):
+        TouchEstimator([400.0], [0.01], np.ones((1, 8)), 20e3, memories)
