@@ -21,8 +21,9 @@ The estimate's standard error comes from the residuals left; :attr:`TouchEstimat
 damping the estimate is confident of (``c - SURE * stderr``, and no more than any shorter memory is
 sure of: a lift shows in the shortest first; zero below ``TOUCH_MIN``, before
 ``SETTLE`` shortest memories of data, or when one touch explains less than ``FIT_MIN`` of what the modes
-lost, each at a rate of its own: as on plate-glass once its close modes, which the touch couples,
-take over the losses: fit 0.1-0.3 there from 15 ms, 0.97 on thesis-al-cc): what a controller gives back.
+lost, each at a rate of its own: as on plate-glass once its close pairs, each read partly through
+the other's answer, carry the losses: fit 0.1-0.3 there from 15 ms, 0.97 on thesis-al-cc): what a
+controller gives back.
 """
 
 from __future__ import annotations
@@ -53,7 +54,7 @@ SETTLE = 2.0  # shortest memories of data before any touch is sure: the first en
 #   lands 20 ms 73%    83%     88%      88%
 #   lift, tau   1.095  1.061   1.039    1.021
 # and a finger resting from the start was read within 10% after 10.1 ms with 0.25 ms of memory,
-# 5.4 ms with 1 ms, 4.1 ms with 4 ms (where a 4 ms memory holds only 4 ms of small envelopes);
+# 5.4 ms with 1 ms, 4.1 ms with 4 ms;
 # so every memory is kept and each period takes the longest whose estimate lies within the
 # confidence interval of every shorter one (Lepski's rule, as in adaptive-window estimation:
 # Lepski 1991, Spokoiny 1998): as long as the touch stays, the memory grows; a landing, a press or
