@@ -168,10 +168,10 @@ def _settling() -> list[dict]:
     """The touch controller's settling time (no touch sensor) over noise draws: a finger resting
     from the start and one landing at 20 ms, on the bump and the sinc."""
     out = []
-    jobs = [(case, scenario, seed) for case in list(CASES)[:2] for scenario in ("rests", "lands at 20 ms")
-            for seed in SEEDS]
+    cases = {case: _setup(*CASES[case]) for case in list(CASES)[:2]}
+    jobs = [(case, scenario, seed) for case in cases for scenario in ("rests", "lands at 20 ms") for seed in SEEDS]
     for case, scenario, seed in tqdm(jobs, desc="finger settling", unit="shot"):
-        model, target, peak = _setup(*CASES[case])
+        model, target, peak = cases[case]
         p = Perturbation(finger_at=peak, snr_db=SNR, seed=seed, **{"finger": 1.0, **SCENARIOS[scenario]})
         row = _shot(model, target, "touch", p, {})
         out.append({"case": case, "scenario": scenario, "seed": seed, "tau": row["tau"],

@@ -189,9 +189,10 @@ class TouchEstimator:
             self._row = None
             return TouchEstimate(0.0, np.inf, None, 0.0)
         q = self._row = self.q[row]
-        j, floor = self._agreeing(q)
+        nums, dens = self._rr @ q, self._s @ q ** 2  # per memory (m,)
+        j, floor = self._agreeing(nums, dens)
         self._chosen = j
-        num, den = q @ self._rr[j], q ** 2 @ self._s[j]
+        num, den = nums[j], dens[j]
         index, memory = int(self.candidates[row]), float(self.memories[j])
         if not (den > 0 and num < 0):  # nothing damps the modes there now
             return TouchEstimate(0.0, self._stderr(j, den, 0.0), index, 0.0, memory=memory)
@@ -212,12 +213,12 @@ class TouchEstimator:
         each = np.sum(np.divide(rr ** 2, s, out=np.zeros_like(s), where=s > 0))
         return float(min(explained / each, 1.0)) if each > 0 else 0.0
 
-    def _agreeing(self, q: np.ndarray) -> tuple[int, float]:
-        """The longest memory whose damping at the place ``q`` lies within ``AGREE`` standard errors
-        of every shorter memory's (Lepski's rule): a touch that changed shows in the short memories
-        first, and the long ones that still remember the old touch fall outside them. Returns its
-        index and the least damping any memory up to it is sure of (N s/m; ``c - SURE * stderr``)."""
-        nums, dens = self._rr @ q, self._s @ q ** 2  # (m,)
+    def _agreeing(self, nums: np.ndarray, dens: np.ndarray) -> tuple[int, float]:
+        """The longest memory whose damping at the place (``-nums / dens``, one per memory) lies
+        within ``AGREE`` standard errors of every shorter memory's (Lepski's rule): a touch that
+        changed shows in the short memories first, and the long ones that still remember the old
+        touch fall outside them. Returns its index and the least damping any memory up to it is sure
+        of (N s/m; ``c - SURE * stderr``)."""
         read = dens > 0
         damping = np.where(read, -nums / np.where(read, dens, 1), np.nan)
         half = np.array([AGREE * self._stderr(j, den, num ** 2 / den) if ok else np.inf
@@ -243,21 +244,25 @@ class TouchEstimator:
         best = int(np.argmax(explained)) if explained.max() > 0 else int(np.argmax(den))
         last = self._last_place
         if last is not None and explained[best] > 0:
-            samples = self._n[j] * np.count_nonzero(self.readable)
-            variance = max(float(np.sum(self._e[j])) - explained[best], 0.0) / max(samples - 1, 1)
-            if explained[best] - explained[last] <= PLACE_EVIDENCE * variance:
+            if explained[best] - explained[last] <= PLACE_EVIDENCE * self._variance(j, explained[best]):
                 best = last
         self._last_place = best
         return best
 
+    def _samples(self, j: int) -> float:
+        """The weighted count of complex residuals memory ``j`` holds (periods times readable modes)."""
+        return self._n[j] * np.count_nonzero(self.readable)
+
+    def _variance(self, j: int, explained: float) -> float:
+        """Residual variance per complex sample in memory ``j`` once ``explained`` is taken out."""
+        return max(float(np.sum(self._e[j])) - explained, 0.0) / max(self._samples(j) - 1, 1)
+
     def _stderr(self, j: int, den: float, explained: float) -> float:
         """Standard error of the damping (N s/m) read with memory ``j``: the residual variance per
         complex sample over twice ``den``."""
-        samples = self._n[j] * np.count_nonzero(self.readable)
-        if samples <= 1 or not den > 0:
+        if self._samples(j) <= 1 or not den > 0:
             return np.inf
-        residual = max(float(np.sum(self._e[j])) - explained, 0.0) / (samples - 1)
-        return float(np.sqrt(residual / (2 * den)))
+        return float(np.sqrt(self._variance(j, explained) / (2 * den)))
 
     def added_decay(self) -> np.ndarray:
         """Each kept mode's decay rate (1/s) the touch surely adds, shape (k,): ``sure * q_k(x0)``."""
