@@ -1,0 +1,379 @@
+"""The convex planner's quadratic program: :class:`Program` (the equalities at T_F, the margin,
+voltage and slew rows found by constraint generation on the exact plant, the robust band's drifted
+copies, and the bisection to the smallest reachable ratio) and what it finds, :class:`Solution`.
+The method's notes: :mod:`modalctl.plan.convex`; its columns: :mod:`.convex_basis`; its solvers:
+:mod:`.qp`."""
+
+from __future__ import annotations
+
+import time as _time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from modalctl.model.modes import ModalModel
+from modalctl.model.propagate import Plant
+from modalctl.options import PlanOptions
+
+from .convex_basis import Basis, Responses
+from .dispatch import dispatch
+from .qp import QP, solve_qp
+
+__all__ = ["Program", "Solution"]
+
+CHUNK = 2048  # samples of the field scanned at once (the whole shot's field at once is hundreds of MB)
+
+
+@dataclass
+class Solution:
+    """What the program found.
+
+    Attributes
+    ----------
+    x : ndarray
+        The columns (volt-scaled).
+    ratio : float
+        Whole-model margin ratio on every off-target point and DAC sample (of the nominal model).
+    robust_ratios : list of float
+        The same on each drifted copy, over its own focus peak.
+    peak_voltage, peak_slew : float
+        V, V/s over every sample.
+    rounds, rows : int
+        Constraint-generation rounds; rows in the last program.
+    seconds : dict
+        ``tables``, ``solve``, ``check``, ``rows``, ``total``.
+    status : str
+    history : list of dict
+    """
+
+    x: np.ndarray
+    ratio: float
+    robust_ratios: list
+    peak_voltage: float
+    peak_slew: float
+    rounds: int
+    rows: int
+    seconds: dict
+    status: str
+    history: list = field(default_factory=list)
+
+    def holds(self, margin: float, options: PlanOptions) -> bool:
+        """Solved, and within ``margin`` on every plant and within the voltage and slew limits on
+        every sample."""
+        within = [(self.peak_voltage, options.voltage_limit), (self.peak_slew, options.slew_limit)]
+        return (self.status == "optimal" and max([self.ratio, *self.robust_ratios]) <= margin * (1 + 1e-4)
+                and all(limit is None or value <= limit * (1 + 1e-9) for value, limit in within))
+
+
+@dataclass
+class _Rows:
+    """The program's inequality rows ``lower <= A x <= upper``, and what each stands for."""
+
+    a: list = field(default_factory=list)
+    lower: list = field(default_factory=list)
+    upper: list = field(default_factory=list)
+    keys: set = field(default_factory=set)
+
+    def add(self, key, row: np.ndarray, lower: float, upper: float) -> None:
+        if key in self.keys:
+            return
+        self.keys.add(key)
+        self.a.append(row)
+        self.lower.append(lower)
+        self.upper.append(upper)
+
+    def __len__(self):
+        return len(self.a)
+
+
+class Program:
+    """The quadratic program of one focus, solved by constraint generation (see :mod:`modalctl.plan.convex`).
+
+    Parameters
+    ----------
+    model : ModalModel
+        The planned model (every mode it knows).
+    modes, targets : ndarray, shape (m,)
+        Kept modes (positional) and their velocities at T_F (m/s sqrt(kg)).
+    target_mask : ndarray of bool, shape (n,)
+    focus_time : float
+    options : PlanOptions
+    offset : ndarray, shape (a, N), or None
+        Voltages the program corrects (the drive is ``offset`` plus the basis's); None: the basis
+        is the whole drive.
+    """
+
+    def __init__(self, model: ModalModel, modes, targets, target_mask, focus_time: float, options: PlanOptions,
+                 offset: np.ndarray | None = None):
+        tic = _time.perf_counter()
+        self.model, self.options = model, options
+        self.margin = np.inf if options.margin is None else float(options.margin)  # none: no margin rows
+        self.modes, self.targets = np.asarray(modes, int), np.asarray(targets, float)
+        self.focus_time, self.fs = float(focus_time), float(options.sample_rate)
+        self.samples = int(round((focus_time + options.after) * self.fs))
+        self.focus = int(round(focus_time * self.fs))
+        weights = dispatch(model, self.modes, np.ones(self.modes.size))
+        self.basis = Basis.build(model.omega[self.modes], weights, self.samples, self.focus, self.fs, options.convex)
+        self.outside = np.flatnonzero(~np.asarray(target_mask, bool))
+        velocity = np.zeros(model.n_modes)
+        velocity[self.modes] = self.targets
+        self.velocity_at_focus = velocity  # every mode's: the kept modes' targets, zero for the others
+        self.focus_field = model.shapes.T @ velocity
+        self.peak = float(np.max(np.abs(self.focus_field)))
+        self.peak_point = int(np.argmax(np.abs(self.focus_field)))
+        outside = self.focus_field[~np.asarray(target_mask, bool)]
+        lobes = float(np.abs(outside).max()) / self.peak if outside.size else 0.0
+        if options.convex.leak is not None:  # the left-out modes' own share at T_F, at most
+            lobes -= options.convex.leak * (model.n_modes - self.modes.size)
+        self.focus_lobes = max(lobes, 0.0)  # every drive's ratio is at least this
+        self.plants = [model] + [_drifted(model, s) for s in _drifts(options.robust_drift)]
+        self.responses = [Responses(m, self.basis, self.fs, self.focus_time) for m in self.plants]
+        self.offset = None if offset is None else np.asarray(offset, float)[:, :self.samples]
+        driven = [r.driven(self.offset) for r in self.responses] if offset is not None else None
+        self.offset_velocity = None if driven is None else [v for v, _ in driven]  # (K, N + 1) per plant
+        self.offset_displacement = None if driven is None else driven[0][1][:, self.focus]
+        self.seconds = {"tables": _time.perf_counter() - tic, "solve": 0.0, "check": 0.0, "rows": 0.0}
+        self.cuts = {}  # every margin row found so far, per unit margin: later solves start from them
+        self.cut_offsets = {}  # the offset's part of each, in the same units
+        self.limit_cuts = {}  # and every voltage and slew row
+        self.limit_offsets = {}
+
+    # -- rows ------------------------------------------------------------------------------------
+    def equality(self) -> tuple[np.ndarray, np.ndarray]:
+        """``A x = b``: the kept modes' velocity at T_F (their targets) and displacement (times
+        their resonance, in velocity units) zero, and, without a ``leak``, every other mode's
+        velocity zero; rows scaled by the largest target."""
+        nominal = self.responses[0]
+        scale = np.max(np.abs(self.targets))
+        still = self._still()
+        displacement = nominal.displacement(self.focus)[self.modes] * self.model.omega[self.modes, None]
+        a = np.vstack([nominal.velocity(self.focus)[still], displacement]) / scale
+        b = np.r_[self.velocity_at_focus[still], np.zeros(self.modes.size)] / scale
+        if self.offset is not None:  # what the offset already does at T_F
+            b = b - np.r_[self.offset_velocity[0][still, self.focus],
+                          self.offset_displacement[self.modes] * self.model.omega[self.modes]] / scale
+        return a, b
+
+    def _offset(self, plant: int, weights: np.ndarray, n: int) -> float:
+        """``weights @`` the offset's modal velocity on ``plant`` at sample ``n`` (0 without one)."""
+        return 0.0 if self.offset is None else float(weights @ self.offset_velocity[plant][:, n])
+
+    def _add_margin_row(self, rows: _Rows, key, margin: float) -> None:
+        """The cut ``key`` as the row ``|cut x + its offset| <= aim margin`` (units of the bound)."""
+        scale = self.options.convex.aim * margin
+        shift = self.cut_offsets.get(key, 0.0) / scale
+        rows.add(key, self.cuts[key] / scale, -1.0 - shift, 1.0 - shift)
+
+    def _add_limit_row(self, rows: _Rows, key) -> None:
+        shift = self.limit_offsets.get(key, 0.0)
+        rows.add(key, self.limit_cuts[key], -1.0 - shift, 1.0 - shift)
+
+    def _fixed_rows(self, rows: _Rows) -> None:
+        """The rows every round has: with a ``leak``, each left-out mode's share of the field at T_F
+        within it; with a robust band, each drifted copy still reaching ``robust_focus`` of the
+        focus at the target's peak."""
+        opts = self.options.convex
+        if opts.leak is not None:
+            left = np.setdiff1d(np.arange(self.model.n_modes), self.modes)
+            reach = np.abs(self.model.shapes[left]).max(axis=1)
+            scale = reach / (opts.leak * self.peak)
+            velocity = self.responses[0].velocity(self.focus)[left] * scale[:, None]
+            fixed = 0.0 if self.offset is None else self.offset_velocity[0][left, self.focus] * scale
+            for k, row, shift in zip(left, velocity, np.broadcast_to(fixed, left.shape)):
+                rows.add(("leak", int(k)), row, -1.0 - shift, 1.0 - shift)
+        sign = np.sign(self.focus_field[self.peak_point])
+        for s, responses in enumerate(self.responses[1:], start=1):
+            weights = sign * self.model.shapes[:, self.peak_point] / (opts.robust_focus * self.peak)
+            row = weights @ responses.velocity(self.focus)
+            rows.add(("floor", s), row, 1.0 - self._offset(s, weights, self.focus), np.inf)
+
+    def _margin_bound(self, plant: int, margin: float) -> float:
+        """The off-target bound on ``plant``: ``margin`` of the focus peak (of its floor, drifted)."""
+        share = 1.0 if plant == 0 else self.options.convex.robust_focus
+        return margin * self.peak * share
+
+    # -- the check ---------------------------------------------------------------------------------
+    def play(self, x: np.ndarray) -> tuple[np.ndarray, list]:
+        """The drive's voltages (a, N) and every plant's modal velocities (K, N) on it."""
+        volts = self.correction(x) if self.offset is None else self.offset + self.correction(x)
+        return volts, [Plant(m, self.fs).simulate(volts) for m in self.plants]
+
+    def correction(self, x: np.ndarray) -> np.ndarray:
+        """The basis's voltages (a, N) for the columns ``x``: the whole drive, or what the program
+        adds to its offset."""
+        drive = self.basis.drive(x, self.focus_time, self.fs)
+        t = np.arange(self.samples) / self.fs + 0.5 / self.fs
+        return self.basis.weights @ drive.forces(t) + drive.channels(t, self.basis.weights.shape[0])
+
+    def off_target(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
+        """The largest off-target |w| at every sample, shape (N,), exactly wherever it may exceed
+        ``floor``: elsewhere (where ``sum_k max_x |phi_k(x)| |eta'_k|``, an upper bound, does not)
+        that bound stands in for it."""
+        shapes = self.model.shapes[:, self.outside]
+        top = np.abs(velocity).T @ np.abs(shapes).max(axis=1)  # the bound, every sample
+        near = np.flatnonzero(top > floor)
+        for start in range(0, near.size, CHUNK):
+            n = near[start:start + CHUNK]
+            top[n] = np.abs(shapes.T @ velocity[:, n]).max(axis=0)
+        return top
+
+    def _new_margin_rows(self, rows: _Rows, velocities: list, tops: list, margin: float) -> int:
+        """Rows ``|w| <= aim * bound`` at every lobe above it, at each time-local peak above it, on
+        every plant; returns how many were added (each is also kept in :attr:`cuts`)."""
+        aim = self.options.convex.aim
+        added = 0
+        shapes = self.model.shapes[:, self.outside]
+        for s, (velocity, top) in enumerate(zip(velocities, tops)):
+            bound = self._margin_bound(s, margin)
+            peaks = _local_peaks(top)
+            over = peaks[top[peaks] > aim * bound]
+            if over.size == 0:
+                continue
+            fields = np.abs(shapes.T @ velocity[:, over])  # (n_out, peaks)
+            for c, n in enumerate(over):
+                lobes = _local_peaks(fields[:, c])
+                lobes = lobes[fields[lobes, c] > aim * bound]
+                if lobes.size == 0:
+                    lobes = np.array([int(np.argmax(fields[:, c]))])
+                velocity_rows = self.responses[s].velocity(int(n))
+                for i in lobes:
+                    key = (s, int(i), int(n))
+                    if key in rows.keys:
+                        continue
+                    self.cuts[key] = shapes[:, i] @ velocity_rows / self._margin_bound(s, 1.0)
+                    self.cut_offsets[key] = self._offset(s, shapes[:, i], int(n)) / self._margin_bound(s, 1.0)
+                    self._add_margin_row(rows, key, margin)
+                    added += 1
+        return added
+
+    def _new_limit_rows(self, rows: _Rows, volts: np.ndarray) -> int:
+        """Voltage and slew rows at the time-local peaks that break the limits; returns how many."""
+        opts, aim = self.options, self.options.convex.aim
+        added = 0
+        checks = []
+        if opts.voltage_limit is not None:
+            checks.append(("volts", np.abs(volts), opts.voltage_limit, 0))
+        if opts.slew_limit is not None:
+            checks.append(("slew", np.abs(np.diff(volts, axis=1)), opts.slew_limit / self.fs, 1))
+        for kind, size, limit, step in checks:
+            top = size.max(axis=0)
+            peaks = _local_peaks(top)
+            for n in peaks[top[peaks] > limit]:
+                channel = int(np.argmax(size[:, n]))
+                row = self.basis.voltage_rows(channel, np.array([n + step]), self.fs, self.focus_time)[0]
+                fixed = 0.0 if self.offset is None else self.offset[channel, n + step]
+                if step:
+                    row = row - self.basis.voltage_rows(channel, np.array([n]), self.fs, self.focus_time)[0]
+                    fixed -= 0.0 if self.offset is None else self.offset[channel, n]
+                key = (kind, channel, int(n))
+                if key not in rows.keys:
+                    self.limit_cuts[key] = row / (aim * limit)
+                    self.limit_offsets[key] = fixed / (aim * limit)
+                    self._add_limit_row(rows, key)
+                    added += 1
+        return added
+
+    # -- the solve ---------------------------------------------------------------------------------
+    def solve(self, margin: float | None = None) -> Solution:
+        """The least-energy drive under ``margin`` (default: the options'; inf: none) and the
+        limits, by constraint generation from every row an earlier solve found. Returns the last
+        iterate and how far it got."""
+        opts = self.options.convex
+        margin = self.margin if margin is None else float(margin)
+        start = _time.perf_counter()
+        a_eq, b_eq = self.equality()
+        rows = _Rows()
+        self._fixed_rows(rows)
+        for key in self.cuts if np.isfinite(margin) else ():  # true of every program of this focus:
+            self._add_margin_row(rows, key, margin)  # start from them
+        for key in self.limit_cuts:
+            self._add_limit_row(rows, key)
+        qp = QP(self.basis.energy(self.fs), np.zeros(self.basis.size), a_eq, b_eq, rows)
+        bound = opts.energy_bound * self.focus_energy(qp)
+        history, status, x, duals = [], "not solved", np.zeros(self.basis.size), None
+        for round_ in range(1, opts.rounds + 1):
+            tic = _time.perf_counter()
+            x, status, duals = solve_qp(opts.solver, qp, bound, duals)
+            self.seconds["solve"] += _time.perf_counter() - tic
+            if status != "optimal":
+                break
+            tic = _time.perf_counter()
+            volts, velocities = self.play(x)
+            tops = [self.off_target(v, 0.5 * opts.aim * self._margin_bound(s, margin))
+                    for s, v in enumerate(velocities)]
+            ratios = [float(top.max()) / self._margin_bound(s, 1.0) for s, top in enumerate(tops)]
+            self.seconds["check"] += _time.perf_counter() - tic
+            history.append({"round": round_, "ratio": ratios[0], "peak_voltage": float(np.abs(volts).max()),
+                            "rows": len(rows)})
+            tic = _time.perf_counter()
+            within = self._new_limit_rows(rows, volts) == 0
+            if max(ratios) <= margin and within:
+                break
+            self._new_margin_rows(rows, velocities, tops, margin)
+            self.seconds["rows"] += _time.perf_counter() - tic
+        return self._solution(x, status, history, len(rows), start)
+
+    def focus_energy(self, qp: QP) -> float:
+        """The least energy of the focus alone on the basis (the scale of ``energy_bound``): with an
+        offset, of the whole drive, not of a correction the offset may almost spare."""
+        if self.offset is None:
+            return qp.least_energy()
+        whole = np.r_[self.velocity_at_focus[self._still()], np.zeros(self.modes.size)] / np.max(np.abs(self.targets))
+        return replace(qp, b_eq=whole).least_energy()
+
+    def _still(self) -> np.ndarray:
+        """The modes whose velocity at T_F the equalities fix: every one, or the kept ones with a leak."""
+        return np.arange(self.model.n_modes) if self.options.convex.leak is None else self.modes
+
+    def _solution(self, x, status, history, rows, start) -> Solution:
+        volts, velocities = self.play(x)
+        peaks = [float(np.max(np.abs(self.model.shapes.T @ v[:, self.focus]))) for v in velocities]
+        ratios = [float(self.off_target(v, 0.25 * p).max()) / p if p > 0 else np.inf
+                  for v, p in zip(velocities, peaks)]  # each plant's ratio over its own focus peak
+        self.seconds["total"] = _time.perf_counter() - start + self.seconds["tables"]
+        slew = float(np.abs(np.diff(volts, axis=1)).max() * self.fs) if volts.shape[1] > 1 else 0.0
+        return Solution(x, ratios[0], ratios[1:], float(np.abs(volts).max()), slew, len(history), rows,
+                        dict(self.seconds), status, history)
+
+    def smallest_ratio(self, low: float, rel_tol: float = 0.01,
+                       progress: bool = False) -> tuple[Solution | None, float]:
+        """The smallest margin a drive within the limits (and ``energy_bound``) holds, by bisection
+        on the margin program from ``low`` (refused there) to the least-energy drive's own ratio.
+        Returns that drive's solution (None when no drive reaches the focus within the limits)
+        and the largest margin refused. ``progress``: a bar over the bisection's programs."""
+        free = self.solve(np.inf)
+        if not free.holds(np.inf, self.options):
+            return None, low
+        best, high = free, max([free.ratio, *free.robust_ratios])
+        steps = max(0, int(np.ceil(np.log2(max(high - low, 1e-300) / (rel_tol * high)))))
+        with tqdm(total=steps, desc="margin refused: the smallest ratio", unit="program", disable=not progress,
+                  leave=False) as bar:
+            while high - low > rel_tol * high:
+                middle = 0.5 * (low + high)
+                found = self.solve(middle)
+                if found.holds(middle, self.options):
+                    best, high = found, min(middle, max([found.ratio, *found.robust_ratios]))
+                else:
+                    low = middle
+                bar.set_postfix_str(f"{low:.3f} refused, {high:.3f} held")
+                bar.update()
+        return best, min(low, high)
+
+
+def _drifts(band: float) -> list:
+    """The drifted copies the robust margin holds on: both edges of the band and its middle points."""
+    return [] if not band else [-band, -band / 2, band / 2, band]
+
+
+def _drifted(model: ModalModel, shift: float) -> ModalModel:
+    return replace(model, frequencies=model.frequencies * (1 + shift))
+
+
+def _local_peaks(values: np.ndarray) -> np.ndarray:
+    """Indices of the local maxima of ``values`` (1-D), its ends included."""
+    if values.size < 3:
+        return np.arange(values.size)
+    inner = np.flatnonzero((values[1:-1] >= values[:-2]) & (values[1:-1] >= values[2:])) + 1
+    ends = [i for i, ok in ((0, values[0] >= values[1]), (values.size - 1, values[-1] >= values[-2])) if ok]
+    return np.union1d(inner, ends).astype(int)
