@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 __all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ROBUST_DRIFT_MAX", "ConvexOptions", "PlanOptions",
            "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
@@ -117,8 +118,8 @@ class PlanOptions(_Options):
 
     Attributes
     ----------
-    planner : str
-        Planner plugin: ``convex`` (the least-energy drive under the margin on every sample of the
+    planner : str or modalctl.plan.planner.Planner
+        A planner object, or the name of an installed one: ``convex`` (the least-energy drive under the margin on every sample of the
         whole model: ``benchmarks/margin_planner.py``) or ``envelope`` (the thesis's method).
     modes : "auto", "all", int or tuple of int
         ``"auto"``: the smallest set meeting ``tau_min`` (more modes are added, up to
@@ -167,7 +168,7 @@ class PlanOptions(_Options):
     convex : ConvexOptions
     """
 
-    planner: str = "convex"
+    planner: str | Any = "convex"
     modes: str | int | tuple = "auto"
     tau_min: float = DEFAULT_TAU
     added_modes: int = 4
@@ -209,8 +210,9 @@ class LoopOptions(_Options):
     ----------
     control_rate : float
         Loop rate (Hz); it must divide the DAC rate.
-    controller : str
-        Controller plugin (``pi``, ``lqg`` or a third party's).
+    controller : str or modalctl.loops.controller.ControllerFactory
+        A controller factory, or the name of an installed one (``pi``, ``lqg``, ``touch`` or a third
+        party's).
     on_board : bool
         Load the loops into the board, which closes them itself (no exchange per period, so no
         link budget), instead of one exchange with the host per period.
@@ -258,7 +260,7 @@ class LoopOptions(_Options):
     """
 
     control_rate: float = 20e3
-    controller: str = "pi"
+    controller: str | Any = "pi"
     on_board: bool = False
     authority: float = 2.0
     latency: int = 0
@@ -301,6 +303,9 @@ class RunOptions(_Options):
         beside it, ``<log>-learning``).
     progress : bool
         Progress bars on long work.
+    tracker : str or modalctl.identify.trackers.TrackerFactory
+        What follows the poles in a learning shot from a tracker: a tracker factory, or the name of
+        an installed one (``pole``).
     """
 
     focus_time: float
@@ -309,6 +314,7 @@ class RunOptions(_Options):
     learn: str | None = None
     log: Path | None = None
     progress: bool = False
+    tracker: str | Any = "pole"
 
     @property
     def planned(self) -> PlanOptions:
@@ -345,8 +351,8 @@ class SurveyOptions(_Options):
 
     Attributes
     ----------
-    method : str
-        Identifier plugin (``auto``, ``sdof``, ``mdof``, ``peaks`` or a third party's). ``auto``
+    method : str or modalctl.identify.estimators.Identifier
+        An identifier object, or the name of an installed one (``auto``, ``sdof``, ``mdof``, ``peaks`` or a third party's). ``auto``
         by default: it is ``sdof`` wherever one pole explains a peak and finds close modes
         (plate-glass's 11 and 12) where ``sdof`` reports them (benchmarks/identify_accuracy.py).
     primary : int
@@ -364,7 +370,7 @@ class SurveyOptions(_Options):
         See ``primary``.
     """
 
-    method: str = "auto"
+    method: str | Any = "auto"
     primary: int = 0
     sparse: int = 5
     averages: int = 2

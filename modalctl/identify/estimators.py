@@ -14,8 +14,8 @@ then mass normalization).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 import scipy.optimize
@@ -141,20 +141,22 @@ class BandFit:
         return not self.reason
 
 
-@dataclass(frozen=True)
-class Identifier:
-    """A modal parameter estimator, as plugins provide them (hook ``modalctl_identifiers``).
+class Identifier(ABC):
+    """A modal parameter estimator, as plugins provide them (hook ``modalctl_identifiers``): a
+    subclass names itself and finds the modes in measured FRFs.
 
     Attributes
     ----------
     name, summary : str
-    identify : callable
-        ``identify(frf, threshold_db=3.0) -> Modes``; ``frf`` may stack several actuators' rows.
     """
 
-    name: str
-    summary: str
-    identify: Callable[..., "Modes"]
+    name: str = ""
+    summary: str = ""
+
+    @abstractmethod
+    def identify(self, frf: FRF, threshold_db: float = 3.0) -> "Modes":
+        """The modes of ``frf`` (its rows may stack several actuators'): poles, modal constants per
+        row, misfit and whether each is resolved; ``threshold_db`` is the peaks' prominence."""
 
 
 def pole_basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -> np.ndarray:

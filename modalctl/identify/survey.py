@@ -20,7 +20,7 @@ from modalctl.io.device import Device
 from modalctl.model.modes import Grid, ModalModel
 from modalctl.model.projection import crosstalk, orthonormalize_model
 from modalctl.options import SurveyOptions
-from modalctl.plugin.manager import get_identifier
+from modalctl.plugin.manager import pick
 
 from .acquire import measure_frf
 from .estimators import Modes, actuator_gains, constants_of, to_model
@@ -96,7 +96,7 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     wavelength : float, optional
         Shortest bending wavelength in the band (m) for the spatial-step check (Eq 3.15).
     """
-    identifier = get_identifier(options.method)
+    identifier = pick("identifier", options.method)
     primary, sparse, averages = options.primary, options.sparse, options.averages
     caps = device.configure(sweep.sample_rate)
     if not 0 <= primary < caps.channels:
@@ -172,7 +172,7 @@ def identify_frf(frf: FRF, density: float, method: str = SurveyOptions.method, o
     """A model from measured FRFs of one actuator (e.g. read from UFF 58), on a beam (``density``
     in kg/m) or a plate (kg/m^2); what was done to the data on the way in is in the notes."""
     start = time.perf_counter()
-    poles = get_identifier(method).identify(frf, threshold_db=threshold_db)
+    poles = pick("identifier", method).identify(frf, threshold_db=threshold_db)
     model = to_model(poles, Grid.measured(frf.points, density), 1, source="identified from measured FRFs")
     model = actuator_gains(model, frf, np.arange(frf.values.shape[0]))
     before = crosstalk(model.shapes, model.grid.mass)

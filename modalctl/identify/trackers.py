@@ -17,6 +17,7 @@ from: estimates frozen) or lost (the model no longer explains the response).
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,22 +28,23 @@ __all__ = ["RLSTracker", "PoleTracker", "TrackerTuning", "updated_model", "TRACK
 TRACKING, UNEXCITED, LOST = "tracking", "unexcited", "lost"
 
 
-@dataclass(frozen=True)
-class TrackerFactory:
-    """A tracker as plugins provide them (hook ``modalctl_trackers``).
+class TrackerFactory(ABC):
+    """An online tracker as plugins provide them (hook ``modalctl_trackers``): a subclass names
+    itself and makes a tracker of the given modes.
 
     Attributes
     ----------
     name, summary : str
-    create : callable
-        ``create(frequencies, damping, control_rate, **options)`` returning an object with
-        ``update(response, drive)``, ``frequencies``, ``damping``, ``carriers`` and ``status``
-        (see :class:`RLSTracker`).
     """
 
-    name: str
-    summary: str
-    create: object
+    name: str = ""
+    summary: str = ""
+
+    @abstractmethod
+    def create(self, frequencies, damping, control_rate: float, **options):
+        """A tracker of modes at ``frequencies`` (Hz) with ``damping`` (ratios), shape (k,), updated at
+        ``control_rate`` (Hz): an object with ``update(response, drive)``, ``frequencies``,
+        ``damping``, ``carriers`` and ``status`` per mode (see :class:`RLSTracker`)."""
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Callable
-
 import numpy as np
 
 __all__ = ["Controller", "ControllerFactory", "LoopPlant", "LoopDesign"]
@@ -103,20 +101,21 @@ class Controller(ABC):
         return None
 
 
-@dataclass(frozen=True)
-class ControllerFactory:
-    """A per-mode controller as plugins provide them (hook ``modalctl_controllers``).
+class ControllerFactory(ABC):
+    """A per-mode controller as plugins provide them (hook ``modalctl_controllers``): a subclass
+    names itself and makes a :class:`Controller` for a plant.
 
     Attributes
     ----------
     name, summary : str
-    create : callable
-        ``create(plant: LoopPlant, **options) -> Controller``.
     """
 
-    name: str
-    summary: str
-    create: Callable[..., Controller]
+    name: str = ""
+    summary: str = ""
+
+    @abstractmethod
+    def create(self, plant: LoopPlant, **options) -> Controller:
+        """The controller of ``plant``'s modes; ``options`` are the controller's own settings."""
 
 
 @dataclass(frozen=True)

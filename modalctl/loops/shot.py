@@ -20,7 +20,7 @@ import numpy as np
 from modalctl.model.modes import ModalModel
 from modalctl.model.touch import touch_at
 from modalctl.options import LoopOptions
-from modalctl.plugin.manager import get_controller
+from modalctl.plugin.manager import pick
 
 from .controller import LoopPlant
 from .lockin import lockin_bandwidths
@@ -74,7 +74,7 @@ def parts_for(s: Schedule, model: ModalModel, modes, options: LoopOptions, sigma
     plant = LoopPlant(model.frequencies[modes], model.damping[modes], s.bandwidths, s.control_rate,
                       1 + options.latency, noise, level, options.drift, schedule=s, shapes=model.shapes[modes],
                       points=model.grid.points, touch_at=sensed, readable=readable)
-    loops = get_controller(options.controller).create(plant)
+    loops = pick("controller", options.controller).create(plant)
     excess, spread = np.abs(s.own) - 3 * noise[:, None], 7 * noise[:, None]
     trust = np.clip(np.divide(excess, spread, out=(excess > 0).astype(float), where=spread > 0), 0, 1)  # no noise: 1
     trust *= readable[:, None]

@@ -8,7 +8,8 @@ A shape generator is any object with ``name``, ``summary``, ``params`` (a tuple 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from abc import ABC, abstractmethod
+from typing import Any
 
 import numpy as np
 
@@ -84,13 +85,22 @@ class Param:
         return parse_quantity(raw, self.unit, self.name)
 
 
-class ShapeGenerator(Protocol):
-    """Interface of shape generator plugins."""
+class ShapeGenerator(ABC):
+    """A shape generator, as plugins provide them (hook ``modalctl_shapes``): a subclass names
+    itself, lists its typed parameters and draws its field.
+
+    Attributes
+    ----------
+    name, summary : str
+    params : tuple of Param
+        What ``generate`` accepts, with units and defaults (parsed by :func:`parse_params`).
+    """
 
     name: str
     summary: str
-    params: tuple[Param, ...]
+    params: tuple[Param, ...] = ()
 
+    @abstractmethod
     def generate(self, grid: Grid, **params) -> Shape:
         """Target field and mask on ``grid`` for SI parameter values."""
 

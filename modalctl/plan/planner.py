@@ -25,7 +25,7 @@ from modalctl.model.projection import reconstruct
 from modalctl.model.propagate import Plant
 from modalctl.model.shape import Shape
 from modalctl.options import PlanOptions
-from modalctl.plugin.manager import get_planner
+from modalctl.plugin.manager import pick
 
 from .decompose import Decomposition, decompose
 from .dispatch import DecouplingWarning
@@ -218,13 +218,13 @@ class Planner(ABC):
 
 def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptions(),
          progress: bool = False) -> Plan:
-    """Plan with the planner ``options.planner`` names (see :class:`Planner`)."""
+    """Plan with the planner ``options.planner`` is or names (see :class:`Planner`)."""
     if not focus_time > 0:
         raise PlanError(f"focus time must be positive, got {focus_time!r} s")
     top = np.max(dec.model.frequencies[dec.modes_used])
     if not options.sample_rate > 2 * top:
         raise PlanError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz)")
-    return get_planner(options.planner).plan(dec, focus_time, options, progress)
+    return pick("planner", options.planner).plan(dec, focus_time, options, progress)
 
 
 def min_focus_time(dec: Decomposition, options: PlanOptions, lower: float = 1e-3, upper: float = 0.2,
@@ -235,7 +235,7 @@ def min_focus_time(dec: Decomposition, options: PlanOptions, lower: float = 1e-3
 
     Returns the focus time (s) and its plan; raises :class:`PlanError` when even ``upper`` fails.
     """
-    planner = get_planner(options.planner)
+    planner = pick("planner", options.planner)
     if not planner.feasible(dec, upper, options):
         raise PlanError(f"no focus time up to {upper * 1e3:g} ms meets the limits")
     lo, hi = lower, upper

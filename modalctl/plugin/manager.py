@@ -15,7 +15,8 @@ from modalctl.model.shape import ShapeGenerator
 from . import spec as hookspecs
 
 __all__ = ["PluginError", "plugin_manager", "shape_generators", "get_shape", "planners", "get_planner",
-           "identifiers", "get_identifier", "trackers", "get_tracker", "controllers", "get_controller", "plugin_table"]
+           "identifiers", "get_identifier", "trackers", "get_tracker", "controllers", "get_controller", "plugin_table",
+           "pick", "name_of"]
 
 ENTRY_POINT_GROUP = "modalctl"
 
@@ -97,6 +98,29 @@ def controllers(manager: pluggy.PluginManager | None = None) -> dict:
 def get_controller(name: str, manager: pluggy.PluginManager | None = None):
     """The controller called ``name``; the error lists the installed ones."""
     return _pick(controllers(manager), name, "controller")
+
+
+_FAMILIES = {"shape": shape_generators, "planner": planners, "identifier": identifiers, "tracker": trackers,
+             "controller": controllers}
+
+
+def pick(kind: str, choice, manager: pluggy.PluginManager | None = None):
+    """The plugin object ``choice`` stands for: itself when it is an object (a planner, controller...
+    a caller made), else the installed ``kind`` of that name (``kind``: shape, planner,
+    identifier, tracker or controller). Names are resolved here, at the edge; the core calls objects."""
+    if not isinstance(choice, str):
+        return choice
+    if kind not in _FAMILIES:
+        raise ValueError(f"unknown plugin family {kind!r}; known: {', '.join(_FAMILIES)}")
+    return _pick(_FAMILIES[kind](manager), choice, kind)
+
+
+def name_of(choice) -> str:
+    """The name a plugin choice goes by in records: the name given, or the object's ``name`` (its
+    class name when it has none)."""
+    if isinstance(choice, str):
+        return choice
+    return getattr(choice, "name", "") or type(choice).__name__
 
 
 def plugin_table(manager: pluggy.PluginManager | None = None) -> list[dict]:

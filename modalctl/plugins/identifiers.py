@@ -1,5 +1,8 @@
 """First-party identifiers: offline, the thesis's peak picking, a local SDOF fit, LSCF (MDOF) and
-``auto`` (SDOF where it resolves, MDOF elsewhere); online, RLS trackers."""
+``auto`` (SDOF where it resolves, MDOF elsewhere); online, RLS trackers.
+
+Each is a subclass of its contract (:class:`~modalctl.identify.estimators.Identifier`,
+:class:`~modalctl.identify.trackers.TrackerFactory`), as a third party's would be."""
 
 from __future__ import annotations
 
@@ -9,22 +12,62 @@ from modalctl.identify.trackers import PoleTracker, RLSTracker, TrackerFactory
 from modalctl.plugin.spec import hookimpl
 
 
+class Peaks(Identifier):
+    name = "peaks"
+    summary = "peak picking on the mean FRF, half-power damping, shapes at the peaks (thesis chapter 3)"
+
+    def identify(self, frf, threshold_db=3.0):
+        return peak_picking(frf, threshold_db=threshold_db)
+
+
+class SDOF(Identifier):
+    name = "sdof"
+    summary = "peak picking refined by a local single-mode least-squares fit of all FRFs (separated modes; " \
+              "robust to noise)"
+
+    def identify(self, frf, threshold_db=3.0):
+        return sdof_fit(frf, threshold_db=threshold_db)
+
+
+class MDOF(Identifier):
+    name = "mdof"
+    summary = "LSCF stabilization over octave bands, poles picked automatically and refined, LSFD constants " \
+              "(close and heavily damped modes, shoulders)"
+
+    def identify(self, frf, threshold_db=3.0):
+        return mdof_fit(frf, threshold_db=threshold_db)
+
+
+class Auto(Identifier):
+    name = "auto"
+    summary = "sdof where one pole explains a peak, mdof everywhere else"
+
+    def identify(self, frf, threshold_db=3.0):
+        return auto_fit(frf, threshold_db=threshold_db)
+
+
+class RLS(TrackerFactory):
+    name = "rls"
+    summary = "per-mode recursive least squares on the lock-in envelopes, carriers retuned to the estimates"
+
+    def create(self, frequencies, damping, control_rate, **options):
+        return RLSTracker.create(frequencies, damping, control_rate, **options)
+
+
+class Pole(TrackerFactory):
+    name = "pole"
+    summary = "per-mode recursive least squares on the pole, gain from the model: learns from any drive, a " \
+              "focus envelope included"
+
+    def create(self, frequencies, damping, control_rate, **options):
+        return PoleTracker.create(frequencies, damping, control_rate, **options)
+
+
 @hookimpl
 def modalctl_identifiers():
-    return [
-        Identifier("peaks", "peak picking on the mean FRF, half-power damping, shapes at the peaks "
-                            "(thesis chapter 3)", peak_picking),
-        Identifier("sdof", "peak picking refined by a local single-mode least-squares fit of all FRFs "
-                           "(separated modes; robust to noise)", sdof_fit),
-        Identifier("mdof", "LSCF stabilization over octave bands, poles picked automatically and refined, "
-                           "LSFD constants (close and heavily damped modes, shoulders)", mdof_fit),
-        Identifier("auto", "sdof where one pole explains a peak, mdof everywhere else", auto_fit),
-    ]
+    return [Peaks(), SDOF(), MDOF(), Auto()]
 
 
 @hookimpl
 def modalctl_trackers():
-    return [TrackerFactory("rls", "per-mode recursive least squares on the lock-in envelopes, "
-                                  "carriers retuned to the estimates", RLSTracker.create),
-            TrackerFactory("pole", "per-mode recursive least squares on the pole, gain from the model: "
-                                   "learns from any drive, a focus envelope included", PoleTracker.create)]
+    return [RLS(), Pole()]

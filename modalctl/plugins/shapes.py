@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 from modalctl.model.modes import Grid
-from modalctl.model.shape import Param, ParamError, Shape, parse_params, tukey_window
+from modalctl.model.shape import Param, ParamError, Shape, ShapeGenerator, parse_params, tukey_window
 from modalctl.plugin.spec import hookimpl
 
 #: Relative level that defines pulse width and target zone (the thesis's 30%).
@@ -79,7 +79,7 @@ def _trapezoid(r, width, top):
 
 
 @dataclass(frozen=True)
-class Pulse:
+class Pulse(ShapeGenerator):
     """A pulse given by a profile of the distance to its centre (peak 1 at the centre)."""
 
     name: str
@@ -137,7 +137,7 @@ TRAPEZOID = Pulse("trapezoid", "flat top with linear flanks (thesis chapter 5)",
                   extra=(Param("top", "m", None, "width of the flat top (m), less than width; default width/2"),))
 
 
-class SumShape:
+class SumShape(ShapeGenerator):
     """Several shapes at once (several foci): the sum of their fields, the union of their zones."""
 
     name = "sum"
@@ -199,7 +199,7 @@ def _split_top(text: str) -> list[str]:
     return [p for p in parts if p.strip()]
 
 
-class ArrayShape:
+class ArrayShape(ShapeGenerator):
     """A field given point by point: an array, or a ``.npy`` / ``.csv`` file with one value per grid point."""
 
     name = "array"
