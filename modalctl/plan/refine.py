@@ -84,6 +84,67 @@ class Search:
     progress: bool = False
 
 
+class _Window:
+    """The search's problem: the plan's drive plus a correction over the window around T_F, played
+    on the exact plant of every mode from the window's start to the end of the shot; the p-norm of
+    its off-target field and that norm's exact gradient."""
+
+    def __init__(self, model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rate: float, target_mask,
+                 search: Search):
+        self.model = model
+        self.plant = Plant(model, sample_rate)
+        self.backward = Plant(replace(model, actuator_gains=np.eye(model.n_modes)), sample_rate)
+        self.outside = np.flatnonzero(~np.asarray(target_mask, bool))
+        self.every = model.shapes[:, self.outside]
+        self.start = max(0, focus_index - int(round(search.before * sample_rate)))
+        self.width = min(voltages.shape[1], focus_index + int(round(search.after * sample_rate))) - self.start
+        self.focus = focus_index - self.start
+        self.base = self.plant.simulate(voltages)[:, self.start:]  # every mode, from the window on
+        self.focus_field = model.shapes.T @ self.base[:, self.focus]
+        self.peak = float(np.max(np.abs(self.focus_field)))
+        self.actuators, self.tail = voltages.shape[0], self.base.shape[1]
+        self.evaluations = 0  # plant runs (forward and adjoint pairs)
+
+    def response(self, z: np.ndarray) -> np.ndarray:
+        """Every mode's velocity from the window's start on with the correction ``z`` added."""
+        drive = np.zeros((self.actuators, self.tail))
+        drive[:, :self.width] = z.reshape(self.actuators, self.width)
+        return self.base + self.plant.simulate(drive)
+
+    def ratio(self, velocity: np.ndarray, shapes: np.ndarray | None = None) -> float:
+        """The largest off-target |w| (at the points of ``shapes``, default every one) over the focus peak."""
+        shapes = self.every if shapes is None else shapes
+        return float(np.max(np.abs(shapes.T @ velocity)) / self.peak)
+
+    def focus_change(self, velocity: np.ndarray) -> float:
+        """Largest change of the field at T_F, relative to its peak."""
+        return float(np.max(np.abs(self.model.shapes.T @ velocity[:, self.focus] - self.focus_field)) / self.peak)
+
+    def objective(self, z: np.ndarray, p: int, shapes_out: np.ndarray) -> tuple[float, np.ndarray]:
+        """The p-norm of the off-target field at the points of ``shapes_out`` plus the focus's
+        penalty, and its gradient in ``z`` (the plant's transpose: the adjoint run backwards)."""
+        model, peak, focus = self.model, self.peak, self.focus
+        self.evaluations += 1
+        velocity = self.response(z)
+        off = shapes_out.T @ velocity / peak
+        size = np.abs(off)
+        top = size.max()
+        scaled = size / top
+        power = scaled.copy()
+        for _ in range(int(np.log2(p))):  # p a power of two: squarings (5x faster than ** p)
+            np.multiply(power, power, out=power)
+        total = np.sum(power)
+        norm = top * total ** (1 / p)
+        change = (model.shapes.T @ velocity[:, focus] - self.focus_field) / peak
+        with np.errstate(invalid="ignore", divide="ignore"):
+            slope = np.where(size > 0, power / scaled, 0.0) * np.sign(off)  # scaled ** (p - 1), signed
+        grad_velocity = shapes_out @ (total ** (1 / p - 1) * slope) / peak
+        grad_velocity[:, focus] += model.shapes @ (2 * PENALTY * change) / peak
+        adjoint = self.backward.simulate(grad_velocity[:, ::-1])[:, ::-1]  # the plant's transpose
+        grad = (model.actuator_gains.T @ adjoint)[:, :self.width]
+        return norm + PENALTY * float(change @ change), grad.ravel()
+
+
 def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rate: float, target_mask,
            margin: float, voltage_limit: float | None = None, search: Search = Search()) -> Refinement:
     """Find the correction of ``voltages`` (a, n) that brings the whole model's margin ratio to ``margin``.
@@ -105,65 +166,25 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
     """
     begin = _time.perf_counter()
     voltages = np.asarray(voltages, float)
-    plant = Plant(model, sample_rate)
-    backward = Plant(replace(model, actuator_gains=np.eye(model.n_modes)), sample_rate)
-    outside = np.flatnonzero(~np.asarray(target_mask, bool))
-    every = model.shapes[:, outside]
-    start = max(0, focus_index - int(round(search.before * sample_rate)))
-    width = min(voltages.shape[1], focus_index + int(round(search.after * sample_rate))) - start
-    focus = focus_index - start
-    base = plant.simulate(voltages)[:, start:]  # every mode, from the window on
-    focus_field = model.shapes.T @ base[:, focus]
-    peak = float(np.max(np.abs(focus_field)))
-    a, tail = voltages.shape[0], base.shape[1]
+    window = _Window(model, voltages, focus_index, sample_rate, target_mask, search)
+    a, start, width = window.actuators, window.start, window.width
     reach = voltage_limit if voltage_limit is not None else float(np.max(np.abs(voltages)))
     held = voltages[:, start:start + width].ravel()
     bounds = list(zip(-reach - held, reach - held))
-    count = [0]
-
-    def response(z):
-        drive = np.zeros((a, tail))
-        drive[:, :width] = z.reshape(a, width)
-        return base + plant.simulate(drive)
-
-    def ratio_of(velocity, shapes=every):
-        return float(np.max(np.abs(shapes.T @ velocity)) / peak)
-
-    def objective(z, p, shapes_out):
-        count[0] += 1
-        velocity = response(z)
-        off = shapes_out.T @ velocity / peak
-        size = np.abs(off)
-        top = size.max()
-        scaled = size / top
-        power = scaled.copy()
-        for _ in range(int(np.log2(p))):  # p a power of two: squarings (5x faster than ** p)
-            np.multiply(power, power, out=power)
-        total = np.sum(power)
-        norm = top * total ** (1 / p)
-        change = (model.shapes.T @ velocity[:, focus] - focus_field) / peak
-        with np.errstate(invalid="ignore", divide="ignore"):
-            slope = np.where(size > 0, power / scaled, 0.0) * np.sign(off)  # scaled ** (p - 1), signed
-        grad_velocity = shapes_out @ (total ** (1 / p - 1) * slope) / peak
-        grad_velocity[:, focus] += model.shapes @ (2 * PENALTY * change) / peak
-        adjoint = backward.simulate(grad_velocity[:, ::-1])[:, ::-1]  # the plant's transpose
-        grad = (model.actuator_gains.T @ adjoint)[:, :width]
-        return norm + PENALTY * float(change @ change), grad.ravel()
-
     best = np.zeros(a * width)
-    ratio_before = ratio_of(base)
+    ratio_before = window.ratio(window.base)
     bar = tqdm(total=search.iterations * len(STAGES), desc="margin on the whole model", unit="step",
                disable=not search.progress,
                leave=False)
     for p, points in STAGES:
-        if ratio_of(response(best)) <= margin:
+        if window.ratio(window.response(best)) <= margin:
             break
-        watched = every if points is None else every[:, ::max(1, outside.size // points)]
-        best_ratio = ratio_of(response(best), watched)
+        watched = window.every if points is None else window.every[:, ::max(1, window.outside.size // points)]
+        best_ratio = window.ratio(window.response(best), watched)
 
         def check(intermediate_result):
             nonlocal best, best_ratio
-            r = ratio_of(response(intermediate_result.x), watched)
+            r = window.ratio(window.response(intermediate_result.x), watched)
             bar.update()
             bar.set_postfix(ratio=f"{r:.3f}", refresh=False)
             if r < best_ratio:
@@ -171,13 +192,12 @@ def refine(model: ModalModel, voltages: np.ndarray, focus_index: int, sample_rat
             if r <= margin:
                 raise StopIteration
 
-        result = minimize(objective, best, args=(p, watched), jac=True, method="L-BFGS-B", bounds=bounds,
+        result = minimize(window.objective, best, args=(p, watched), jac=True, method="L-BFGS-B", bounds=bounds,
                           callback=check, options={"maxiter": search.iterations, "maxcor": 30})
-        r = ratio_of(response(result.x), watched)
+        r = window.ratio(window.response(result.x), watched)
         if r < best_ratio:
             best, best_ratio = result.x, r
     bar.close()
-    velocity = response(best)
-    change = float(np.max(np.abs(model.shapes.T @ velocity[:, focus] - focus_field)) / peak)
-    return Refinement(best.reshape(a, width), start, ratio_of(velocity, every), ratio_before, change,
-                      _time.perf_counter() - begin, count[0])
+    velocity = window.response(best)
+    return Refinement(best.reshape(a, width), start, window.ratio(velocity), ratio_before,
+                      window.focus_change(velocity), _time.perf_counter() - begin, window.evaluations)
