@@ -71,6 +71,53 @@ class Updated:
     evaluations: int
 
 
+class _Fit:
+    """The fit's parameters ``x = [s, c, d_1..d_k, e_1..e_k]`` against one record: the model's
+    answer on the exact plant, what the sensors measured less it, the residual with the priors,
+    and its Jacobian (three plant runs: every mode perturbed at once)."""
+
+    def __init__(self, model: ModalModel, u: np.ndarray, y: np.ndarray, sample_rate: float, hold: str,
+                 prior: np.ndarray):
+        self.model, self.u, self.y, self.sample_rate, self.hold, self.prior = model, u, y, sample_rate, hold, prior
+        k = self.k = model.n_modes
+        self.f0, self.z0, self.gains = model.frequencies, model.damping, model.sensor_gains  # gains (k, s)
+        self.d, self.e = slice(2, 2 + k), slice(2 + k, 2 + 2 * k)
+
+    def unpack(self, x):
+        """Frequencies and damping ratios (a trial step may leave the physical ranges: it is held
+        at their edges)."""
+        return (self.f0 * np.clip(1 + x[0] + x[self.d], 0.5, 2),
+                np.clip(self.z0 * np.exp(x[1] + x[self.e]), 1e-6, 0.9))
+
+    def modal(self, x):
+        """Modal velocities (k, n)."""
+        f, z = self.unpack(x)
+        return Plant(replace(self.model, frequencies=f, damping=z), self.sample_rate, hold=self.hold).simulate(self.u)
+
+    def misfit(self, x):
+        """What the sensors measured less what the model answers (s, n), m/s."""
+        return self.y - self.gains.T @ self.modal(x)
+
+    def residual(self, x, noise):
+        return np.concatenate([(self.misfit(x) / noise).ravel(), x[2:] / self.prior])
+
+    def jacobian(self, x, noise):
+        k, d, e, gains = self.k, self.d, self.e, self.gains
+        v = self.modal(x)
+        n = self.y.size
+        jac = np.zeros((n + 2 * k, x.size))
+        for cols in (d, e):
+            step = np.zeros_like(x)
+            step[cols] = STEP  # every mode at once: each mode's answer depends on its own parameters
+            dv = (self.modal(x + step) - v) / STEP  # (k, n)
+            # sensor j at sample i depends on mode m through gains[m, j] v_m[i]
+            jac[:n, cols] = -(gains.T[:, None, :] * dv.T[None, :, :]).reshape(n, k) / noise
+        jac[:n, 0] = jac[:n, d].sum(axis=1)  # the common terms move every mode
+        jac[:n, 1] = jac[:n, e].sum(axis=1)
+        jac[n + np.arange(2 * k), 2 + np.arange(2 * k)] = 1 / self.prior
+        return jac
+
+
 def update(model: ModalModel, voltages: np.ndarray, sensed: np.ndarray, sample_rate: float, hold: str = "zoh",
            spread: float = 0.01, damping_spread: float = 0.3, passes: int = 2) -> Updated:
     """Fit ``model``'s resonances and damping to one shot's record.
@@ -110,38 +157,10 @@ def update(model: ModalModel, voltages: np.ndarray, sensed: np.ndarray, sample_r
     if not np.any(u):
         raise ModelError("update: the record holds no drive to learn from")
     k = model.n_modes
-    f0, z0, gains = model.frequencies, model.damping, model.sensor_gains  # gains (k, s)
+    f0 = model.frequencies
     prior = np.concatenate([np.full(k, spread), np.full(k, damping_spread)])
-    d, e = slice(2, 2 + k), slice(2 + k, 2 + 2 * k)  # x = [s, c, d_1..d_k, e_1..e_k]
-
-    def unpack(x):  # (a trial step may leave the physical ranges: it is held at their edges)
-        return f0 * np.clip(1 + x[0] + x[d], 0.5, 2), np.clip(z0 * np.exp(x[1] + x[e]), 1e-6, 0.9)
-
-    def modal(x):  # modal velocities (k, n)
-        f, z = unpack(x)
-        return Plant(replace(model, frequencies=f, damping=z), sample_rate, hold=hold).simulate(u)
-
-    def misfit(x):  # what the sensors measured less what the model answers (s, n), m/s
-        return y - gains.T @ modal(x)
-
-    def residual(x, noise):
-        return np.concatenate([(misfit(x) / noise).ravel(), x[2:] / prior])
-
-    def jacobian(x, noise):
-        v = modal(x)
-        n = y.size
-        jac = np.zeros((n + 2 * k, x.size))
-        for cols in (d, e):
-            step = np.zeros_like(x)
-            step[cols] = STEP  # every mode at once: each mode's answer depends on its own parameters
-            dv = (modal(x + step) - v) / STEP  # (k, n)
-            # sensor j at sample i depends on mode m through gains[m, j] v_m[i]
-            jac[:n, cols] = -(gains.T[:, None, :] * dv.T[None, :, :]).reshape(n, k) / noise
-        jac[:n, 0] = jac[:n, d].sum(axis=1)  # the common terms move every mode
-        jac[:n, 1] = jac[:n, e].sum(axis=1)
-        jac[n + np.arange(2 * k), 2 + np.arange(2 * k)] = 1 / prior
-        return jac
-
+    problem = _Fit(model, u, y, sample_rate, hold, prior)
+    d, e, unpack, misfit = problem.d, problem.e, problem.unpack, problem.misfit
     floor = 1e-12 * float(np.sqrt(np.mean(y ** 2)))  # keeps the weights finite on a record explained exactly
     start = time.perf_counter()
     # the common shift first, over a grid (the misfit of a long record is not convex in it), then
@@ -156,7 +175,7 @@ def update(model: ModalModel, voltages: np.ndarray, sensed: np.ndarray, sample_r
     evaluations = len(SHIFTS)
     for _ in range(max(1, passes)):
         weight = noise
-        fit = least_squares(residual, x, jac=jacobian, method="lm", args=(weight,))
+        fit = least_squares(problem.residual, x, jac=problem.jacobian, method="lm", args=(weight,))
         x, evaluations = fit.x, evaluations + fit.nfev
         noise = max(float(np.sqrt(np.mean((fit.fun[:y.size] * weight) ** 2))), floor)
     f, z = unpack(x)
