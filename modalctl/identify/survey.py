@@ -118,10 +118,7 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     t0 = time.perf_counter()
     poles = identifier.identify(FRF.stack(list(sparse_frf.values())), threshold_db=options.threshold_db)
     good = poles.only_resolved()
-    drive = np.zeros((good.n_modes, caps.channels))
-    for k in range(good.n_modes):
-        for a, frf in sparse_frf.items():
-            drive[k, a] = np.sqrt(np.mean(constants_of(frf, good.frequencies, good.damping, k, frequency_check=False).constants ** 2))
+    drive = _drives(good, sparse_frf, caps.channels)
     weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
     chooser = np.where(weak, np.argmax(drive, axis=1), primary)
     compute += time.perf_counter() - t0
@@ -131,30 +128,16 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     acquisition += time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    constants = np.zeros((good.n_modes, points.size))
-    misfit, resolved = good.misfit.copy(), good.resolved.copy()
-    for k in range(good.n_modes):
-        fit = constants_of(full_frf[chooser[k]], good.frequencies, good.damping, k)
-        constants[k], misfit[k], resolved[k] = fit.constants, fit.misfit, fit.resolved
+    constants, misfit, resolved = _shape_constants(good, full_frf, chooser, points.size)
     grid = Grid.measured(positions, density)
-    notes = [f"mode at {f:.1f} Hz: actuator {primary} drives it at {100 * d[primary] / d.max():.1f}% of "
-             f"actuator {int(np.argmax(d))}; shape from actuator {int(np.argmax(d))}"
-             for f, d, w in zip(good.frequencies, drive, weak) if w]
-    left = [(f, sweep.left_at_end(f, 2 * np.pi * f * z)) for f, z in zip(good.frequencies, good.damping)]
-    notes += [f"mode at {f:.1f} Hz still rings at {r:.1e} of its peak when the record ends: its FRF leaks; "
-              f"lengthen the tail" for f, r in left if r > 1e-3]
-    notes += poles.left_out()
+    notes = _notes(poles, good, drive, weak, primary, sweep)
     shapes_modes = Modes(good.frequencies, good.damping, constants, misfit, resolved, good.method)
     model = to_model(shapes_modes, grid, caps.channels, source=f"identified through {device.url}",
                      sweep={"f_low": sweep.f_low, "f_high": sweep.f_high, "duration": sweep.duration,
                             "sample_rate": sweep.sample_rate, "amplitude": sweep.amplitude},
                      averages=averages)
     order = np.argsort(good.frequencies[resolved])
-    for a in range(caps.channels):
-        if a in full_frf:
-            model = actuator_gains(model, full_frf[a], np.arange(points.size))
-        else:
-            model = actuator_gains(model, sparse_frf[a], few)
+    model = _with_gains(model, sparse_frf, full_frf, few, points.size)
     before = crosstalk(model.shapes, model.grid.mass)
     if options.orthogonalize:
         model = orthonormalize_model(model)
@@ -165,6 +148,52 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     return Survey(model, poles, drive[resolved][order], chooser[resolved][order], before, after, notes,
                   {"acquisition": acquisition - frf_seconds, "frf": frf_seconds, "modal": compute},
                   {"sparse": sparse_frf, "full": full_frf})
+
+
+def _drives(good: Modes, sparse_frf: dict, channels: int) -> np.ndarray:
+    """RMS modal constant of each resolved mode from each actuator on its sparse FRFs, shape
+    (k, channels) (m/s^2/V)."""
+    drive = np.zeros((good.n_modes, channels))
+    for k in range(good.n_modes):
+        for a, frf in sparse_frf.items():
+            fit = constants_of(frf, good.frequencies, good.damping, k, frequency_check=False)
+            drive[k, a] = np.sqrt(np.mean(fit.constants ** 2))
+    return drive
+
+
+def _shape_constants(good: Modes, full_frf: dict, chooser: np.ndarray, n_points: int):
+    """Each mode's modal constants on every point, from the full scan of the actuator ``chooser``
+    picked for it, with the fit's misfit and whether it resolved the mode."""
+    constants = np.zeros((good.n_modes, n_points))
+    misfit, resolved = good.misfit.copy(), good.resolved.copy()
+    for k in range(good.n_modes):
+        fit = constants_of(full_frf[chooser[k]], good.frequencies, good.damping, k)
+        constants[k], misfit[k], resolved[k] = fit.constants, fit.misfit, fit.resolved
+    return constants, misfit, resolved
+
+
+def _notes(poles: Modes, good: Modes, drive: np.ndarray, weak: np.ndarray, primary: int, sweep: Sweep) -> list:
+    """What the survey tells its reader: the modes the primary actuator drives weakly (and whose
+    scan gave their shape), the modes still ringing when the record ends, and the poles left out."""
+    notes = [f"mode at {f:.1f} Hz: actuator {primary} drives it at {100 * d[primary] / d.max():.1f}% of "
+             f"actuator {int(np.argmax(d))}; shape from actuator {int(np.argmax(d))}"
+             for f, d, w in zip(good.frequencies, drive, weak) if w]
+    left = [(f, sweep.left_at_end(f, 2 * np.pi * f * z)) for f, z in zip(good.frequencies, good.damping)]
+    notes += [f"mode at {f:.1f} Hz still rings at {r:.1e} of its peak when the record ends: its FRF leaks; "
+              f"lengthen the tail" for f, r in left if r > 1e-3]
+    notes += poles.left_out()
+    return notes
+
+
+def _with_gains(model: ModalModel, sparse_frf: dict, full_frf: dict, few: np.ndarray, n_points: int) -> ModalModel:
+    """``model`` with every actuator's gains (every actuator has sparse FRFs): from its full scan
+    where there is one, else from its sparse FRFs (the points ``few``)."""
+    for a, sparse in sparse_frf.items():
+        if a in full_frf:
+            model = actuator_gains(model, full_frf[a], np.arange(n_points))
+        else:
+            model = actuator_gains(model, sparse, few)
+    return model
 
 
 def identify_frf(frf: FRF, density: float, method: str = SurveyOptions.method, orthogonalize: bool = True,
