@@ -61,8 +61,8 @@ def main() -> None:
     shortest = {}
     for name, options in SHORTEST.items():
         tf, found = min_focus_time(dec, options, lower=5e-4, upper=0.05)
-        shortest[name] = {"focus_time_s": tf, "peak_voltage": found.info["peak_voltage"],
-                          "whole_model_ratio": found.info["whole_model_margin_ratio"]}
+        shortest[name] = {"focus_time_s": tf, "peak_voltage": found.report.peak_voltage,
+                          "whole_model_ratio": found.report.whole_model_margin_ratio}
         print(f"shortest T_F within {LIMIT:g} V, {name}: {tf * 1e3:.2f} ms")
     data = {"rows": rows, "shortest": shortest, "min_focus_time_limit_v": LIMIT}
     write_json("focus_time", data)

@@ -86,12 +86,12 @@ def main() -> None:
         except PlanError as exc:
             rows.append({"plan": name, "error": str(exc), "best_ratio": exc.needed})
             continue
-        m, info = shot.to_dict(), shot.plan.info
-        rows.append({"plan": name, "planned_ratio": info["predicted_margin_ratio"],
-                     "whole_model_ratio": info["whole_model_margin_ratio"], "measured_ratio": m["margin_ratio"],
+        m = shot.to_dict()
+        rows.append({"plan": name, "planned_ratio": m["predicted_margin_ratio"],
+                     "whole_model_ratio": m["whole_model_margin_ratio"], "measured_ratio": m["margin_ratio"],
                      "peak_voltage": m["peak_voltage"], "tau": m["tau"], "plan_seconds": m["plan_seconds"],
                      "solver_seconds": m.get("optimizer", {}).get("seconds"), "kappa": m["kappa"], "brake": m["brake"],
-                     "refinement": info.get("refinement")})
+                     "refinement": shot.plan.report.refinement})
         if name == "optimized":
             culprits = strongest_unplanned(shot.plan)
             kept_only = kept_modes_ratio(shot.plan)

@@ -103,9 +103,9 @@ def solvers(dec, tf) -> list[dict]:
         the_plan = plan(dec, tf, options)
         seconds = median_seconds(lambda options=options: plan(dec, tf, options), REPEATS)
         volts = the_plan.voltages()
-        program = the_plan.info["program"]
+        program = the_plan.report.program
         rows.append({"solver": solver, "plan_seconds_median": seconds,
-                     "ratio": the_plan.info["whole_model_margin_ratio"], "peak_voltage": float(np.abs(volts).max()),
+                     "ratio": the_plan.report.whole_model_margin_ratio, "peak_voltage": float(np.abs(volts).max()),
                      "energy_v2s": float(np.sum(volts**2) / the_plan.sample_rate), "rounds": program["rounds"],
                      "rows": program["rows"]})
     return rows
@@ -121,7 +121,7 @@ def bases(model, shape, dec, tf) -> list[dict]:
         seconds = median_seconds(lambda options=options: plan(dec, tf, options), REPEATS)
         volts = the_plan.voltages()
         shot = open_loop(model, shape, SimDevice(model), tf, **options.but(modes=dec.modes_used.size).__dict__)
-        program = the_plan.info["program"]
+        program = the_plan.report.program
         correction = None if the_plan.correction is None else float(np.abs(the_plan.correction).max())
         rows.append({"basis": "whole drive" if reference is None else "correction to the envelopes",
                      "plan_seconds_median": seconds, "measured_ratio": shot.metrics.margin_ratio,
@@ -156,7 +156,7 @@ def least_peak_voltage(dec, tf, high: float, rel_tol: float = 0.01) -> dict:
     the_plan = plan(dec, tf, convex_options(voltage_limit=high))
     return {"voltage_limit": high, "refused_below": low, "steps": steps,
             "peak_voltage": float(np.abs(the_plan.voltages()).max()),
-            "ratio": the_plan.info["whole_model_margin_ratio"]}
+            "ratio": the_plan.report.whole_model_margin_ratio}
 
 
 def robustness(model, shape, dec, tf) -> list[dict]:

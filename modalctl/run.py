@@ -32,9 +32,9 @@ from modalctl.model.shape import Shape
 from modalctl.options import THESIS_MARGIN, LoopOptions, RunOptions
 from modalctl.plan.decompose import Decomposition
 from modalctl.plan.planner import Plan, plan_shot
-from modalctl.plugin.manager import get_tracker
+from modalctl.plugin.manager import name_of, pick
 
-__all__ = ["run", "ShotResult", "ShotMetrics", "LoopMetrics", "LearningMetrics"]
+__all__ = ["run", "resolved", "ShotResult", "ShotMetrics", "LoopMetrics", "LearningMetrics"]
 
 
 @dataclass(frozen=True)
@@ -290,7 +290,7 @@ class _Played:
 
 
 def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
-        planned: tuple[Decomposition, Plan] | None = None) -> ShotResult:
+        planned: tuple[Decomposition, Plan] | None = None, manager=None) -> ShotResult:
     """Plan ``shape``'s focus on ``model``, play it on ``device`` and measure it.
 
     Parameters
@@ -305,7 +305,11 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
     planned : (Decomposition, Plan), optional
         A plan made before for this model, shape and options (a sweep plans once for many truths);
         the device's rails still apply.
+    manager : pluggy.PluginManager, optional
+        Where the plugins ``options`` names are found (the installed ones by default); plugin
+        objects in ``options`` are used as they are.
     """
+    options = resolved(options, manager)
     if options.closed and model.sensor_gains.shape[1] == 0:
         raise ModelError("a closed loop reads the modes through the model's sensor gains, and this model has none "
                          "(an identified model: identify measures the actuators' gains, not the sensors'): run it "
@@ -321,6 +325,17 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
     played = _play(the_plan, device, options, voltage_limit, options.log)
     shot = _measure(dec, the_plan, played, device, caps, options, start)
     return replace(shot, learning=learning)
+
+
+def resolved(options: RunOptions, manager=None) -> RunOptions:
+    """``options`` with every plugin it names (planner, controller, tracker) replaced by the installed
+    object: names are resolved once, here at the edge, and the core calls objects."""
+    plan = options.plan.but(planner=pick("planner", options.plan.planner, manager))
+    loop = options.loop
+    if loop is not None:
+        loop = loop.but(controller=pick("controller", loop.controller, manager))
+    tracker = pick("tracker", options.tracker, manager) if options.learn == "tracker" else options.tracker
+    return options.but(plan=plan, loop=loop, tracker=tracker)
 
 
 def _configure(device: Device, options: RunOptions) -> tuple[Capabilities, float | None]:
@@ -401,8 +416,11 @@ def _metrics(dec, the_plan, capture, scan, device, options, sim_seconds) -> Shot
     focus = field[:, np.argmin(np.abs(times - the_plan.focus_time))]
     ratio, worst = margin_ratio(field, times, the_plan.focus_time, shape.target_mask)
     criterion = THESIS_MARGIN if options.plan.margin is None else options.plan.margin
-    info = the_plan.info
-    optimizer = info.get("optimizer")
+    report = the_plan.report
+    whole = report.whole_model_margin_ratio
+    if whole is None:  # a planner that did not predict it: measured here on the exact plant
+        whole = the_plan.whole_model_margin()
+    optimizer, program = report.optimizer, report.program
     return ShotMetrics(
         tau=float(tau(shape.values, focus)), tau_norm=float(tau_norm(shape.values, focus)),
         nrmse=float(nrmse(shape.values, focus)), tau_model=float(tau(shape.values, dec.reconstruction)),
@@ -411,14 +429,14 @@ def _metrics(dec, the_plan, capture, scan, device, options, sim_seconds) -> Shot
         worst_off_target={"x_m": model.grid.points[worst[0]].tolist() if worst[0] >= 0 else None, "t_s": worst[1]},
         peak_voltage=float(np.max(np.abs(capture.voltages))),
         modes_used=[int(model.labels[k]) for k in the_plan.modes],
-        kappa=_listed(the_plan.kappa), brake=_listed(the_plan.brake), planner=info.get("planner", "envelope"),
+        kappa=_listed(the_plan.kappa), brake=_listed(the_plan.brake), planner=report.planner,
         focus_time_s=the_plan.focus_time,
-        sample_rate_hz=the_plan.sample_rate, plan_seconds=info["plan_seconds"], sim_seconds=sim_seconds,
-        predicted_margin_ratio=info["predicted_margin_ratio"],
-        whole_model_margin_ratio=info["whole_model_margin_ratio"], decoupling_worst=info["decoupling_worst"],
-        decoupling_warnings=info["decoupling_warnings"], device=device.url, device_info=device.info,
+        sample_rate_hz=the_plan.sample_rate, plan_seconds=report.plan_seconds, sim_seconds=sim_seconds,
+        predicted_margin_ratio=whole if report.predicted_margin_ratio is None else report.predicted_margin_ratio,
+        whole_model_margin_ratio=whole, decoupling_worst=report.decoupling_worst,
+        decoupling_warnings=list(report.decoupling_warnings), device=device.url, device_info=device.info,
         optimizer=None if optimizer is None else {k: optimizer[k] for k in ("status", "rounds", "seconds")},
-        program=None if "program" not in info else {k: v for k, v in info["program"].items() if k != "history"})
+        program=None if program is None else {k: v for k, v in program.items() if k != "history"})
 
 
 def _listed(values) -> list | None:
@@ -428,7 +446,7 @@ def _listed(values) -> list | None:
 def _loop_metrics(played: _Played, the_plan: Plan, loop: LoopOptions, sim_seconds: float) -> LoopMetrics:
     result, design = played.result, played.parts.design
     return LoopMetrics(
-        controller=loop.controller, on_board=loop.on_board, state=result.state.name.lower(), fault=result.reason,
+        controller=name_of(loop.controller), on_board=loop.on_board, state=result.state.name.lower(), fault=result.reason,
         periods=result.periods, loop_seconds=result.loop_seconds, configure_seconds=result.configure_seconds,
         control_rate_hz=loop.control_rate, limited_periods=result.limited,
         step_seconds_median=float(np.median(result.step_seconds)) if result.step_seconds.size else None,
@@ -445,7 +463,7 @@ def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: 
     log = None if options.log is None else type(options.log)(f"{options.log}-learning")
     tracker = None
     if options.learn == "tracker":  # the carriers stay on the plan's during the shot
-        tracker = get_tracker("pole").create(model.frequencies[the_plan.modes], model.damping[the_plan.modes],
+        tracker = options.tracker.create(model.frequencies[the_plan.modes], model.damping[the_plan.modes],
                                              options.loop.control_rate, retune=np.inf)
     start = _time.perf_counter()
     played = _play(the_plan, device, options, voltage_limit, log, tracker)

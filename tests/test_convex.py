@@ -61,7 +61,7 @@ def test_the_plans_field_on_the_plant_is_its_prediction(case, margin_plan):
         predicted = program.responses[0].velocity(n) @ x
         assert np.max(np.abs(predicted - velocity[:, n])) <= 1e-9 * np.max(np.abs(velocity[:, n]))
     field = model.shapes.T @ velocity
-    assert ratio(field, shape.target_mask, program.focus) == pytest.approx(margin_plan.info["whole_model_margin_ratio"],
+    assert ratio(field, shape.target_mask, program.focus) == pytest.approx(margin_plan.report.whole_model_margin_ratio,
                                                                             abs=1e-9)
 
 
@@ -90,7 +90,7 @@ def test_the_margin_holds_on_every_sample_of_the_whole_model(case, margin_plan):
     model, shape, _ = case
     field = whole_field(model, margin_plan.voltages())
     assert ratio(field, shape.target_mask, int(round(TF * FS))) <= 0.5 + 1e-9
-    assert margin_plan.info["program"]["status"] == "optimal"
+    assert margin_plan.report.program["status"] == "optimal"
 
 
 def test_a_margin_below_the_focus_own_side_lobes_is_refused_with_the_reachable_ratio(case):
@@ -175,7 +175,7 @@ def test_other_solvers_reach_the_same_plan(case, margin_plan, solver):
     """The same program with an interior-point and an ADMM solver: the same margin and energy within
     their tolerances (the benchmark compares their speed)."""
     other = plan(case[2], TF, convex(convex=PlanOptions().convex.but(solver=solver)))
-    assert other.info["whole_model_margin_ratio"] <= 0.5 * (1 + 1e-6)
+    assert other.report.whole_model_margin_ratio <= 0.5 * (1 + 1e-6)
     energy = [np.sum(p.voltages() ** 2) for p in (other, margin_plan)]
     assert energy[0] == pytest.approx(energy[1], rel=2e-2)
 

@@ -83,7 +83,7 @@ def test_thesis_margin_case_kappa_one_fails_and_optimizer_meets_it(beam):
         first = plan(dec, 0.025, ENVELOPE)
         with pytest.warns(MarginWarning, match="whole model predicts 0.7"):  # the fast turns leak (margin_case.md)
             best = plan(dec, 0.025, ENVELOPE.but(margin=0.5, margin_on="kept"))
-    assert first.info["predicted_margin_ratio"] > 0.6  # the thesis: about two thirds
+    assert first.report.predicted_margin_ratio > 0.6  # the thesis: about two thirds
     # independent check of the optimized plan: its modal field evaluated densely by numpy
     t = np.arange(0.021, 0.029, 1e-6)
     ratio, _ = margin_ratio(planned_field(best, t), t, 0.025, best.target_mask, best.focus_peak)
@@ -104,7 +104,7 @@ def test_optimizer_plan_meets_the_margin_when_simulated(beam):
     assert kept.metrics.margin_ratio > 0.7 and kept.plan.correction is None
     assert whole.metrics.margin_ratio <= 0.5 * 1.001 and whole.metrics.margin_ok
     assert whole.metrics.tau > 0.99  # the focus itself held
-    refinement = whole.plan.info["refinement"]
+    refinement = whole.plan.report.refinement
     assert refinement["ratio_before"] > 0.7 and refinement["focus_change"] < 1e-3
 
 
@@ -136,7 +136,7 @@ def test_min_focus_time_is_the_shortest_within_the_limit(beam):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
         tf, best = min_focus_time(dec, ENVELOPE.but(voltage_limit=5.0), lower=5e-4, upper=0.02, rel_tol=0.02)
-        assert best.info["peak_voltage"] <= 5.0 * 1.001
+        assert best.report.peak_voltage <= 5.0 * 1.001
         with pytest.raises(PlanError):
             plan(dec, tf * 0.9, ENVELOPE.but(voltage_limit=5.0))
 

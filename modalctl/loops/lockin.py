@@ -13,13 +13,14 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy.signal import butter, sosfilt
 
 __all__ = ["Oscillators", "LockIn", "lockin_bandwidths", "hold_gain", "lowpass"]
 
 
 @lru_cache(maxsize=256)
 def _lowpass(order: int, bandwidth: float, sample_rate: float) -> np.ndarray:
+    from scipy.signal import butter  # here: scipy.signal is a third of a second to import
+
     sections = butter(order, bandwidth, fs=sample_rate, output="sos")
     sections.flags.writeable = False
     return sections
@@ -146,6 +147,8 @@ class LockIn:
     def demodulate(self, signals: np.ndarray, phasors: np.ndarray) -> np.ndarray:
         """:meth:`process` with the carriers given as phasors ``exp(j phase)`` (k, n), e.g. from
         :meth:`Oscillators.phasors`."""
+        from scipy.signal import sosfilt  # imported once, then a dictionary look-up per period
+
         mixed = 2 * signals * phasors.conj()
         out = np.empty(mixed.shape, complex)
         for k, sos in enumerate(self.sos):

@@ -132,7 +132,7 @@ def board_loop(plan, parts) -> BoardLoop:
     drive = plan.drive
     if not isinstance(drive, EnvelopeDrive):
         raise ValueError(f"loops on the board follow envelope plans (the board recomputes each reference from its "
-                         f"target, rate and brake), not a {plan.info.get('planner', 'this')} plan: plan with "
+                         f"target, rate and brake), not a {plan.report.planner or 'this'} plan: plan with "
                          f"--planner envelope, or run the loops on the host (--loop closed)")
     sensing = parts.schedule.sensors @ plan.model.sensor_gains[plan.modes].T
     return BoardLoop(float(plan.focus_time), plan.model.damping[plan.modes].astype(float),

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import simpson
 
 __all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite"]
 
@@ -54,6 +53,8 @@ def quadrature_weights(x: np.ndarray) -> np.ndarray:
         raise ModelError(f"grid: need at least 2 points to integrate, got {x.size}")
     if np.any(np.diff(x) <= 0):
         raise ModelError("grid: positions must be strictly increasing")
+    from scipy.integrate import simpson  # here: scipy.integrate takes a third of a second to import
+
     rows = [simpson(np.eye(x.size)[i:i + 256], x=x, axis=1) for i in range(0, x.size, 256)]
     return np.concatenate(rows)
 

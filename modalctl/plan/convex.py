@@ -63,7 +63,7 @@ from .convex_program import Program, Solution
 from .convex_refusal import refusal as _refusal
 from .decompose import Decomposition
 from .envelope import plan_envelopes
-from .planner import Plan, PlanError, Planner, controllable
+from .planner import Plan, PlanError, Planner, PlanReport, controllable
 from .qp import SOLVERS
 
 __all__ = ["ConvexPlanner", "Basis", "Responses", "Program", "Solution", "plan_convex", "SOLVERS"]
@@ -118,15 +118,15 @@ def plan_convex(dec: Decomposition, focus_time: float, options: PlanOptions = Pl
         raise PlanError(f"the convex program stopped after {solution.rounds} rounds at a ratio of "
                         f"{solution.ratio:.4f} and {solution.peak_voltage:.1f} V (the margin or the limits not "
                         f"yet held on every sample): raise ConvexOptions.rounds", solution.ratio, margin)
-    info.update({"predicted_margin_ratio": solution.ratio, "whole_model_margin_ratio": solution.ratio,
-                 "robust_margin_ratios": solution.robust_ratios, "peak_voltage": solution.peak_voltage,
-                 "peak_slew_v_per_s": solution.peak_slew, "decoupling_worst": None, "decoupling_warnings": [],
+    info.update({"whole_model_margin_ratio": solution.ratio, "robust_margin_ratios": solution.robust_ratios,
+                 "peak_voltage": solution.peak_voltage, "peak_slew_v_per_s": solution.peak_slew,
                  "plan_seconds": _time.perf_counter() - start})
+    report = PlanReport.from_notes(info)
     if base is not None:  # the envelope plan, its correction added to its voltages
-        return replace(base, correction=program.correction(solution.x), correction_start=0, info=info)
+        return replace(base, correction=program.correction(solution.x), correction_start=0, report=report)
     drive = program.basis.drive(solution.x[:program.basis.size], focus_time, options.sample_rate)
     return Plan(model, modes, targets, focus_time, focus_time + options.after, options.sample_rate,
-                program.basis.weights, dec.shape.target_mask, model.shapes[modes].T @ targets, drive, info)
+                program.basis.weights, dec.shape.target_mask, model.shapes[modes].T @ targets, drive, report)
 
 
 def _reference(dec: Decomposition, focus_time: float, options: PlanOptions) -> Plan | None:

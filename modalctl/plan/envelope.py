@@ -26,7 +26,7 @@ from .decompose import Decomposition
 from .dispatch import DecouplingWarning, decoupling, dispatch
 from .drive import EnvelopeDrive
 from .kappa import Problem, solve
-from .planner import CHECK_BEFORE, MarginWarning, Plan, PlanError, Planner, controllable
+from .planner import CHECK_BEFORE, MarginWarning, Plan, PlanError, Planner, PlanReport, controllable
 from .refine import Search, refine
 
 __all__ = ["EnvelopePlanner", "gap_bounds", "cross_talk_matrix", "planned_field", "planned_margin", "early_bound"]
@@ -89,7 +89,7 @@ def plan_envelopes(dec: Decomposition, focus_time: float, options: PlanOptions =
     modes' references never exceeds it times the focus peak, at the least peak voltage; with
     ``margin_on="whole"`` the voltages are then corrected near T_F until the field they drive on
     every mode of ``dec.model`` (the exact plant) holds it too (seconds to a minute), or the plan
-    is refused with the best ratio. Either way the whole-model ratio is reported in ``info``.
+    is refused with the best ratio. Either way the whole-model ratio is in the plan's report.
     ``compensate`` corrects the commanded targets for the cross-talk of the kept modes' drives
     (see :func:`cross_talk_matrix`).
     """
@@ -104,13 +104,12 @@ def plan_envelopes(dec: Decomposition, focus_time: float, options: PlanOptions =
     if np.any(kappa <= 0):
         raise PlanError("kappa must be positive (a zero rate never starts from rest)")
     brake_rates = np.ones(m)
-    info: dict = {"planner": "envelope", "margin_asked": margin, "voltage_limit": voltage_limit,
-                  "after_s": options.after}
+    info: dict = {"planner": "envelope", "margin_asked": margin, "voltage_limit": voltage_limit, "after_s": options.after}
 
     def make(kappa, brake_rates, commanded=targets):
         drive = EnvelopeDrive(commanded, model.omega[modes], model.damping[modes], kappa, brake_rates, focus_time)
         return Plan(model, modes, targets, focus_time, focus_time + options.after, options.sample_rate,
-                    dispatch(model, modes, kappa), dec.shape.target_mask, model.shapes[modes].T @ targets, drive, info)
+                    dispatch(model, modes, kappa), dec.shape.target_mask, model.shapes[modes].T @ targets, drive)
 
     if margin is not None:
         kappa, brake_rates, result = _optimize(make(kappa, brake_rates), options)
@@ -123,9 +122,9 @@ def plan_envelopes(dec: Decomposition, focus_time: float, options: PlanOptions =
     info["predicted_margin_ratio"] = ratio
     info["ratio_bound_before_window"] = early_bound(final)
     if options.compensate and modes.size > 1:
-        final = make(kappa, brake_rates, _compensated(final))
+        final = make(kappa, brake_rates, _compensated(final, info))
     if margin is not None and options.margin_on == "whole":
-        final = _refine(final, margin, voltage_limit, progress)
+        final = _refine(final, margin, voltage_limit, progress, info)
     peak_v = float(np.max(np.abs(final.voltages())))
     info["peak_voltage"] = peak_v
     if voltage_limit is not None and peak_v > voltage_limit * 1.001:
@@ -150,7 +149,7 @@ def plan_envelopes(dec: Decomposition, focus_time: float, options: PlanOptions =
     info["predicted_worst"] = {"x_m": model.grid.points[worst[0]].tolist() if worst[0] >= 0 else None,
                                "t_s": worst[1]}
     info["plan_seconds"] = _time.perf_counter() - start
-    return final
+    return replace(final, report=PlanReport.from_notes(info))
 
 
 def cross_talk_matrix(the_plan: Plan) -> np.ndarray:
@@ -177,11 +176,12 @@ def cross_talk_matrix(the_plan: Plan) -> np.ndarray:
     return (kept.actuator_gains @ the_plan.weights) * at_focus
 
 
-def _compensated(the_plan: Plan) -> np.ndarray:
-    """Commanded targets ``M^-1 c`` with which the kept modes reach ``c`` despite cross-talk."""
+def _compensated(the_plan: Plan, notes: dict) -> np.ndarray:
+    """Commanded targets ``M^-1 c`` with which the kept modes reach ``c`` despite cross-talk (the
+    matrix's condition written to ``notes``)."""
     matrix = cross_talk_matrix(the_plan)
     cond = float(np.linalg.cond(matrix))
-    the_plan.info.update({"cross_talk_condition": cond,
+    notes.update({"cross_talk_condition": cond,
                           "cross_talk_largest_off_diagonal": float(np.max(np.abs(matrix - np.eye(len(matrix)))))})
     if cond > 1e6:
         labels = [the_plan.model.labels[k] for k in the_plan.modes]
@@ -218,19 +218,20 @@ def _optimize(proto: Plan, options: PlanOptions):
     return result.kappa, result.brake, result
 
 
-def _refine(the_plan: Plan, margin: float, voltage_limit, progress: bool) -> Plan:
-    """The plan with the voltage correction that holds ``margin`` on the whole model (PlanError if none)."""
-    if the_plan.info.setdefault("whole_model_margin_ratio", the_plan.whole_model_margin()) <= margin:
+def _refine(the_plan: Plan, margin: float, voltage_limit, progress: bool, notes: dict) -> Plan:
+    """The plan with the voltage correction that holds ``margin`` on the whole model (PlanError if
+    none); the whole model's ratio and the correction's run written to ``notes``."""
+    if notes.setdefault("whole_model_margin_ratio", the_plan.whole_model_margin()) <= margin:
         return the_plan
     found = refine(the_plan.model, the_plan.voltages(), int(round(the_plan.focus_time * the_plan.sample_rate)),
                    the_plan.sample_rate, the_plan.target_mask, margin * (1 - REFINE_AIM), voltage_limit,
                    Search(progress=progress))
-    the_plan.info["refinement"] = {"ratio_before": found.ratio_before, "ratio": found.ratio,
+    notes["refinement"] = {"ratio_before": found.ratio_before, "ratio": found.ratio,
                                    "focus_change": found.focus_change, "seconds": found.seconds,
                                    "plant_runs": 2 * found.evaluations,
                                    "largest_correction_v": float(np.max(np.abs(found.correction)))}
     corrected = replace(the_plan, correction=found.correction, correction_start=found.start)
-    reached = the_plan.info["whole_model_margin_ratio"] = corrected.whole_model_margin()
+    reached = notes["whole_model_margin_ratio"] = corrected.whole_model_margin()
     if reached > margin * 1.001:
         raise PlanError(f"the {margin:g} margin holds on the kept modes' references but not on the whole model: "
                         f"correcting the voltages near the focus brings it from {found.ratio_before:.3f} to "

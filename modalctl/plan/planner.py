@@ -13,9 +13,10 @@ it falls short.
 
 from __future__ import annotations
 
+import time as _time
 import warnings
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
@@ -31,7 +32,7 @@ from .decompose import Decomposition, decompose
 from .dispatch import DecouplingWarning
 from .drive import Drive
 
-__all__ = ["PlanError", "MarginWarning", "Plan", "Planner", "plan", "plan_shot", "min_focus_time", "controllable"]
+__all__ = ["PlanError", "MarginWarning", "Plan", "PlanReport", "Planner", "plan", "plan_shot", "min_focus_time", "controllable"]
 
 CHECK_BEFORE = 4e-3  # the margin is measured densely from T_F - 4 ms (the thesis's figures show T_F +- 4 ms)
 CHECK_POINTS_PER_PERIOD = 16  # of the fastest kept mode: a sampled sine's peak is then missed by < 2%
@@ -49,6 +50,72 @@ class PlanError(ValueError):
 
 class MarginWarning(UserWarning):
     """The margin holds on the kept modes' references but not on the whole model."""
+
+
+@dataclass(frozen=True)
+class PlanReport:
+    """How a plan was made: what every planner may say, typed, and what only it says, in ``details``.
+
+    A planner fills what it knows; every field has a default, so a planner that says nothing still
+    makes a complete report: :func:`plan` names the planner and times it, and
+    :func:`modalctl.run.run` measures the whole-model margin of a plan whose planner did not.
+
+    Attributes
+    ----------
+    planner : str
+        Who made the plan (set by :func:`plan` from the planner's ``name``).
+    plan_seconds : float or None
+        Wall time of the planning (s).
+    whole_model_margin_ratio : float or None
+        Off-target peak over the focus peak predicted on every mode of the model and every DAC
+        sample of the dense check (:meth:`Plan.whole_model_margin`).
+    predicted_margin_ratio : float or None
+        The same on the kept modes' references alone (the thesis's criterion), for planners that
+        hold the margin there; None when the planner's prediction is the whole model's.
+    peak_voltage : float or None
+        V, on any actuator.
+    predicted_worst : dict or None
+        ``x_m`` and ``t_s`` of the predicted worst off-target sample.
+    decoupling_worst : dict or None
+        The strongest cross-talk between kept modes' envelopes (Eq 2.30): ``into_mode``,
+        ``from_mode``, ``share``.
+    decoupling_warnings : tuple of str
+    margin_warning : str or None
+        Why the margin held on the references may not hold on the whole model.
+    optimizer, program, refinement : dict or None
+        The envelope optimizer's run, the convex program's, the voltage correction's.
+    details : dict
+        Anything else the planner says (its options, condition numbers...), JSON-ready.
+    """
+
+    planner: str = ""
+    plan_seconds: float | None = None
+    whole_model_margin_ratio: float | None = None
+    predicted_margin_ratio: float | None = None
+    peak_voltage: float | None = None
+    predicted_worst: dict | None = None
+    decoupling_worst: dict | None = None
+    decoupling_warnings: tuple = ()
+    margin_warning: str | None = None
+    optimizer: dict | None = None
+    program: dict | None = None
+    refinement: dict | None = None
+    details: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_notes(cls, notes: dict) -> "PlanReport":
+        """The report of a planner's notes: the keys that are fields go to them, the others to ``details``."""
+        known = {f.name for f in fields(cls)} - {"details"}
+        typed = {key: value for key, value in notes.items() if key in known}
+        if "decoupling_warnings" in typed:
+            typed["decoupling_warnings"] = tuple(typed["decoupling_warnings"])
+        return cls(**typed, details={key: value for key, value in notes.items() if key not in known})
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the fields that are set, ``details`` flattened in."""
+        out = {key: value for key, value in asdict(self).items() if key != "details" and value not in (None, ())}
+        out["decoupling_warnings"] = list(self.decoupling_warnings)
+        return {**out, **self.details}
 
 
 @dataclass(frozen=True, eq=False)
@@ -74,8 +141,8 @@ class Plan:
         Field the kept modes build at T_F (m/s).
     drive : Drive
         Each kept mode's modal force over time, and what each channel adds.
-    info : dict
-        How the plan was made: planner, solver, timings, margin predicted on the whole model.
+    report : PlanReport
+        How the plan was made: planner, timings, margins predicted, solver.
     correction : ndarray, shape (a, w), optional
         Volts added to the actuators from DAC sample ``correction_start`` on
         (:mod:`modalctl.plan.refine`).
@@ -92,7 +159,7 @@ class Plan:
     target_mask: np.ndarray
     reference: np.ndarray
     drive: Drive
-    info: dict = field(default_factory=dict)
+    report: PlanReport = field(default_factory=PlanReport)
     correction: np.ndarray | None = None
     correction_start: int = 0
 
@@ -164,12 +231,12 @@ class Plan:
                             self.focus_peak)[0]
 
     def summary(self) -> dict:
-        """JSON-ready description: modes, rates, peak voltage, predicted margin, info."""
+        """JSON-ready description: modes, rates, peak voltage, predicted margin, the report."""
         labels = [self.model.labels[k] for k in self.modes]
         rates = {name: None if value is None else value.tolist()
                  for name, value in (("kappa", self.kappa), ("brake", self.brake))}
         return {"modes_used": labels, "targets": self.targets.tolist(), **rates, "focus_time_s": self.focus_time,
-                "duration_s": self.duration, "sample_rate_hz": self.sample_rate, **self.info}
+                "duration_s": self.duration, "sample_rate_hz": self.sample_rate, **self.report.to_dict()}
 
 
 def controllable(dec: Decomposition, modes) -> None:
@@ -224,7 +291,12 @@ def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptio
     top = np.max(dec.model.frequencies[dec.modes_used])
     if not options.sample_rate > 2 * top:
         raise PlanError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz)")
-    return pick("planner", options.planner).plan(dec, focus_time, options, progress)
+    planner = pick("planner", options.planner)
+    start = _time.perf_counter()
+    made = planner.plan(dec, focus_time, options, progress)
+    seconds = made.report.plan_seconds
+    return replace(made, report=replace(made.report, planner=planner.name or type(planner).__name__,
+                                        plan_seconds=_time.perf_counter() - start if seconds is None else seconds))
 
 
 def min_focus_time(dec: Decomposition, options: PlanOptions, lower: float = 1e-3, upper: float = 0.2,
