@@ -16,7 +16,8 @@ from typing import Any, Callable, TypeVar, cast
 import pluggy
 
 __all__ = ["hookspec", "hookimpl", "modalctl_shapes", "modalctl_planners", "modalctl_transports",
-           "modalctl_add_options", "modalctl_identifiers", "modalctl_trackers", "modalctl_controllers"]
+           "modalctl_add_options", "modalctl_identifiers", "modalctl_trackers", "modalctl_controllers",
+           "modalctl_commands"]
 
 _F = TypeVar("_F", bound=Callable[..., Any])
 _spec = pluggy.HookspecMarker("modalctl")
@@ -83,8 +84,8 @@ def modalctl_add_options(options):
         ``options.group(scheme, title)`` is an argument group with argparse's ``add_argument``;
         what is added there reaches that scheme's factory in ``context.options`` and is refused,
         with a message, when given with another transport. ``modalctl run``, ``emulate`` and
-        ``identify`` carry these options. Use :func:`modalctl.units.quantity_type` for values with
-        units.
+        ``identify`` carry these options; ``modalctl sweep`` reuses those of the ``sim`` scheme
+        its (simulated) cases take. Use :func:`modalctl.units.quantity_type` for values with units.
     """
 
 
@@ -126,4 +127,19 @@ def modalctl_controllers():
         the controller has ``reset()``, ``update(error, limit)`` (envelope errors and command
         limits, shape (k,), in the carriers' frames; returns the commands), ``scale(factor)``
         and ``design`` (a :class:`modalctl.loops.controller.LoopDesign` for the report).
+    """
+
+
+@hookspec
+def modalctl_commands():
+    """Return the commands this plugin adds to the ``modalctl`` command line.
+
+    Register the module under the entry point group ``modalctl.commands`` (not ``modalctl``):
+    the command line loads that group alone before it parses, so keep the module's imports light.
+
+    Returns
+    -------
+    iterable of modalctl.plugin.command.Command
+        Objects with ``name``, ``help``, ``add_arguments(parser)`` and ``run(args) -> int``.
+        Names must be unique across the command line.
     """
