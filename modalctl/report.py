@@ -1,18 +1,19 @@
-"""Pictures. The only module that imports matplotlib (with the non-interactive Agg backend)."""
+"""Pictures. The only module that imports matplotlib.
+
+It draws on :class:`matplotlib.figure.Figure` objects, never through pyplot: importing it switches
+no backend (a Jupyter session keeps its inline one) and registers no figure with pyplot.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from modalctl.identify.estimators import NOISE  # noqa: E402
-from modalctl.outdir import atomic  # noqa: E402
-from modalctl.plan.decompose import Decomposition  # noqa: E402
+from modalctl.identify.estimators import NOISE
+from modalctl.outdir import atomic
+from modalctl.plan.decompose import Decomposition
 
 __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_modal_bars", "plot_voltages",
            "plot_spectrogram", "plot_learning", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table",
@@ -24,8 +25,13 @@ def _save(fig, path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic(path) as temporary:  # a link planted under that name is replaced, not followed
         fig.savefig(temporary, dpi=120, bbox_inches="tight")
-    plt.close(fig)
     return path
+
+
+def _subplots(nrows: int = 1, ncols: int = 1, *, figsize, layout=None, **kw):
+    """A new :class:`Figure` (``figsize`` in inches) and its grid of Axes, as pyplot's subplots."""
+    fig = Figure(figsize=figsize, layout=layout)
+    return fig, fig.subplots(nrows, ncols, **kw)
 
 
 def _coefficient_bars(ax, dec: Decomposition):
@@ -50,7 +56,7 @@ def plot_decomposition(dec: Decomposition, path) -> Path:
     title = (f"{dec.model.meta.get('name', 'model')}: {dec.modes_used.size} of {dec.model.n_modes} modes, "
              f"tau {m['tau']:.3f}, NRMSE {m['nrmse']:.3f}")
     if grid.dim == 1:
-        fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6.5), gridspec_kw={"height_ratios": [3, 2]})
+        fig, (top, bottom) = _subplots(2, 1, figsize=(8, 6.5), gridspec_kw={"height_ratios": [3, 2]})
         x = grid.x * 1e3
         top.fill_between(x, 0, 1, where=dec.shape.target_mask, transform=top.get_xaxis_transform(),
                          color="C2", alpha=0.15, label="target zone")
@@ -63,7 +69,7 @@ def plot_decomposition(dec: Decomposition, path) -> Path:
         _coefficient_bars(bottom, dec)
     else:
         nx, ny = grid.shape
-        fig = plt.figure(figsize=(11, 6.5))
+        fig = Figure(figsize=(11, 6.5))
         axes = [fig.add_subplot(2, 3, i + 1) for i in range(3)]
         extent = [*grid.bounds[:, 0] * 1e3, *grid.bounds[:, 1] * 1e3]
         vmax = np.abs(ref).max() * 1e3
@@ -93,7 +99,7 @@ def plot_modes_needed(labels, series: dict, kept: dict, path, title: str) -> Pat
     kept : dict of str -> sequence of int
         Per pulse set, the positional indices the rule keeps.
     """
-    fig, ax = plt.subplots(figsize=(9, 4.5))
+    fig, ax = _subplots(figsize=(9, 4.5))
     pos = np.arange(len(labels))
     width = 0.8 / len(series)
     for i, (name, values) in enumerate(series.items()):
@@ -137,7 +143,7 @@ def plot_spacetime(shot, path, finger=None) -> Path:
              f"{'met' if m.margin_ok else 'NOT met'}), tau {m.tau:.3f}")
     if finger is not None:
         title += f"; a finger rests at {', '.join(f'{1e3 * v:g}' for v in finger)} mm"
-    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [3, 2]})
+    fig, (left, right) = _subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [3, 2]})
     if grid.dim == 1:
         x = grid.x * 1e3
         vmax = np.max(np.abs(field)) * 1e3
@@ -207,7 +213,7 @@ def plot_modal_bars(shot, path) -> Path:
     """Modal coefficients at the focus: reference, reduced model, measured (thesis Fig 4.17)."""
     coeffs, labels = shot.coefficients(), shot.decomposition.model.labels
     pos = np.arange(len(labels))
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6.5), gridspec_kw={"height_ratios": [2, 3]})
+    fig, (top, bottom) = _subplots(2, 1, figsize=(9, 6.5), gridspec_kw={"height_ratios": [2, 3]})
     grid = shot.decomposition.model.grid
     if grid.dim == 1:
         x = grid.x * 1e3
@@ -235,7 +241,7 @@ def plot_modal_bars(shot, path) -> Path:
 def plot_voltages(shot, path) -> Path:
     """Drive voltage of each actuator over the shot."""
     cap = shot.capture
-    fig, ax = plt.subplots(figsize=(9, 4))
+    fig, ax = _subplots(figsize=(9, 4))
     active = np.flatnonzero(np.max(np.abs(cap.voltages), axis=1) > 0)
     for a in active:
         ax.plot(cap.times * 1e3, cap.voltages[a], lw=0.6, label=f"actuator {a + 1}")
@@ -256,7 +262,7 @@ def plot_spectrogram(shot, velocity: np.ndarray, sample_rate: float, where: floa
     model = shot.decomposition.model
     f_top = 1.3 * np.max(model.frequencies[shot.plan.modes])
     keep = f <= f_top
-    fig, ax = plt.subplots(figsize=(9, 4.5))
+    fig, ax = _subplots(figsize=(9, 4.5))
     db = 10 * np.log10(s[keep] + 1e-30)
     im = ax.pcolormesh(t * 1e3, f[keep] / 1e3, db, shading="auto", vmin=db.max() - 60, vmax=db.max())
     for fk in model.frequencies[shot.plan.modes]:
@@ -278,7 +284,7 @@ def plot_loop(log, path) -> Path:
     meta = header["meta"]
     t = (records["period"] + 1) / meta["control_rate_hz"] * 1e3
     k = records["reference"].shape[1]
-    fig, axes = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    fig, axes = _subplots(2, 1, figsize=(10, 6.5), sharex=True)
     for i in range(k):
         line, = axes[0].plot(t, np.abs(records["reference"][:, i]), lw=0.9, label=f"mode {meta['modes'][i]}")
         axes[0].plot(t, np.abs(records["measured"][:, i]), lw=0.7, ls="--", color=line.get_color())
@@ -325,7 +331,7 @@ def sweep_table(rows, axes) -> str:
 
 def plot_sweep_maps(rows, axes, methods, path) -> Path:
     """tau and margin ratio of each method over one or two swept parameters: maps (two) or curves (one)."""
-    fig, grid = plt.subplots(2, len(methods), figsize=(4.2 * len(methods), 7.2), squeeze=False, layout="constrained")
+    fig, grid = _subplots(2, len(methods), figsize=(4.2 * len(methods), 7.2), squeeze=False, layout="constrained")
     x_name = axes[0]
     xs = _axis_values(rows, x_name)
     ys = _axis_values(rows, axes[1]) if len(axes) == 2 else [None]
@@ -373,7 +379,7 @@ def plot_learning(learned, labels, path) -> Path:
     f_error = 200 * np.asarray(learned.frequency_error_hz) / (f / (1 + shift / 100)) if fitted else None
     pos = np.arange(shift.size)
     used = np.isin(np.asarray(labels), learned.modes_used)
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    fig, (top, bottom) = _subplots(2, 1, figsize=(9, 6), sharex=True)
     for mask, colour, name in ((used, "C0", "modes of the shot"), (~used, "0.6", "other modes")):
         top.errorbar(pos[mask], shift[mask], yerr=f_error[mask] if fitted else None, fmt="o", color=colour,
                      capsize=3, label=name)
@@ -432,7 +438,7 @@ def plot_identification(survey, stem) -> list[str]:
     Fig 3.11) and ``<stem>_shapes.png`` (the identified shapes)."""
     stem = Path(stem)
     model = survey.model
-    fig, ax = plt.subplots(figsize=(10, 4))
+    fig, ax = _subplots(figsize=(10, 4))
     for a, frf in sorted(survey.frfs["sparse"].items()):
         ax.semilogy(frf.frequencies / 1e3, frf.mean_magnitude(), lw=0.7, label=f"actuator {a}")
     for f, ok, why in zip(survey.poles.frequencies, survey.poles.resolved, survey.poles.reasons):
@@ -445,7 +451,7 @@ def plot_identification(survey, stem) -> list[str]:
 
     from matplotlib.colors import LogNorm
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6))
+    fig, axes = _subplots(1, 2, figsize=(11, 4.6))
     k = len(survey.crosstalk_before)
     for ax, matrix, title in zip(axes, (survey.crosstalk_before, survey.crosstalk_after),
                                  ("identified", "after Gram-Schmidt")):
@@ -462,7 +468,7 @@ def plot_identification(survey, stem) -> list[str]:
 
 
 def _beam_shapes(model):
-    fig, ax = plt.subplots(figsize=(10, 5))
+    fig, ax = _subplots(figsize=(10, 5))
     x = model.grid.x * 1e3
     for k in range(model.n_modes):
         s = model.shapes[k] / np.max(np.abs(model.shapes[k]))
@@ -477,7 +483,7 @@ def _plate_shapes(model, title: str = "identified mode shapes on the measured po
     left blank), on a scatter triangulated."""
     cols = min(6, model.n_modes)
     rows = -(-model.n_modes // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 1.9 * rows + 0.6), squeeze=False)
+    fig, axes = _subplots(rows, cols, figsize=(2.2 * cols, 1.9 * rows + 0.6), squeeze=False)
     x, y = model.grid.points.T * 1e3
     for k, ax in enumerate(axes.ravel()):
         ax.set_axis_off()
@@ -510,7 +516,7 @@ def plot_fe_plate(model, convergence, stem) -> list[str]:
         for sensor in model.meta.get("sensors", []):
             ax.plot(*(np.array(sensor["position_m"]) * 1e3), "k+", ms=4)
     paths = [_save(fig, f"{stem}_shapes.png")]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    fig, axes = _subplots(1, 2, figsize=(11, 4))
     finest = convergence.levels[-1].frequencies[:model.n_modes]
     for level in convergence.levels[:-1]:
         f = level.frequencies[:model.n_modes]
