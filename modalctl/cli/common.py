@@ -1,0 +1,145 @@
+"""What the commands share at the edge: exit codes, the argument types (``--param``, ``--points``,
+``--modes``, ``--out``), the target's arguments, the refusal a command ends with, JSON output,
+the identity of a run's folder, and the device at ``--transport``.
+
+Light at import (argparse, json, the units parser): the parser is built without numpy, scipy or
+the simulator; what a command needs to run is imported inside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from modalctl.outdir import atomic
+from modalctl.plugin.command import grid_points
+from modalctl.units import number_type
+
+__all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "MODES_MAX", "parse_param", "points", "modes", "out_dir",
+           "add_target", "model_and_shape", "open_device", "refuse", "jsonable", "write_json", "identity",
+           "identity_defaults"]
+
+BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
+MODES_MAX = 1000
+points = grid_points  # --points: N for a beam, NxM for a plate
+
+
+def parse_param(text: str) -> tuple[str, str]:
+    """``--param NAME=VALUE`` -> (name, value text); the value's units are the shape's to read."""
+    if "=" not in text:
+        raise argparse.ArgumentTypeError(f"expected name=value, got {text!r}")
+    name, value = text.split("=", 1)
+    return name.strip(), value.strip()
+
+
+def modes(text: str):
+    """``--modes``: auto, all or a number of modes."""
+    if text in ("auto", "all"):
+        return text
+    try:
+        count = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected auto, all or a number of modes, got {text!r}") from None
+    if not 1 <= count <= MODES_MAX:
+        raise argparse.ArgumentTypeError(f"modes must lie in [1, {MODES_MAX}], got {text!r}")
+    return count
+
+
+def out_dir(text: str) -> str:
+    """``--out``: a directory to write into (made if absent); not empty, not an existing file."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("out: give a directory (an empty name would write into the working one)")
+    if Path(text).exists() and not Path(text).is_dir():
+        raise argparse.ArgumentTypeError(f"out: {text!r} is a file, not a directory")
+    return text
+
+
+def add_target(p) -> None:
+    """Arguments shared by decompose and run: where the model and the shape come from."""
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument("--scene", help="scene name (see 'modalctl scenes')")
+    source.add_argument("--model", help="modal model file (.npz written by modalctl)")
+    p.add_argument("--shape", required=True, help="shape generator (see 'modalctl plugins')")
+    p.add_argument("--param", action="append", default=[], type=parse_param, metavar="NAME=VALUE",
+                   help="shape parameter with units, e.g. width=18mm (repeatable)")
+    p.add_argument("--modes", type=modes, default="auto",
+                   help="auto (smallest set meeting the target), all, or N (the N lowest modes)")
+    p.add_argument("--tau-target", type=number_type(float, "tau-target", low=0, high=1),
+                   help="auto: least tau for the kept modes (default 0.98)")
+    p.add_argument("--points", type=points, help="grid points: N for a beam, NxM for a plate (default: the scene's)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def model_and_shape(args):
+    """The model (``--scene`` or ``--model``) and the target shape (``--shape``, ``--param``)."""
+    from modalctl.model.modes import ModalModel
+    from modalctl.model.scenes import load_scene
+    from modalctl.model.shape import parse_params
+    from modalctl.plugin.manager import get_shape
+
+    model = load_scene(args.scene, args.points) if args.scene is not None else ModalModel.load(args.model)
+    generator = get_shape(args.shape)
+    return model, generator.generate(model.grid, **parse_params(generator, dict(args.param)))
+
+
+def open_device(args, model=None, shape=None):
+    """The device at ``--transport`` with its transport's own options; another transport's are refused."""
+    from urllib.parse import urlsplit
+
+    from modalctl.io.device import DeviceContext
+    from modalctl.io.device import open_device as open_url
+    from modalctl.model.shape import ParamError
+
+    scheme = urlsplit(args.transport).scheme
+    misplaced = args.transports.misplaced(args, scheme)
+    if misplaced:
+        raise ParamError(f"{', '.join(misplaced)}: not an option of {scheme}:// (--transport {args.transport})")
+    return open_url(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
+
+
+def refuse(command: str, code: int, message: str, as_json: bool, certificate=None, stderr: bool = True) -> int:
+    """Say why a command ends with ``code``: on stderr, and with ``--json`` as ``{"error", "code"}``
+    (and the certificate of a refused plan) on stdout. Returns ``code``."""
+    if stderr:
+        print(f"modalctl {command}: {message}", file=sys.stderr)
+    if as_json:
+        body = {"error": message, "code": code, "command": command}
+        if certificate:
+            body["certificate"] = certificate
+        print(json.dumps(body, default=jsonable))
+    return code
+
+
+def jsonable(value):
+    """``json.dumps``'s ``default``: numpy scalars and arrays as numbers and lists, anything else as text."""
+    import numpy as np
+
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def write_json(path: Path, value) -> None:
+    """``value`` as JSON at ``path``, atomically (see :mod:`modalctl.outdir`)."""
+    with atomic(path) as temporary:
+        temporary.write_text(json.dumps(value, indent=2, default=jsonable))
+
+
+def identity(args) -> dict:
+    """The options that make a run what it is (not how it is shown): a folder holding results of
+    other options holds another run."""
+    shown = {"quiet", "force", "json", "no_plots", "transports", "out", "command"}
+    return {k: v for k, v in sorted(vars(args).items()) if k not in shown and not callable(v)}
+
+
+def identity_defaults(command: str) -> dict:
+    """Every option of ``command`` at its default (its transports' own included)."""
+    from modalctl.cli import command_parser
+
+    parser = command_parser(command)
+    return {action.dest: parser.get_default(action.dest) for action in parser._actions
+            if action.dest != argparse.SUPPRESS}

@@ -1,0 +1,149 @@
+"""``modalctl identify``: a structure's modes identified from FRFs, swept through a device
+(``sim://`` by default) or read from a universal file, written as a model file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from modalctl.options import SurveyOptions
+from modalctl.units import number_type, quantity_type
+
+from .common import open_device
+
+NAME, HELP = "identify", "identify a structure's modes from FRFs measured through a device"
+SURVEY = SurveyOptions()  # the defaults the options below show and use
+SCAN_POINTS_MIN = 5  # scan points a mode shape needs
+
+
+def add_parser(sub):
+    return sub.add_command(NAME, HELP, add_arguments, run)
+
+
+def add_arguments(p) -> None:
+    from modalctl.io.device import add_transport_options
+
+    p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
+    p.add_argument("--scene", help="sim://: the structure simulated (and its mass per length by default)")
+    p.add_argument("--frf", help="identify from measured FRFs in a universal file (datasets 58 and 15) instead")
+    p.set_defaults(transports=add_transport_options(p), snr=40.0)  # a vibrometer of 40 dB, unless said
+    p.add_argument("--f-low", type=quantity_type("Hz", "f-low", low=0, low_open=False), default=100.0,
+                   help="sweep start (100Hz)")
+    p.add_argument("--f-high", type=quantity_type("Hz", "f-high", low=0), default=100e3, help="sweep end (100kHz)")
+    p.add_argument("--resolution", type=quantity_type("Hz", "resolution", low=0), default=4.0,
+                   help="FRF resolution = 1 / T_sweep (4Hz)")
+    p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=0), default=15.0,
+                   help="sweep peak voltage (15V)")
+    p.add_argument("--step", type=quantity_type("m", "step", low=0), default=1e-3,
+                   help="spatial step of the scan, in each direction on a plate (1mm)")
+    p.add_argument("--mass-per-length", type=quantity_type("kg/m", "mass-per-length", low=0),
+                   help="of a beam (kg/m); default from the scene")
+    p.add_argument("--mass-per-area", type=quantity_type("kg/m^2", "mass-per-area", low=0),
+                   help="of a plate (kg/m^2); default from the scene")
+    p.add_argument("--method", default=SURVEY.method,
+                   help=f"identifier plugin: auto, sdof, mdof or peaks (see 'modalctl plugins'; {SURVEY.method})")
+    p.add_argument("--primary", type=number_type(int, "primary", low=0, low_open=False), default=SURVEY.primary,
+                   help=f"actuator swept over the whole grid ({SURVEY.primary})")
+    p.add_argument("--averages", type=number_type(int, "averages", low=1, high=1000, low_open=False),
+                   default=SURVEY.averages, help=f"shots per point ({SURVEY.averages})")
+    p.add_argument("--no-orthogonalize", action="store_true", help="skip Gram-Schmidt")
+    p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _density(args, meta: dict, dim: int) -> float:
+    """Mass per length (beam, kg/m) or per area (plate, kg/m^2) for a survey on ``dim``-D points:
+    the option, or the scene's; the other option is refused."""
+    from modalctl.model.shape import ParamError
+
+    wanted, other = ("mass_per_length", "mass_per_area") if dim == 1 else ("mass_per_area", "mass_per_length")
+    flag = "--" + wanted.replace("_", "-")
+    if getattr(args, other) is not None:
+        raise ParamError(f"identify: the points are {'on a line' if dim == 1 else 'on a plate'}: give {flag}, "
+                         f"not --{other.replace('_', '-')}")
+    if getattr(args, wanted) is not None:
+        return getattr(args, wanted)
+    try:
+        per_area = meta["density_kg_m3"] * meta["thickness_m"]
+        return per_area if dim == 2 else per_area * meta["width_m"]
+    except KeyError:
+        unit = "kg/m" if dim == 1 else "kg/m^2"
+        raise ParamError(f"identify: give {flag} ({unit}): it scales the shapes and gains") from None
+
+
+def run(args) -> int:
+    import numpy as np
+
+    from modalctl.identify.frf import read_uff58
+    from modalctl.identify.survey import identify_frf
+    from modalctl.model.modes import ModelError
+    from modalctl.model.scenes import load_scene
+
+    scene = load_scene(args.scene) if args.scene else None
+    if args.frf is None and args.transport.startswith("sim") and scene is None:
+        raise ModelError("identify: the simulator needs --scene (the structure to simulate)")
+    meta = scene.meta if scene is not None else {}
+    if args.frf:
+        frf = read_uff58(args.frf)
+        survey = identify_frf(frf, _density(args, meta, frf.points.shape[1]), args.method, not args.no_orthogonalize)
+        points = np.arange(survey.model.grid.n)
+    else:
+        survey, points = _survey(args, scene, meta)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    path = survey.model.save(out)
+    off = lambda c: float(np.max(np.abs(c - np.eye(len(c)))))  # noqa: E731
+    summary = {"model_file": str(path), "modes": survey.model.n_modes, "method": args.method,
+               "frequencies_hz": survey.model.frequencies.tolist(), "damping": survey.model.damping.tolist(),
+               "poles": survey.poles.summary(), "notes": survey.notes, "seconds": survey.seconds,
+               "points": int(points.size), "crosstalk_max_before": off(survey.crosstalk_before),
+               "crosstalk_max_after": off(survey.crosstalk_after)}
+    if not args.no_plots:
+        from modalctl.report import plot_identification
+
+        summary["pictures"] = plot_identification(survey, path.with_suffix(""))
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    _print(args, survey, summary, points, path)
+    return 0
+
+
+def _survey(args, scene, meta: dict):
+    """A stepped-sine survey through the device at ``--transport``: (survey, scan point indices)."""
+    import numpy as np
+
+    from modalctl.identify.frf import Sweep
+    from modalctl.identify.survey import beam_wavelength, identify_device, scan_subset
+    from modalctl.model.shape import ParamError
+
+    sweep = Sweep.design(args.f_low, args.f_high, args.resolution, args.amplitude)
+    options = SurveyOptions(method=args.method, primary=args.primary, averages=args.averages,
+                            orthogonalize=not args.no_orthogonalize)
+    with open_device(args, scene) as device:
+        caps = device.configure(sweep.sample_rate)
+        scan = np.asarray(caps.scan_points, float).reshape(len(caps.scan_points), -1)
+        density = _density(args, meta, scan.shape[1])
+        points = scan_subset(scan, args.step)
+        if points.size < SCAN_POINTS_MIN ** scan.shape[1]:  # said now, not after the whole survey
+            raise ParamError(f"identify: --step {args.step * 1e3:g} mm leaves {points.size} scan point(s) on "
+                             f"{' x '.join(f'{e * 1e3:.0f}' for e in np.ptp(scan, axis=0))} mm; at least "
+                             f"{SCAN_POINTS_MIN} per direction draw a mode shape")
+        survey = identify_device(device, sweep, points, density, options, beam_wavelength(meta, args.f_high),
+                                 progress=not args.quiet)
+    return survey, points
+
+
+def _print(args, survey, summary: dict, points, path: Path) -> None:
+    print(f"identified {summary['modes']} modes on {points.size} points with {args.method} "
+          f"({survey.seconds['frf'] + survey.seconds['modal']:.2f} s compute)")
+    print(f"{'mode':>5s} {'f (Hz)':>10s} {'zeta':>9s}")
+    for i, (f, z) in enumerate(zip(survey.model.frequencies, survey.model.damping)):
+        print(f"{i + 1:5d} {f:10.1f} {z:9.5f}")
+    for note in survey.notes:
+        print("note: " + note)
+    print(f"cross-talk: max {summary['crosstalk_max_before']:.3f} before Gram-Schmidt, "
+          f"{summary['crosstalk_max_after']:.1e} after")
+    print(f"model: {path}" + (f"; pictures: {', '.join(summary['pictures'])}" if "pictures" in summary else ""))

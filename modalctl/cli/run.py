@@ -1,0 +1,253 @@
+"""``modalctl run``: plan a focus, play it on a device (``sim://`` by default), measure it, and write
+the run's report (metrics.json, fields.npz, the pictures) into ``--out``."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from modalctl.options import LEARN_FROM, ROBUST_DRIFT_MAX, LoopOptions, PlanOptions
+from modalctl.units import number_type, quantity_type
+
+from .common import DEVICE, add_target, identity, identity_defaults, jsonable, model_and_shape, open_device, out_dir, \
+    write_json
+
+NAME, HELP = "run", "plan a focus, play it on a device (default sim://) and measure it"
+PLAN, LOOP = PlanOptions(), LoopOptions()  # the defaults the options below show and use
+
+
+def add_parser(sub):
+    return sub.add_command(NAME, HELP, add_arguments, run)
+
+
+def add_arguments(p) -> None:
+    from modalctl.io.device import add_transport_options
+
+    add_target(p)
+    p.add_argument("--focus-time", required=True, type=quantity_type("s", "focus-time", low=0), help="T_F, e.g. 25ms")
+    _add_plan_arguments(p)
+    p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
+    _add_loop_arguments(p.add_argument_group("closed loop"))
+    p.set_defaults(transports=add_transport_options(p))
+    p.add_argument("--out", required=True, type=out_dir,
+                   help="directory for metrics.json, fields.npz and the pictures")
+    p.add_argument("--force", action="store_true", help="replace another run's results in --out")
+    p.add_argument("--no-plots", action="store_true")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _add_plan_arguments(p) -> None:
+    p.add_argument("--planner", default=PLAN.planner,
+                   help="planner plugin; convex: the least-energy drive that holds the margin on every sample of "
+                        f"the whole model (a QP); envelope: the thesis's exponential envelopes ({PLAN.planner})")
+    p.add_argument("--margin", type=_margin, default=PLAN.margin,
+                   help="transient margin off target, before and after T_F, as a share of the focus peak, "
+                        f"e.g. 0.5 or 50%%, or none ({_margin_words(PLAN.margin)})")
+    p.add_argument("--robust-drift", type=quantity_type("1", "robust-drift", low=0, high=ROBUST_DRIFT_MAX,
+                                                        low_open=False),
+                   default=PLAN.robust_drift,
+                   help="convex planner: hold the margin on every truth whose resonances lie within this band "
+                        "of the model's, e.g. 1%% (0)")
+    p.add_argument("--voltage-limit", type=quantity_type("V", "voltage-limit", low=0),
+                   help="largest drive voltage, e.g. 100V")
+    p.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=0),
+                   help="largest output slope, e.g. 2e6V/s: planned for by the convex planner, and the "
+                        "closed loop's feedback clipped to it")
+    p.add_argument("--margin-on", choices=("whole", "kept"), default=PLAN.margin_on,
+                   help="where --margin must hold: whole (the field the voltages drive on every mode of the "
+                        "model; they are corrected near the focus until it does, up to a minute) or kept (the "
+                        "kept modes' references, the thesis's criterion)")
+    p.add_argument("--kappa", type=number_type(float, "kappa", low=0), default=PLAN.kappa,
+                   help=f"envelope rate without --margin ({PLAN.kappa:g})")
+    p.add_argument("--no-brake", action="store_true", help="optimizer: free decay after the focus only")
+    p.add_argument("--after", type=quantity_type("s", "after", low=0), default=PLAN.after,
+                   help=f"post-transient window recorded and checked ({PLAN.after * 1e3:g}ms)")
+    p.add_argument("--sample-rate", type=quantity_type("Hz", "sample-rate", low=0), default=PLAN.sample_rate,
+                   help=f"DAC rate ({PLAN.sample_rate / 1e6:g}MHz)")
+
+
+def _add_loop_arguments(loop) -> None:
+    loop.add_argument("--loop", choices=("open", "closed", "board"), default="open",
+                      help="open: feed-forward only (the thesis); closed: per-mode feedback on top, one "
+                           "exchange with the board per period; board: the same PI loops loaded into the board, "
+                           "which closes them itself (no link budget)")
+    loop.add_argument("--control-rate", type=quantity_type("Hz", "control-rate", low=0), default=LOOP.control_rate,
+                      help=f"loop rate, a divisor of the sample rate ({LOOP.control_rate / 1e3:g}kHz)")
+    loop.add_argument("--authority", type=number_type(float, "authority", low=0, low_open=False),
+                      default=LOOP.authority,
+                      help=f"largest feedback per mode, as a fraction of its planned drive ({LOOP.authority:g})")
+    loop.add_argument("--latency", type=number_type(int, "latency", low=0, high=1000, low_open=False),
+                      default=LOOP.latency, help=f"extra periods the board takes to use a command ({LOOP.latency})")
+    loop.add_argument("--controller", default=LOOP.controller,
+                      help=f"per-mode controller plugin: pi, lqg, or touch (pi plus the force a finger takes, "
+                           f"estimated during the shot) ({LOOP.controller})")
+    loop.add_argument("--touch-at", type=quantity_type("m", "touch-at", point=True), metavar="POINT",
+                      help="touch controller: where a touch sensor says the finger rests, e.g. 0mm (default: "
+                           "the controller finds it)")
+    loop.add_argument("--watchdog", type=number_type(int, "watchdog", low=1, high=10**6, low_open=False),
+                      default=LOOP.watchdog,
+                      help=f"periods without a measurement before the supervisor stops the shot ({LOOP.watchdog})")
+    loop.add_argument("--learn", nargs="?", const="record", choices=LEARN_FROM,
+                      help="a first closed-loop shot teaches the model: from its record (record, the default: "
+                           "every resonance and damping fitted to it) or from a pole tracker during it (tracker); "
+                           "the shot planned again on the updated model is the one reported")
+
+
+def _margin(text: str) -> float | None:
+    """``--margin``: a share of the focus peak in (0, 1], or ``none``."""
+    if text.strip().lower() == "none":
+        return None
+    return quantity_type("1", "margin", low=0, high=1)(text)
+
+
+def _margin_words(margin: float | None) -> str:
+    return "none" if margin is None else f"{margin:g}"
+
+
+def _run_options(args, out: Path):
+    """The typed options of ``modalctl run``."""
+    from modalctl.model.shape import ParamError
+    from modalctl.options import RunOptions
+    from modalctl.plugin.manager import get_planner
+
+    if args.learn and args.loop == "open":
+        raise ParamError("--learn needs a closed loop (--loop closed or board)")
+    get_planner(args.planner)  # an unknown planner is bad input, refused before the device opens
+    plan = PlanOptions(planner=args.planner, modes=args.modes, tau_min=args.tau_target or PLAN.tau_min,
+                       margin=args.margin, margin_on=args.margin_on, voltage_limit=args.voltage_limit,
+                       slew_limit=args.slew_limit, robust_drift=args.robust_drift, kappa=args.kappa,
+                       brake=not args.no_brake, after=args.after, sample_rate=args.sample_rate)
+    loop = None if args.loop == "open" else LoopOptions(
+        control_rate=args.control_rate, controller=args.controller, on_board=args.loop == "board",
+        authority=args.authority, latency=args.latency, slew_limit=args.slew_limit, watchdog=args.watchdog,
+        touch_at=args.touch_at)
+    return RunOptions(args.focus_time, plan, loop, args.learn, out / "log" if loop else None, not args.quiet)
+
+
+def run(args) -> int:
+    import warnings
+
+    from modalctl.io.device import DeviceError
+    from modalctl.loops.realtime import keep_memory
+    from modalctl.outdir import claim
+    from modalctl.plan.dispatch import DecouplingWarning
+    from modalctl.plan.planner import PlanError
+    from modalctl.run import run as play
+
+    keep_memory()  # shots reuse their memory instead of faulting on fresh pages each time
+    warnings.simplefilter("ignore", DecouplingWarning)  # printed below from the metrics
+    out = Path(args.out)
+    options = _run_options(args, out)
+    model, shape = model_and_shape(args)
+    with open_device(args, model, shape) as device:  # its options checked before the folder is made
+        claim(out, "run", identity(args), args.force, identity_defaults("run"))
+        try:
+            shot = play(model, shape, device, options)
+        except PlanError as refused:  # a result: why, on disk beside where the report would be
+            write_json(out / "refusal.json", {"refused": str(refused), "needed": refused.needed,
+                                              "limit": refused.limit, "certificate": refused.certificate,
+                                              "planner": options.plan.planner})
+            raise
+        except DeviceError as fault:
+            _halted(out, device, fault)
+            raise
+        return _report(args, model, shot, device, out)
+
+
+def _halted(out: Path, device, fault: Exception) -> None:
+    """After a device fault: every output commanded to zero (best effort), and what happened in
+    ``out/metrics.json`` beside the loop's log, so the run's folder says why it has no field."""
+    could_not = device.halt()
+    log = out / "log.json"
+    metrics = {"fault": str(fault), "exit_code": DEVICE, "device": device.url, "device_info": device.info,
+               "outputs": "commanded to zero" if could_not is None else f"not confirmed at zero: {could_not}",
+               "log": str(log) if log.exists() else None, "out": str(out)}
+    write_json(out / "metrics.json", metrics)
+
+
+def _report(args, model, shot, device, out) -> int:
+    """metrics.json, fields.npz and the pictures of a run; the summary on stdout."""
+    from modalctl.outdir import record
+
+    metrics = {**shot.to_dict(), "scene": model.meta.get("name", args.model), "shape": args.shape,
+               "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out)}
+    _write_fields(model, shot, out)
+    if not args.no_plots:
+        from modalctl.report import write_run_report
+
+        metrics["pictures"] = write_run_report(shot, out)
+        record(out, [Path(picture).name for picture in metrics["pictures"].values()])
+    write_json(out / "metrics.json", metrics)
+    fault = metrics.get("loop", {}).get("fault")
+    if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
+        print(f"modalctl run: the supervisor stopped the shot: {fault}; outputs ramped to zero, "
+              f"log in {out}/log.json + log.bin", file=sys.stderr)
+    if args.json:
+        print(json.dumps(metrics, default=jsonable))
+        return DEVICE if fault else 0
+    _print_shot(args, metrics)
+    _print_loop(metrics, shot, out)
+    print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in metrics else ")"))
+    return DEVICE if fault else 0
+
+
+def _write_fields(model, shot, out: Path) -> None:
+    """fields.npz: the measured field, the target, the capture and the modal coefficients."""
+    import numpy as np
+
+    from modalctl.outdir import atomic
+
+    coeffs = shot.coefficients()
+    # the field scan is stored in float32 (7 digits, far below any measurement noise) to keep runs small
+    with atomic(out / "fields.npz") as temporary:
+        np.savez_compressed(temporary, times=shot.times, field=shot.field.astype(np.float32),
+                            focus_field=shot.focus_field,
+                            target=shot.decomposition.shape.values, target_mask=shot.decomposition.shape.target_mask,
+                            grid=model.grid.points,
+                            sample_times=shot.capture.times, voltages=shot.capture.voltages,
+                            sensors=shot.capture.sensors, focus_point_velocity=shot.focus_velocity,
+                            labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
+
+
+def _print_shot(args, m: dict) -> None:
+    """The focus: modes, tau, the margin measured and planned, the voltage and the times."""
+    params = " ".join(f"{k}={v}" for k, v in args.param)
+    print(f"{m['scene']}, {args.shape} {params}, T_F {args.focus_time * 1e3:g} ms, truth: {m['truth']}")
+    print(f"modes {m['modes_used']}")
+    print(f"tau {m['tau']:.4f} (model {m['tau_model']:.4f})  tau_norm {m['tau_norm']:.4f}  NRMSE {m['nrmse']:.4f}")
+    held = m["margin_planned"]
+    if held is not None and held != m["margin_criterion"]:
+        band = (m["program"] or {}).get("robust_drift")
+        print(f"the closed loop's plan holds {held:g} (headroom for its feedback)"
+              + (f" over +-{100 * band:g}% of resonance drift" if band else ""))
+    planned = (f"planned {m['whole_model_margin_ratio']:.3f} on every sample of the whole model"
+               if m["planner"] == "convex" else f"planned {m['predicted_margin_ratio']:.3f} on the kept modes, "
+               f"{m['whole_model_margin_ratio']:.3f} predicted on the whole model")
+    print(f"margin ratio {m['margin_ratio']:.3f} measured ({'met' if m['margin_ok'] else 'NOT met'}: criterion "
+          f"{m['margin_criterion']:g}); {planned}; peak voltage {m['peak_voltage']:.1f} V")
+    print(f"plan {m['plan_seconds']:.2f} s ({m['planner']} planner), device {m['sim_seconds']:.2f} s")
+
+
+def _print_loop(m: dict, shot, out: Path) -> None:
+    """The closed loop, the learning shot and the decoupling warnings, when there are."""
+    if "loop" in m:
+        lp = m["loop"]
+        where = "on the board" if lp.get("on_board") else f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update"
+        ended = (f"stopped by a fault ({lp['fault']})" if lp["fault"] else
+                 f"ran {lp['periods']} periods and ended {lp['state']}")  # inactive: the lifecycle's rest state
+        print(f"closed loop at {lp['control_rate_hz'] / 1e3:g} kHz: {ended}, "
+              + (f"{lp['periods']} periods, " if lp["fault"] else "") + f"{where}, crossovers "
+              f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
+        print(f"the shot took {lp['real_time_factor']:.2f}x its played time (set-up, loop, log, records; "
+              f"design {lp['design_seconds']:.2f} s and the field's scan {lp['scan_seconds']:.2f} s besides)")
+    if shot.learning is not None:
+        ls = shot.learning
+        how = (f"fit {ls.update_seconds:.1f} s, misfit {100 * ls.misfit:.1f}%" if ls.source == "record"
+               else "a pole tracker during the shot")
+        print(f"learning shot: tau {ls.tau:.4f}, margin ratio {ls.margin_ratio:.3f}; its {ls.source} moved the "
+              f"resonances by {100 * ls.common_shift:+.2f}% in common ({100 * min(ls.relative_shift):+.2f}% "
+              f"to {100 * max(ls.relative_shift):+.2f}%; {how}); the numbers above are the shot planned again "
+              f"on the updated model")
+    for w in m["decoupling_warnings"]:
+        print("warning: " + w)
