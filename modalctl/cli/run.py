@@ -186,7 +186,7 @@ def _report(args, model, shot, device, out) -> int:
     if args.json:
         print(json.dumps(metrics, default=jsonable))
         return DEVICE if fault else 0
-    _print_shot(args, metrics)
+    _print_shot(args, metrics, shot.plan.report)
     _print_loop(metrics, shot, out)
     print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in metrics else ")"))
     return DEVICE if fault else 0
@@ -210,8 +210,9 @@ def _write_fields(model, shot, out: Path) -> None:
                             labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
 
 
-def _print_shot(args, m: dict) -> None:
-    """The focus: modes, tau, the margin measured and planned, the voltage and the times."""
+def _print_shot(args, m: dict, report) -> None:
+    """The focus: modes, tau, the margin measured and planned (``report``: the plan's
+    :class:`~modalctl.plan.planner.PlanReport`), the voltage and the times."""
     params = " ".join(f"{k}={v}" for k, v in args.param)
     print(f"{m['scene']}, {args.shape} {params}, T_F {args.focus_time * 1e3:g} ms, truth: {m['truth']}")
     print(f"modes {m['modes_used']}")
@@ -222,8 +223,8 @@ def _print_shot(args, m: dict) -> None:
         print(f"the closed loop's plan holds {held:g} (headroom for its feedback)"
               + (f" over +-{100 * band:g}% of resonance drift" if band else ""))
     planned = (f"planned {m['whole_model_margin_ratio']:.3f} on every sample of the whole model"
-               if m["planner"] == "convex" else f"planned {m['predicted_margin_ratio']:.3f} on the kept modes, "
-               f"{m['whole_model_margin_ratio']:.3f} predicted on the whole model")
+               if report.predicted_margin_ratio is None else f"planned {m['predicted_margin_ratio']:.3f} on the kept "
+               f"modes, {m['whole_model_margin_ratio']:.3f} predicted on the whole model")
     print(f"margin ratio {m['margin_ratio']:.3f} measured ({'met' if m['margin_ok'] else 'NOT met'}: criterion "
           f"{m['margin_criterion']:g}); {planned}; peak voltage {m['peak_voltage']:.1f} V")
     print(f"plan {m['plan_seconds']:.2f} s ({m['planner']} planner), device {m['sim_seconds']:.2f} s")
