@@ -80,3 +80,27 @@ def test_the_parameter_count_sees_keyword_only_parameters_and_skips_self(tmp_pat
     source.write_text("def f(a, b, *, c, d, e, f, g, h, i):\n    pass\n\n"
                       "class A:\n    def g(self, a, b, c, d, e, f, g, h):\n        pass\n")
     assert wide_functions(source) == ["f (9)"]
+
+
+def _contracts() -> list[dict]:
+    import tomllib
+
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["importlinter"]["contracts"]
+
+
+def test_no_module_outside_the_hil_imports_it_and_the_command_line_imports_no_transport():
+    """The contracts the layers test runs fence the simulator off every layer but its own (and the HIL
+    benches that measure its truth), and the transports off the command line: the simulator is a
+    plugin registered by entry point from inside hil/, reached by URL like any board."""
+    from importlib.metadata import entry_points
+
+    fenced = {source for c in _contracts() if "modalctl.hil" in c.get("forbidden_modules", [])
+              for source in c["source_modules"]}
+    top = {f"modalctl.{p.stem if p.is_file() else p.name}" for p in PACKAGE.iterdir()
+           if (p.suffix == ".py" and p.stem != "__init__") or (p.is_dir() and (p / "__init__.py").exists())}
+    benches = {"modalctl.experiments", "modalctl.hil"}
+    assert top - benches <= fenced, sorted(top - benches - fenced)
+    cli = [c for c in _contracts() if c.get("source_modules") == ["modalctl.cli"]]
+    assert cli and {"modalctl.io.transports", "modalctl.hil"} <= set(cli[0]["forbidden_modules"])
+    registered = {ep.value for ep in entry_points(group="modalctl")}
+    assert "modalctl.hil.transport" in registered

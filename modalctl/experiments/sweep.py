@@ -25,8 +25,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from modalctl.hil.scenario import Perturbation
-from modalctl.hil.sim_device import SimDevice
+from modalctl.io.device import DeviceContext, open_device
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
 from modalctl.model.touch import Touch, added_decay
@@ -136,11 +135,10 @@ def run_case(case: Case) -> dict:
         warnings.simplefilter("ignore")
         options = case.options()
         planned = _nominal_plan(case.scene, case.points, case.shape, case.params, case.focus_time, options.planned)
-        peak = int(np.argmax(np.abs(target.values)))
-        perturbation = Perturbation(drift=case.drift, damping_error=case.damping_error, snr_db=case.snr_db,
-                                    seed=case.seed, finger=case.finger,
-                                    finger_at=tuple(model.grid.points[peak]) if case.finger else None)
-        device = SimDevice(model, perturbation)
+        peak = int(np.argmax(np.abs(target.values)))  # where the simulator rests the finger
+        truth = {"drift": case.drift, "damping_error": case.damping_error, "snr": case.snr_db, "seed": case.seed,
+                 "finger": case.finger}
+        device = open_device("sim://", DeviceContext(model, target, truth))
         shot = run(model, target, device, options, planned)
     added = 0.0
     if case.finger > 0:

@@ -111,7 +111,7 @@ class Perturbation:
     @classmethod
     def from_options(cls, options: dict, model: ModalModel, target: Shape | None = None) -> "Perturbation":
         """The perturbation the simulator's command-line options ask for (by dest, parsed to SI; see
-        :func:`modalctl.plugins.transports.modalctl_add_options`); a finger rests on the target's
+        :func:`modalctl.hil.transport.modalctl_add_options`); a finger rests on the target's
         peak unless placed. ValueError names what is wrong."""
         finger, at = options.get("finger", 0.0), options.get("finger_at")
         if at is not None and not finger:

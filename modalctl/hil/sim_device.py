@@ -64,7 +64,7 @@ class SimDevice(Device):
     def from_url(cls, url: str, context: DeviceContext) -> "SimDevice":
         """``sim://?hold=zoh&tol=1e-4``. The structure is the context's model, or the scene its
         ``truth`` option names (the same actuators and sensors, other modes); the other options
-        (those of :func:`modalctl.plugins.transports.modalctl_add_options`) make its perturbation."""
+        (those of :func:`modalctl.hil.transport.modalctl_add_options`) make its perturbation."""
         query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
         unknown = set(query) - {"hold", "tol"}
         if unknown:

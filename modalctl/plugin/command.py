@@ -6,7 +6,7 @@ A command is a :class:`Command`: a name, a line of help, ``add_arguments(parser)
 before it parses anything, and loading every plugin there would make ``modalctl --help`` pay for
 every plugin's imports (numpy, scipy, the simulator: a second). So a command plugin's module
 imports only what declaring the command needs, and the rest inside ``add_arguments`` and
-``run`` (see :mod:`modalctl.plugins.emulators`).
+``run`` (see :mod:`modalctl.hil.commands`).
 
 A light module: argparse, abc and pluggy, nothing numerical. :func:`grid_points` is here because
 the command line's own commands and the plugins' read grids the same way.

@@ -1,4 +1,4 @@
-"""First-party command plugin: ``modalctl emulate``, the HIL board served on a serial device path.
+"""The HIL's command plugin: ``modalctl emulate``, the HIL board served on a serial device path.
 
 The emulator is hardware-in-the-loop, so the HIL side contributes the command (hook
 ``modalctl_commands``, entry point group ``modalctl.commands``) and the command line imports no
@@ -32,7 +32,7 @@ class Emulate(Command):
     def run(self, args) -> int:
         import time
 
-        from modalctl.hil.serial_board import SerialBoardEmulator
+        from .serial_board import SerialBoardEmulator
         from modalctl.loops.realtime import keep_memory
 
         keep_memory()  # the board plays shots: their memory reused instead of faulted in each time
@@ -52,7 +52,7 @@ class Emulate(Command):
 def _board_truth(args):
     """The emulated structure (``--scene``) and its truth from the simulator's own options; the
     other transports' options and ``--truth`` (another structure: ``modalctl run``'s) refused."""
-    from modalctl.hil.scenario import Perturbation
+    from .scenario import Perturbation
     from modalctl.model.scenes import load_scene
     from modalctl.model.shape import ParamError
 
