@@ -1,7 +1,17 @@
-"""Pictures. The only module that imports matplotlib.
+"""Pictures of decompositions, shots, closed loops, sweeps, identifications and finite-element plates.
 
-It draws on :class:`matplotlib.figure.Figure` objects, never through pyplot: importing it switches
-no backend (a Jupyter session keeps its inline one) and registers no figure with pyplot.
+The only module that imports matplotlib. It draws on :class:`matplotlib.figure.Figure` objects, not
+through pyplot, so importing it switches no backend (a Jupyter session keeps its own). A ``plot_*``
+saves a PNG at ``path`` (120 dpi, atomically: :mod:`modalctl.outdir`) and returns the path; one of a
+single panel (:func:`plot_voltages`, :func:`plot_spectrogram`, :func:`plot_modes_needed`) given
+``ax=`` draws on that Axes instead, writes nothing and returns it, so pictures compose::
+
+    fig, (top, bottom) = plt.subplots(2, 1)  # in a notebook; or Figure().subplots(2, 1)
+    plot_voltages(shot, ax=top)
+    plot_spectrogram(shot, shot.focus_velocity, shot.plan.sample_rate, 0.024, ax=bottom)
+
+Pictures of several panels are built from one-panel helpers (``_*_panel(ax, ...)``). Units as
+labelled: mm, ms, kHz, V; velocities in mm/s, modal coefficients in m/s sqrt(kg).
 """
 
 from __future__ import annotations
@@ -9,6 +19,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from matplotlib.colors import LogNorm
 from matplotlib.figure import Figure
 
 from modalctl.identify.estimators import NOISE
@@ -20,7 +31,8 @@ __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_mo
            "plot_identification", "plot_fe_plate"]
 
 
-def _save(fig, path) -> Path:
+def _save(fig: Figure, path) -> Path:
+    """``fig`` as a PNG at ``path`` (120 dpi, cropped to what is drawn), written atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic(path) as temporary:  # a link planted under that name is replaced, not followed
@@ -34,8 +46,15 @@ def _subplots(nrows: int = 1, ncols: int = 1, *, figsize, layout=None, **kw):
     return fig, fig.subplots(nrows, ncols, **kw)
 
 
-def _coefficient_bars(ax, dec: Decomposition):
-    labels = dec.model.labels
+def _own_or_given(ax, path, figsize):
+    """``(fig, ax)`` of a one-panel picture: the caller's Axes (``fig`` None), or a new figure's."""
+    if ax is None and path is None:
+        raise ValueError("give path (where to save the picture) or ax (where to draw it)")
+    return (None, ax) if ax is not None else _subplots(figsize=figsize)
+
+
+def _coefficients_panel(ax, dec: Decomposition):
+    """|coefficient| of every mode (m/s sqrt(kg)), the kept ones in colour, the dropped in grey."""
     c = np.abs(dec.coefficients)
     kept = np.zeros(c.size, bool)
     kept[dec.modes_used] = True
@@ -43,63 +62,67 @@ def _coefficient_bars(ax, dec: Decomposition):
     if not kept.all():
         ax.bar(pos[~kept], c[~kept], color="0.75", label="dropped")
     ax.bar(pos[kept], c[kept], color="C0", label="kept")
-    ax.set_xticks(pos, [str(l) for l in labels], fontsize=7)
+    ax.set_xticks(pos, [str(l) for l in dec.model.labels], fontsize=7)
     ax.set_xlabel("mode")
     ax.set_ylabel("|coefficient| (m/s sqrt(kg))")
     ax.legend(frameon=False)
 
 
+def _reconstruction_panel(ax, dec: Decomposition):
+    """A beam's reference field and its reduced reconstruction (mm/s over mm), the target zone shaded."""
+    x = dec.model.grid.x * 1e3
+    ax.fill_between(x, 0, 1, where=dec.shape.target_mask, transform=ax.get_xaxis_transform(),
+                    color="C2", alpha=0.15, label="target zone")
+    ax.plot(x, dec.shape.values * 1e3, "C3", lw=2, label="reference")
+    ax.plot(x, dec.reconstruction * 1e3, "k--", lw=1.5, label=f"{dec.modes_used.size} modes")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("velocity at focus (mm/s)")
+    ax.legend(frameon=False, fontsize=8)
+
+
+def _plate_map_panel(ax, dec: Decomposition, data: np.ndarray, name: str, vmax: float):
+    """A field (mm/s, colours -vmax to vmax) on a plate's lattice, the target zone outlined; its image."""
+    grid = dec.model.grid
+    nx, ny = grid.shape
+    extent = [*grid.bounds[:, 0] * 1e3, *grid.bounds[:, 1] * 1e3]
+    image = ax.imshow(data.reshape(ny, nx) * 1e3, origin="lower", extent=extent, cmap="RdBu_r", vmin=-vmax, vmax=vmax)
+    ax.contour(dec.shape.target_mask.reshape(ny, nx), levels=[0.5], colors="k", linewidths=0.8, extent=extent)
+    ax.set_title(name, fontsize=9)
+    ax.set_xlabel("x (mm)")
+    return image
+
+
 def plot_decomposition(dec: Decomposition, path) -> Path:
-    """Reference field, reduced reconstruction and target zone, over the modal coefficients."""
+    """Reference field, reduced reconstruction and target zone (a beam's curves, a plate's maps on
+    its lattice with the error), over the modal coefficients."""
     m = dec.metrics()
     grid, ref, rec = dec.model.grid, dec.shape.values, dec.reconstruction
     title = (f"{dec.model.meta.get('name', 'model')}: {dec.modes_used.size} of {dec.model.n_modes} modes, "
              f"tau {m['tau']:.3f}, NRMSE {m['nrmse']:.3f}")
     if grid.dim == 1:
         fig, (top, bottom) = _subplots(2, 1, figsize=(8, 6.5), gridspec_kw={"height_ratios": [3, 2]})
-        x = grid.x * 1e3
-        top.fill_between(x, 0, 1, where=dec.shape.target_mask, transform=top.get_xaxis_transform(),
-                         color="C2", alpha=0.15, label="target zone")
-        top.plot(x, ref * 1e3, "C3", lw=2, label="reference")
-        top.plot(x, rec * 1e3, "k--", lw=1.5, label=f"{dec.modes_used.size} modes")
-        top.set_xlabel("x (mm)")
-        top.set_ylabel("velocity at focus (mm/s)")
-        top.legend(frameon=False, fontsize=8)
+        _reconstruction_panel(top, dec)
         top.set_title(title, fontsize=10)
-        _coefficient_bars(bottom, dec)
+        _coefficients_panel(bottom, dec)
     else:
-        nx, ny = grid.shape
         fig = Figure(figsize=(11, 6.5))
         axes = [fig.add_subplot(2, 3, i + 1) for i in range(3)]
-        extent = [*grid.bounds[:, 0] * 1e3, *grid.bounds[:, 1] * 1e3]
         vmax = np.abs(ref).max() * 1e3
         for ax, data, name in zip(axes, [ref, rec, rec - ref], ["reference", "reduced model", "error"]):
-            im = ax.imshow(data.reshape(ny, nx) * 1e3, origin="lower", extent=extent, cmap="RdBu_r",
-                           vmin=-vmax, vmax=vmax)
-            ax.contour(dec.shape.target_mask.reshape(ny, nx), levels=[0.5], colors="k", linewidths=0.8,
-                       extent=extent)
-            ax.set_title(name, fontsize=9)
-            ax.set_xlabel("x (mm)")
+            image = _plate_map_panel(ax, dec, data, name, vmax)
         axes[0].set_ylabel("y (mm)")
-        fig.colorbar(im, ax=axes, label="velocity at focus (mm/s)", shrink=0.8)
+        fig.colorbar(image, ax=axes, label="velocity at focus (mm/s)", shrink=0.8)
         fig.suptitle(title, fontsize=10)
-        _coefficient_bars(fig.add_subplot(2, 1, 2), dec)
+        _coefficients_panel(fig.add_subplot(2, 1, 2), dec)
     return _save(fig, path)
 
 
-def plot_modes_needed(labels, series: dict, kept: dict, path, title: str) -> Path:
-    """Max |coefficient| per mode of several pulse sets, with the kept band of each shaded.
-
-    Parameters
-    ----------
-    labels : sequence of int
-        Mode numbers, shape (k,).
-    series : dict of str -> ndarray (k,)
-        Per pulse set, the largest relative |coefficient| over its centres.
-    kept : dict of str -> sequence of int
-        Per pulse set, the positional indices the rule keeps.
-    """
-    fig, ax = _subplots(figsize=(9, 4.5))
+def plot_modes_needed(labels, series: dict, kept: dict, path=None, title: str = "", *, ax=None):
+    """Max |coefficient| per mode (``labels``, k of them) of several pulse sets, with the kept band of
+    each shaded: ``series`` maps a set's name to its largest relative |coefficient| over its centres,
+    shape (k,), ``kept`` to the positional indices its rule keeps. Saved at ``path``, or drawn on
+    ``ax`` (returned)."""
+    fig, ax = _own_or_given(ax, path, (9, 4.5))
     pos = np.arange(len(labels))
     width = 0.8 / len(series)
     for i, (name, values) in enumerate(series.items()):
@@ -116,67 +139,76 @@ def plot_modes_needed(labels, series: dict, kept: dict, path, title: str) -> Pat
     ax.set_ylabel("max over centres of |c| / max |c| of the set")
     ax.set_title(title, fontsize=10)
     ax.legend(frameon=False, fontsize=8, loc="center right")
-    return _save(fig, path)
+    return ax if fig is None else _save(fig, path)
 
 
 def _window(shot, half: float = 4e-3):
+    """The samples within ``half`` (s) of the focus time."""
     tf = shot.plan.focus_time
-    sel = (shot.times >= tf - half) & (shot.times <= tf + half)
-    return sel
+    return (shot.times >= tf - half) & (shot.times <= tf + half)
+
+
+def _field_panel(ax, shot, finger=None):
+    """A beam's velocity over x (mm) and T_F +- 4 ms; red off target above the margin, finger dotted."""
+    grid, mask = shot.decomposition.model.grid, shot.decomposition.shape.target_mask
+    tf, sel = shot.plan.focus_time, _window(shot)
+    t, field = shot.times[sel], shot.field[:, sel]
+    x = grid.x * 1e3
+    vmax = np.max(np.abs(field)) * 1e3
+    mesh = ax.pcolormesh((t - tf) * 1e3, x, field * 1e3, cmap="RdBu_r", vmin=-vmax, vmax=vmax, shading="auto")
+    limit = shot.metrics.margin_criterion * np.max(np.abs(shot.focus_field))
+    bad = (np.abs(field) > limit) & ~mask[:, None]
+    ax.contourf((t - tf) * 1e3, x, bad.astype(float), levels=[0.5, 1.5], colors=["red"], alpha=0.8)
+    ax.axhspan(x[mask].min(), x[mask].max(), color="C2", alpha=0.12, lw=0)
+    ax.set_ylabel("x (mm)")
+    if finger is not None:
+        ax.axhline(finger[0] * 1e3, color="k", ls=":", lw=1.2)
+        ax.annotate("finger", (1, finger[0] * 1e3), xycoords=("axes fraction", "data"), xytext=(-4, 3),
+                    textcoords="offset points", ha="right", fontsize=8)
+    ax.figure.colorbar(mesh, ax=ax, label="velocity (mm/s)")
+    ax.set_title("field; red: off-target above the margin, green: target zone", fontsize=9)
+    ax.set_xlabel("t - T_F (ms)")
+
+
+def _extremes_panel(ax, shot, shade_window: bool = False):
+    """The largest on- and off-target |w| (mm/s) over the shot, the margin's limit, the worst instant."""
+    mask, m, tf = shot.decomposition.shape.target_mask, shot.metrics, shot.plan.focus_time
+    whole = (shot.times - tf) * 1e3
+    off = np.max(np.abs(shot.field[~mask]), axis=0) if (~mask).any() else np.zeros(whole.size)
+    on = np.max(np.abs(shot.field[mask]), axis=0)
+    ax.plot(whole, on * 1e3, "C2", lw=1, label="max |w| in target zone")
+    ax.plot(whole, off * 1e3, "C0", lw=1, label="max |w| off target")
+    limit = m.margin_criterion * np.max(np.abs(shot.focus_field))
+    ax.axhline(limit * 1e3, color="red", ls="--", lw=1, label=f"margin {m.margin_criterion:g} x focus peak")
+    worst = int(np.argmax(off))
+    ax.plot(whole[worst], off[worst] * 1e3, "kx", label=f"worst off target ({whole[worst]:+.2f} ms)")
+    if shade_window:
+        t = shot.times[_window(shot)]
+        ax.axvspan((t[0] - tf) * 1e3, (t[-1] - tf) * 1e3, color="0.9", lw=0, zorder=0, label="left: T_F +- 4 ms")
+    ax.set_ylabel("velocity (mm/s)")
+    ax.legend(frameon=False, fontsize=8)
+    ax.set_xlabel("t - T_F (ms)")
 
 
 def plot_spacetime(shot, path, finger=None) -> Path:
-    """Space-time field around the focus with margin violations in red (thesis Figs 5.3-5.5), and
-    the largest on- and off-target |w| over the whole shot (where the margin is measured).
-
-    1-D grids: velocity over x and t (T_F +- 4 ms) beside the whole shot's curves. 2-D grids: the
-    curves beside the plate's field in frames around T_F (a lattice grid). ``finger``: where a
-    finger rests (m, a point), marked on the field.
-    """
+    """Space-time field around the focus with margin violations in red (thesis Figs 5.3-5.5), beside
+    the largest on- and off-target |w| over the whole shot (where the margin is measured): a beam's
+    over x and T_F +- 4 ms, a plate's in frames around T_F (a lattice grid). ``finger``: where a
+    finger rests (m, a point), marked on the field."""
     m, grid = shot.metrics, shot.decomposition.model.grid
-    tf, sel = shot.plan.focus_time, _window(shot)
-    t, field = shot.times[sel], shot.field[:, sel]
-    peak = np.max(np.abs(shot.focus_field))
-    limit = m.margin_criterion * peak
-    mask = shot.decomposition.shape.target_mask
     title = (f"margin ratio {m.margin_ratio:.2f} (criterion {m.margin_criterion:g}, "
              f"{'met' if m.margin_ok else 'NOT met'}), tau {m.tau:.3f}")
     if finger is not None:
         title += f"; a finger rests at {', '.join(f'{1e3 * v:g}' for v in finger)} mm"
     fig, (left, right) = _subplots(1, 2, figsize=(12, 4.8), gridspec_kw={"width_ratios": [3, 2]})
     if grid.dim == 1:
-        x = grid.x * 1e3
-        vmax = np.max(np.abs(field)) * 1e3
-        im = left.pcolormesh((t - tf) * 1e3, x, field * 1e3, cmap="RdBu_r", vmin=-vmax, vmax=vmax, shading="auto")
-        bad = (np.abs(field) > limit) & ~mask[:, None]
-        left.contourf((t - tf) * 1e3, x, bad.astype(float), levels=[0.5, 1.5], colors=["red"], alpha=0.8)
-        left.axhspan(x[mask].min(), x[mask].max(), color="C2", alpha=0.12, lw=0)
-        left.set_ylabel("x (mm)")
-        if finger is not None:
-            left.axhline(finger[0] * 1e3, color="k", ls=":", lw=1.2)
-            left.annotate("finger", (1, finger[0] * 1e3), xycoords=("axes fraction", "data"), xytext=(-4, 3),
-                          textcoords="offset points", ha="right", fontsize=8)
-        fig.colorbar(im, ax=left, label="velocity (mm/s)")
-        left.set_title("field; red: off-target above the margin, green: target zone", fontsize=9)
-    whole = (shot.times - tf) * 1e3
-    off = np.max(np.abs(shot.field[~mask]), axis=0) if (~mask).any() else np.zeros(whole.size)
-    on = np.max(np.abs(shot.field[mask]), axis=0)
-    ax = left if grid.dim != 1 else right
-    ax.plot(whole, on * 1e3, "C2", lw=1, label="max |w| in target zone")
-    ax.plot(whole, off * 1e3, "C0", lw=1, label="max |w| off target")
-    ax.axhline(limit * 1e3, color="red", ls="--", lw=1, label=f"margin {m.margin_criterion:g} x focus peak")
-    worst = int(np.argmax(off))
-    ax.plot(whole[worst], off[worst] * 1e3, "kx", label=f"worst off target ({whole[worst]:+.2f} ms)")
-    if grid.dim == 1:
-        ax.axvspan((t[0] - tf) * 1e3, (t[-1] - tf) * 1e3, color="0.9", lw=0, zorder=0, label="left: T_F +- 4 ms")
-    ax.set_ylabel("velocity (mm/s)")
-    ax.legend(frameon=False, fontsize=8)
-    for a in (left, right):
-        a.set_xlabel("t - T_F (ms)")
-    if grid.dim != 1:
+        _field_panel(left, shot, finger)
+        _extremes_panel(right, shot, shade_window=True)
+    else:
+        _extremes_panel(left, shot)
         right.axis("off")
         if grid.shape is not None:
-            _plate_frames(fig, right, shot, mask, finger)
+            _plate_frames(fig, right, shot, finger)
     fig.suptitle(title, fontsize=10)
     return _save(fig, path)
 
@@ -184,64 +216,80 @@ def plot_spacetime(shot, path, finger=None) -> Path:
 FRAMES_MS = (-2.0, -1.0, 0.0, 1.0)  # a plate's field drawn at these times from the focus
 
 
-def _plate_frames(fig, where, shot, mask, finger=None) -> None:
-    """The plate's field at ``FRAMES_MS`` around T_F in the panel ``where``, one colour scale,
-    points off the plate blank, the target zone outlined, a resting finger marked."""
-    grid = shot.decomposition.model.grid
-    tf = shot.plan.focus_time
-    idx = [int(np.argmin(np.abs(shot.times - (tf + dt * 1e-3)))) for dt in FRAMES_MS]
-    vmax = np.max(np.abs(shot.field[:, idx])) * 1e3
+def _plate_frame_panel(ax, shot, sample: int, dt: float, vmax: float, finger=None):
+    """A plate's field (mm/s) at ``sample``, ``dt`` (ms) from T_F, a resting finger marked; its image."""
+    grid, mask = shot.decomposition.model.grid, shot.decomposition.shape.target_mask
     x, y = grid.points.T * 1e3
-    extent = (x.min(), x.max(), y.min(), y.max())
     shape = grid.shape[::-1]
+    image = np.ma.masked_where(grid.mass == 0, shot.field[:, sample] * 1e3).reshape(shape)
+    drawn = ax.imshow(image, origin="lower", extent=(x.min(), x.max(), y.min(), y.max()), cmap="RdBu_r", vmin=-vmax,
+                      vmax=vmax)
+    ax.contour(x.reshape(shape), y.reshape(shape), mask.reshape(shape).astype(float), levels=[0.5], colors="C2",
+               linewidths=0.8)
+    if finger is not None and len(finger) == 2:
+        ax.plot(finger[0] * 1e3, finger[1] * 1e3, "k+", ms=6)
+    ax.set_title(f"T_F {dt:+g} ms", fontsize=8)
+    ax.tick_params(labelsize=6)
+    ax.set_aspect("equal")
+    return drawn
+
+
+def _plate_frames(fig, where, shot, finger=None) -> None:
+    """The plate's field at ``FRAMES_MS`` from T_F, one colour scale, in a 2 x 2 grid in ``where``."""
+    tf = shot.plan.focus_time
+    samples = [int(np.argmin(np.abs(shot.times - (tf + dt * 1e-3)))) for dt in FRAMES_MS]
+    vmax = np.max(np.abs(shot.field[:, samples])) * 1e3
     cells = where.get_subplotspec().subgridspec(2, 2, hspace=0.35, wspace=0.1)
-    for k, (i, dt) in enumerate(zip(idx, FRAMES_MS)):
-        ax = fig.add_subplot(cells[k // 2, k % 2])
-        image = np.ma.masked_where(grid.mass == 0, shot.field[:, i] * 1e3).reshape(shape)
-        im = ax.imshow(image, origin="lower", extent=extent, cmap="RdBu_r", vmin=-vmax, vmax=vmax)
-        ax.contour(x.reshape(shape), y.reshape(shape), mask.reshape(shape).astype(float), levels=[0.5],
-                   colors="C2", linewidths=0.8)
-        if finger is not None and len(finger) == 2:
-            ax.plot(finger[0] * 1e3, finger[1] * 1e3, "k+", ms=6)
-        ax.set_title(f"T_F {dt:+g} ms", fontsize=8)
-        ax.tick_params(labelsize=6)
-        ax.set_aspect("equal")
-    fig.colorbar(im, ax=fig.axes[-4:], label="velocity (mm/s)", shrink=0.8)
+    frames = [fig.add_subplot(cells[k // 2, k % 2]) for k in range(len(samples))]
+    for ax, sample, dt in zip(frames, samples, FRAMES_MS):
+        image = _plate_frame_panel(ax, shot, sample, dt, vmax, finger)
+    fig.colorbar(image, ax=frames, label="velocity (mm/s)", shrink=0.8)
+
+
+def _focus_profile_panel(ax, shot):
+    """A beam's velocity at T_F over x (mm/s over mm): reference, reduced model, measured."""
+    x = shot.decomposition.model.grid.x * 1e3
+    ax.plot(x, shot.decomposition.shape.values * 1e3, "C3", lw=2, label="reference")
+    ax.plot(x, shot.decomposition.reconstruction * 1e3, "k--", lw=1.2, label="reduced model")
+    ax.plot(x, shot.focus_field * 1e3, "C0", lw=1.2, label="measured")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("velocity at T_F (mm/s)")
+    ax.legend(frameon=False, fontsize=8)
+
+
+def _modal_coefficients_panel(ax, shot):
+    """Each mode's coefficient at T_F (m/s sqrt(kg)): reference, reduced, measured side by side."""
+    coeffs, labels = shot.coefficients(), shot.decomposition.model.labels
+    pos = np.arange(len(labels))
+    for i, (name, colour) in enumerate([("reference", "C3"), ("reduced", "k"), ("measured", "C0")]):
+        ax.bar(pos + (i - 1) * 0.27, coeffs[name], 0.27, color=colour, label=name)
+    ax.set_xticks(pos, [str(l) for l in labels], fontsize=7)
+    ax.set_xlabel("mode")
+    ax.set_ylabel("coefficient (m/s sqrt(kg))")
+    ax.axhline(0, color="0.5", lw=0.5)
+    ax.legend(frameon=False, fontsize=8)
 
 
 def plot_modal_bars(shot, path) -> Path:
-    """Modal coefficients at the focus: reference, reduced model, measured (thesis Fig 4.17)."""
-    coeffs, labels = shot.coefficients(), shot.decomposition.model.labels
-    pos = np.arange(len(labels))
+    """Modal coefficients at the focus: reference, reduced model, measured (thesis Fig 4.17), under
+    a beam's field at T_F."""
     fig, (top, bottom) = _subplots(2, 1, figsize=(9, 6.5), gridspec_kw={"height_ratios": [2, 3]})
-    grid = shot.decomposition.model.grid
-    if grid.dim == 1:
-        x = grid.x * 1e3
-        top.plot(x, shot.decomposition.shape.values * 1e3, "C3", lw=2, label="reference")
-        top.plot(x, shot.decomposition.reconstruction * 1e3, "k--", lw=1.2, label="reduced model")
-        top.plot(x, shot.focus_field * 1e3, "C0", lw=1.2, label="measured")
-        top.set_xlabel("x (mm)")
-        top.set_ylabel("velocity at T_F (mm/s)")
-        top.legend(frameon=False, fontsize=8)
+    if shot.decomposition.model.grid.dim == 1:
+        _focus_profile_panel(top, shot)
     else:
         top.axis("off")
-    for i, (name, colour) in enumerate([("reference", "C3"), ("reduced", "k"), ("measured", "C0")]):
-        bottom.bar(pos + (i - 1) * 0.27, coeffs[name], 0.27, color=colour, label=name)
-    bottom.set_xticks(pos, [str(l) for l in labels], fontsize=7)
-    bottom.set_xlabel("mode")
-    bottom.set_ylabel("coefficient (m/s sqrt(kg))")
-    bottom.axhline(0, color="0.5", lw=0.5)
-    bottom.legend(frameon=False, fontsize=8)
+    _modal_coefficients_panel(bottom, shot)
     m = shot.metrics
     top.set_title(f"tau {m.tau:.3f} (model {m.tau_model:.3f}), tau_norm {m.tau_norm:.3f}, "
                   f"NRMSE {m.nrmse:.3f}", fontsize=10)
     return _save(fig, path)
 
 
-def plot_voltages(shot, path) -> Path:
-    """Drive voltage of each actuator over the shot."""
+def plot_voltages(shot, path=None, *, ax=None):
+    """Drive voltage (V) of each active actuator over the shot (ms), T_F dotted; saved at ``path``, or
+    drawn on ``ax`` (returned)."""
+    fig, ax = _own_or_given(ax, path, (9, 4))
     cap = shot.capture
-    fig, ax = _subplots(figsize=(9, 4))
     active = np.flatnonzero(np.max(np.abs(cap.voltages), axis=1) > 0)
     for a in active:
         ax.plot(cap.times * 1e3, cap.voltages[a], lw=0.6, label=f"actuator {a + 1}")
@@ -250,122 +298,30 @@ def plot_voltages(shot, path) -> Path:
     ax.set_ylabel("voltage (V)")
     ax.set_title(f"peak {shot.metrics.peak_voltage:.1f} V", fontsize=10)
     ax.legend(frameon=False, fontsize=7, ncol=4)
-    return _save(fig, path)
+    return ax if fig is None else _save(fig, path)
 
 
-def plot_spectrogram(shot, velocity: np.ndarray, sample_rate: float, where: float, path) -> Path:
-    """Spectrogram of the velocity at the focus point (thesis Fig 4.29), with the kept resonances."""
+def plot_spectrogram(shot, velocity: np.ndarray, sample_rate: float, where: float, path=None, *, ax=None):
+    """Spectrogram of the velocity at the focus point (thesis Fig 4.29), with the kept resonances:
+    ``velocity`` (m/s) sampled at ``sample_rate`` (Hz) at ``where`` (m, for the title); saved at
+    ``path``, or drawn on ``ax`` (returned) with its colour bar beside."""
     from scipy.signal import spectrogram
 
+    fig, ax = _own_or_given(ax, path, (9, 4.5))
     nper = int(2 ** np.round(np.log2(sample_rate / 400)))  # about 400 Hz resolution, 2.5 ms windows
     f, t, s = spectrogram(velocity, sample_rate, nperseg=nper, noverlap=nper * 7 // 8)
     model = shot.decomposition.model
-    f_top = 1.3 * np.max(model.frequencies[shot.plan.modes])
-    keep = f <= f_top
-    fig, ax = _subplots(figsize=(9, 4.5))
+    keep = f <= 1.3 * np.max(model.frequencies[shot.plan.modes])
     db = 10 * np.log10(s[keep] + 1e-30)
-    im = ax.pcolormesh(t * 1e3, f[keep] / 1e3, db, shading="auto", vmin=db.max() - 60, vmax=db.max())
+    mesh = ax.pcolormesh(t * 1e3, f[keep] / 1e3, db, shading="auto", vmin=db.max() - 60, vmax=db.max())
     for fk in model.frequencies[shot.plan.modes]:
         ax.axhline(fk / 1e3, color="w", lw=0.4, ls=":")
     ax.axvline(shot.plan.focus_time * 1e3, color="r", lw=0.8)
     ax.set_xlabel("t (ms)")
     ax.set_ylabel("frequency (kHz)")
     ax.set_title(f"velocity at x = {where * 1e3:.1f} mm (dotted: kept resonances, red: T_F)", fontsize=10)
-    fig.colorbar(im, ax=ax, label="dB (m/s)^2/Hz")
-    return _save(fig, path)
-
-
-def plot_loop(log, path) -> Path:
-    """A closed-loop run from its log: each mode's envelope, planned (reference) and measured, and
-    the feedback command against the time; the fault, if any, marked."""
-    from modalctl.loops.recorder import read_log
-
-    records, header = read_log(log)
-    meta = header["meta"]
-    t = (records["period"] + 1) / meta["control_rate_hz"] * 1e3
-    k = records["reference"].shape[1]
-    fig, axes = _subplots(2, 1, figsize=(10, 6.5), sharex=True)
-    for i in range(k):
-        line, = axes[0].plot(t, np.abs(records["reference"][:, i]), lw=0.9, label=f"mode {meta['modes'][i]}")
-        axes[0].plot(t, np.abs(records["measured"][:, i]), lw=0.7, ls="--", color=line.get_color())
-        axes[1].plot(t, np.abs(records["command"][:, i]), lw=0.8, color=line.get_color())
-    axes[0].set(ylabel="|envelope| (m/s)", title="per-mode envelopes: reference (solid) and measured (dashed)")
-    axes[0].legend(fontsize=7, ncol=4)
-    axes[1].set(xlabel="time (ms)", ylabel="|feedback command| (modal force)",
-                title="feedback commands (each at most its authority)")
-    failed = np.flatnonzero(records["state"] == 3)
-    for ax in axes:
-        for n in failed:
-            ax.axvline(t[n], color="r", lw=1)
-    if failed.size:
-        axes[0].text(t[failed[0]], axes[0].get_ylim()[1] * 0.9, " fault: outputs ramped to zero", color="r")
-    return _save(fig, path)
-
-
-_AXIS_LABELS = {"drift": "drift (%)", "damping_error": "damping error (%)", "finger": "finger damping (N s/m)",
-                "latency": "extra latency (periods)", "snr_db": "SNR (dB)", "focus_time": "focus time (ms)",
-                "seed": "seed"}
-_AXIS_SCALE = {"drift": 100, "damping_error": 100, "focus_time": 1e3}
-
-
-def _axis_values(rows, name):
-    return sorted({r[name] for r in rows})
-
-
-def sweep_table(rows, axes) -> str:
-    """Markdown: one row per scenario, tau (margin ratio) of each method side by side."""
-    methods = list(dict.fromkeys(r["method"] for r in rows))
-    by = {(r["method"], *(r[a] for a in axes)): r for r in rows}
-    keys = sorted({tuple(r[a] for a in axes) for r in rows})
-    head = [_AXIS_LABELS.get(a, a) for a in axes] + [f"{m}: tau (margin)" for m in methods]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for key in keys:
-        cells = [f"{v * _AXIS_SCALE.get(a, 1):g}" for a, v in zip(axes, key)]
-        for m in methods:
-            r = by.get((m, *key))
-            cells.append("" if r is None else f"{r['tau']:.3f} ({r['margin_ratio']:.2f})"
-                         + ("" if r["state"] != "error" else " stopped"))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def plot_sweep_maps(rows, axes, methods, path) -> Path:
-    """tau and margin ratio of each method over one or two swept parameters: maps (two) or curves (one)."""
-    fig, grid = _subplots(2, len(methods), figsize=(4.2 * len(methods), 7.2), squeeze=False, layout="constrained")
-    x_name = axes[0]
-    xs = _axis_values(rows, x_name)
-    ys = _axis_values(rows, axes[1]) if len(axes) == 2 else [None]
-    for col, method in enumerate(methods):
-        for row, (metric, good, label) in enumerate((("tau", 0.95, "tau"), ("margin_ratio", 0.5, "margin ratio"))):
-            ax = grid[row, col]
-            table = np.full((len(ys), len(xs)), np.nan)
-            for r in rows:
-                if r["method"] == method:
-                    j = xs.index(r[x_name])
-                    i = ys.index(r[axes[1]]) if len(axes) == 2 else 0
-                    table[i, j] = r[metric]
-            if len(axes) == 2:
-                cmap = "RdYlGn" if metric == "tau" else "RdYlGn_r"
-                image = ax.imshow(table, origin="lower", aspect="auto", cmap=cmap,
-                                  vmin=0.5 if metric == "tau" else 0.3, vmax=1.0)
-                for i in range(len(ys)):
-                    for j in range(len(xs)):
-                        ok = table[i, j] >= good if metric == "tau" else table[i, j] <= good
-                        ax.text(j, i, f"{table[i, j]:.3f}" + ("" if ok else "\n✗"), ha="center", va="center",
-                                fontsize=8)
-                ax.set_xticks(range(len(xs)), [f"{v * _AXIS_SCALE.get(x_name, 1):g}" for v in xs])
-                ax.set_yticks(range(len(ys)), [f"{v * _AXIS_SCALE.get(axes[1], 1):g}" for v in ys])
-                ax.set_ylabel(_AXIS_LABELS.get(axes[1], axes[1]))
-                fig.colorbar(image, ax=ax, shrink=0.8)
-            else:
-                ax.plot(np.array(xs) * _AXIS_SCALE.get(x_name, 1), table[0], "o-")
-                ax.axhline(good, color="k", ls=":", lw=0.8)
-                ax.set_ylabel(label)
-            ax.set_xlabel(_AXIS_LABELS.get(x_name, x_name))
-            ax.set_title(f"{method}: {label} (" + ("at least" if metric == "tau" else "at most") + f" {good:g})")
-    plans = sorted({f"{r.get('planner', '?')} planner, margin {r.get('margin') or 'none'}" for r in rows})
-    fig.suptitle(f"where each method fails (✗: criterion not met); {'; '.join(plans)}")
-    return _save(fig, path)
+    ax.figure.colorbar(mesh, ax=ax, label="dB (m/s)^2/Hz")
+    return ax if fig is None else _save(fig, path)
 
 
 def plot_learning(learned, labels, path) -> Path:
@@ -415,8 +371,9 @@ def plot_learning(learned, labels, path) -> Path:
 
 
 def write_run_report(shot, out) -> dict:
-    """All the pictures of a run (a :class:`modalctl.run.ShotResult`) into directory ``out``;
-    returns {name: path}. A finger the device says rests on the structure is drawn where it rests."""
+    """All the pictures of a run (a :class:`modalctl.run.ShotResult`) into directory ``out`` (the
+    loop's from its ``log.json`` there); returns {name: path}. A finger the device says rests on the
+    structure is drawn where it rests."""
     out = Path(out)
     finger = shot.metrics.device_info.get("finger_at_m")
     where = float(shot.decomposition.model.grid.points[shot.focus_point, 0])
@@ -432,73 +389,178 @@ def write_run_report(shot, out) -> dict:
     return {k: str(v) for k, v in paths.items()}
 
 
-def plot_identification(survey, stem) -> list[str]:
-    """The identification's pictures beside the model file: ``<stem>_frf.png`` (mean FRF of every
-    actuator with the poles, Fig 3.8), ``<stem>_crosstalk.png`` (before/after Gram-Schmidt,
-    Fig 3.11) and ``<stem>_shapes.png`` (the identified shapes)."""
-    stem = Path(stem)
-    model = survey.model
-    fig, ax = _subplots(figsize=(10, 4))
+def plot_loop(log, path) -> Path:
+    """A closed-loop run from its log: each mode's envelope, planned (reference) and measured, and
+    the feedback command against the time; the fault, if any, marked."""
+    from modalctl.loops.recorder import read_log
+
+    records, header = read_log(log)
+    meta = header["meta"]
+    t = (records["period"] + 1) / meta["control_rate_hz"] * 1e3
+    k = records["reference"].shape[1]
+    fig, axes = _subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    for i in range(k):
+        line, = axes[0].plot(t, np.abs(records["reference"][:, i]), lw=0.9, label=f"mode {meta['modes'][i]}")
+        axes[0].plot(t, np.abs(records["measured"][:, i]), lw=0.7, ls="--", color=line.get_color())
+        axes[1].plot(t, np.abs(records["command"][:, i]), lw=0.8, color=line.get_color())
+    axes[0].set(ylabel="|envelope| (m/s)", title="per-mode envelopes: reference (solid) and measured (dashed)")
+    axes[0].legend(fontsize=7, ncol=4)
+    axes[1].set(xlabel="time (ms)", ylabel="|feedback command| (modal force)",
+                title="feedback commands (each at most its authority)")
+    failed = np.flatnonzero(records["state"] == 3)
+    for ax in axes:
+        for n in failed:
+            ax.axvline(t[n], color="r", lw=1)
+    if failed.size:
+        axes[0].text(t[failed[0]], axes[0].get_ylim()[1] * 0.9, " fault: outputs ramped to zero", color="r")
+    return _save(fig, path)
+
+
+_AXIS_LABELS = {"drift": "drift (%)", "damping_error": "damping error (%)", "finger": "finger damping (N s/m)",
+                "latency": "extra latency (periods)", "snr_db": "SNR (dB)", "focus_time": "focus time (ms)",
+                "seed": "seed"}
+_AXIS_SCALE = {"drift": 100, "damping_error": 100, "focus_time": 1e3}
+
+
+def sweep_table(rows, axes) -> str:
+    """Markdown: one row per scenario (``rows`` of a sweep, swept over the fields ``axes``), tau
+    (margin ratio) of each method side by side."""
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    by = {(r["method"], *(r[a] for a in axes)): r for r in rows}
+    keys = sorted({tuple(r[a] for a in axes) for r in rows})
+    head = [_AXIS_LABELS.get(a, a) for a in axes] + [f"{m}: tau (margin)" for m in methods]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for key in keys:
+        cells = [f"{v * _AXIS_SCALE.get(a, 1):g}" for a, v in zip(axes, key)]
+        for m in methods:
+            r = by.get((m, *key))
+            cells.append("" if r is None else f"{r['tau']:.3f} ({r['margin_ratio']:.2f})"
+                         + ("" if r["state"] != "error" else " stopped"))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _sweep_panel(ax, rows, axes, method: str, criterion: tuple):
+    """One method's ``criterion`` (metric, good, label) over the swept ``axes``: a map (two) or a curve."""
+    metric, good, label = criterion
+    x_name = axes[0]
+    xs = sorted({r[x_name] for r in rows})
+    ys = sorted({r[axes[1]] for r in rows}) if len(axes) == 2 else [None]
+    table = np.full((len(ys), len(xs)), np.nan)
+    for r in rows:
+        if r["method"] == method:
+            table[ys.index(r[axes[1]]) if len(axes) == 2 else 0, xs.index(r[x_name])] = r[metric]
+    if len(axes) == 2:
+        image = ax.imshow(table, origin="lower", aspect="auto", cmap="RdYlGn" if metric == "tau" else "RdYlGn_r",
+                          vmin=0.5 if metric == "tau" else 0.3, vmax=1.0)
+        for i in range(len(ys)):
+            for j in range(len(xs)):
+                ok = table[i, j] >= good if metric == "tau" else table[i, j] <= good
+                ax.text(j, i, f"{table[i, j]:.3f}" + ("" if ok else "\n✗"), ha="center", va="center", fontsize=8)
+        ax.set_xticks(range(len(xs)), [f"{v * _AXIS_SCALE.get(x_name, 1):g}" for v in xs])
+        ax.set_yticks(range(len(ys)), [f"{v * _AXIS_SCALE.get(axes[1], 1):g}" for v in ys])
+        ax.set_ylabel(_AXIS_LABELS.get(axes[1], axes[1]))
+        ax.figure.colorbar(image, ax=ax, shrink=0.8)
+    else:
+        ax.plot(np.array(xs) * _AXIS_SCALE.get(x_name, 1), table[0], "o-")
+        ax.axhline(good, color="k", ls=":", lw=0.8)
+        ax.set_ylabel(label)
+    ax.set_xlabel(_AXIS_LABELS.get(x_name, x_name))
+    ax.set_title(f"{method}: {label} (" + ("at least" if metric == "tau" else "at most") + f" {good:g})")
+
+
+def plot_sweep_maps(rows, axes, methods, path) -> Path:
+    """tau and margin ratio of each method (a column each) over one or two swept parameters: maps
+    (two) or curves (one)."""
+    fig, grid = _subplots(2, len(methods), figsize=(4.2 * len(methods), 7.2), squeeze=False, layout="constrained")
+    for col, method in enumerate(methods):
+        for row, criterion in enumerate((("tau", 0.95, "tau"), ("margin_ratio", 0.5, "margin ratio"))):
+            _sweep_panel(grid[row, col], rows, axes, method, criterion)
+    plans = sorted({f"{r.get('planner', '?')} planner, margin {r.get('margin') or 'none'}" for r in rows})
+    fig.suptitle(f"where each method fails (✗: criterion not met); {'; '.join(plans)}")
+    return _save(fig, path)
+
+
+def _frf_panel(ax, survey):
+    """Every actuator's mean mobility (m/s/V) over kHz; poles kept black, left out (not noise) red."""
     for a, frf in sorted(survey.frfs["sparse"].items()):
         ax.semilogy(frf.frequencies / 1e3, frf.mean_magnitude(), lw=0.7, label=f"actuator {a}")
     for f, ok, why in zip(survey.poles.frequencies, survey.poles.resolved, survey.poles.reasons):
         if ok or why != NOISE:
             ax.axvline(f / 1e3, color="k" if ok else "r", lw=0.6, ls="-" if ok else "--")
     ax.set(xlabel="frequency (kHz)", ylabel="mean |H| over points (m/s/V)",
-           title=f"mean mobility per actuator; poles found ({model.n_modes} kept, red dashed: left out)")
+           title=f"mean mobility per actuator; poles found ({survey.model.n_modes} kept, red dashed: left out)")
     ax.legend(fontsize=7, ncol=4)
-    paths = [_save(fig, f"{stem}_frf.png")]
-
-    from matplotlib.colors import LogNorm
-
-    fig, axes = _subplots(1, 2, figsize=(11, 4.6))
-    k = len(survey.crosstalk_before)
-    for ax, matrix, title in zip(axes, (survey.crosstalk_before, survey.crosstalk_after),
-                                 ("identified", "after Gram-Schmidt")):
-        image = ax.imshow(np.maximum(np.abs(matrix), 1e-5), norm=LogNorm(1e-5, 1), cmap="viridis",
-                          extent=(0.5, k + 0.5, k + 0.5, 0.5))
-        off = np.max(np.abs(matrix - np.eye(k)))
-        ax.set(title=f"{title}\nlargest off-diagonal {off:.2g}", xlabel="mode", ylabel="mode")
-    fig.colorbar(image, ax=axes, label="|cross-talk| (log)")
-    paths.append(_save(fig, f"{stem}_crosstalk.png"))
-
-    fig = _plate_shapes(model) if model.grid.dim == 2 else _beam_shapes(model)
-    paths.append(_save(fig, f"{stem}_shapes.png"))
-    return [str(p) for p in paths]
 
 
-def _beam_shapes(model):
-    fig, ax = _subplots(figsize=(10, 5))
+def _crosstalk_panel(ax, matrix: np.ndarray, title: str):
+    """|cross-talk| between the modes (log colours, 1e-5 to 1), its largest off-diagonal; its image."""
+    k = len(matrix)
+    image = ax.imshow(np.maximum(np.abs(matrix), 1e-5), norm=LogNorm(1e-5, 1), cmap="viridis",
+                      extent=(0.5, k + 0.5, k + 0.5, 0.5))
+    off = np.max(np.abs(matrix - np.eye(k)))
+    ax.set(title=f"{title}\nlargest off-diagonal {off:.2g}", xlabel="mode", ylabel="mode")
+    return image
+
+
+def _beam_shapes_panel(ax, model):
+    """A beam's mode shapes over x (mm), each normalised and stacked, its resonance (kHz) beside."""
     x = model.grid.x * 1e3
     for k in range(model.n_modes):
         s = model.shapes[k] / np.max(np.abs(model.shapes[k]))
         ax.plot(x, 0.4 * s - k, lw=0.8)
         ax.text(x[-1] + 1, -k, f"{model.frequencies[k] / 1e3:.2f} kHz", fontsize=7, va="center")
     ax.set(xlabel="x (mm)", yticks=[], title="identified mode shapes (normalized, Eq 3.13)")
-    return fig
+    return ax
+
+
+def plot_identification(survey, stem) -> list[str]:
+    """The identification's pictures beside the model file; returns their paths: ``<stem>_frf.png``
+    (mean FRF of every actuator with the poles, Fig 3.8), ``<stem>_crosstalk.png`` (before/after
+    Gram-Schmidt, Fig 3.11) and ``<stem>_shapes.png`` (the identified shapes)."""
+    stem = Path(stem)
+    model = survey.model
+    fig, ax = _subplots(figsize=(10, 4))
+    _frf_panel(ax, survey)
+    paths = [_save(fig, f"{stem}_frf.png")]
+    fig, axes = _subplots(1, 2, figsize=(11, 4.6))
+    for ax, matrix, title in zip(axes, (survey.crosstalk_before, survey.crosstalk_after),
+                                 ("identified", "after Gram-Schmidt")):
+        image = _crosstalk_panel(ax, matrix, title)
+    fig.colorbar(image, ax=axes, label="|cross-talk| (log)")
+    paths.append(_save(fig, f"{stem}_crosstalk.png"))
+    if model.grid.dim == 2:
+        fig = _plate_shapes(model)
+    else:
+        fig, ax = _subplots(figsize=(10, 5))
+        _beam_shapes_panel(ax, model)
+    paths.append(_save(fig, f"{stem}_shapes.png"))
+    return [str(p) for p in paths]
+
+
+def _plate_shape_panel(ax, model, k: int):
+    """Mode ``k``'s normalised shape: on a lattice an image (massless points blank), else triangulated."""
+    x, y = model.grid.points.T * 1e3
+    s = model.shapes[k] / np.max(np.abs(model.shapes[k]))
+    if model.grid.shape is not None:
+        image = np.ma.masked_where(model.grid.mass == 0, s).reshape(model.grid.shape[::-1])
+        ax.imshow(image, origin="lower", extent=(x.min(), x.max(), y.min(), y.max()), cmap="RdBu_r", vmin=-1, vmax=1)
+    else:
+        ax.tripcolor(x, y, s, shading="gouraud", cmap="RdBu_r", vmin=-1, vmax=1)
+        ax.plot(x, y, ",k", alpha=0.4)
+    ax.set_aspect("equal")
+    ax.set_title(f"{k + 1}: {model.frequencies[k] / 1e3:.3f} kHz", fontsize=8)
 
 
 def _plate_shapes(model, title: str = "identified mode shapes on the measured points (normalized, Eq 3.13)"):
-    """One map per mode: on a lattice as an image (points that weigh nothing, off the plate,
-    left blank), on a scatter triangulated."""
+    """A figure of one map per mode, six to a row."""
     cols = min(6, model.n_modes)
     rows = -(-model.n_modes // cols)
     fig, axes = _subplots(rows, cols, figsize=(2.2 * cols, 1.9 * rows + 0.6), squeeze=False)
-    x, y = model.grid.points.T * 1e3
     for k, ax in enumerate(axes.ravel()):
         ax.set_axis_off()
-        if k >= model.n_modes:
-            continue
-        s = model.shapes[k] / np.max(np.abs(model.shapes[k]))
-        if model.grid.shape is not None:
-            image = np.ma.masked_where(model.grid.mass == 0, s).reshape(model.grid.shape[::-1])
-            ax.imshow(image, origin="lower", extent=(x.min(), x.max(), y.min(), y.max()), cmap="RdBu_r",
-                      vmin=-1, vmax=1)
-        else:
-            ax.tripcolor(x, y, s, shading="gouraud", cmap="RdBu_r", vmin=-1, vmax=1)
-            ax.plot(x, y, ",k", alpha=0.4)
-        ax.set_aspect("equal")
-        ax.set_title(f"{k + 1}: {model.frequencies[k] / 1e3:.3f} kHz", fontsize=8)
+        if k < model.n_modes:
+            _plate_shape_panel(ax, model, k)
     fig.suptitle(title)
     return fig
 
