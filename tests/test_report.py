@@ -1,0 +1,59 @@
+"""Pictures: importing them leaves matplotlib's backend alone, and a one-panel picture composes."""
+
+import os
+import subprocess
+import sys
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from modalctl import report
+
+CHECK = ("import matplotlib; before = matplotlib.get_backend(); import modalctl.report; "
+         "print(before, matplotlib.get_backend())")
+
+
+def test_importing_report_leaves_the_backend_as_it_was():
+    """A notebook's backend (here svg) survives ``import modalctl.report`` (issue 35: it switched to Agg)."""
+    env = {**os.environ, "MPLBACKEND": "svg"}
+    run = subprocess.run([sys.executable, "-c", CHECK], capture_output=True, text=True, env=env, check=True)
+    assert run.stdout.split() == ["svg", "svg"], run.stdout + run.stderr
+
+
+def fake_shot():
+    """What the one-panel pictures read of a shot: 8 actuators, 3 of them driven, for 30 ms at 100 kHz."""
+    fs = 100e3
+    times = np.arange(3000) / fs
+    voltages = np.zeros((8, times.size))
+    voltages[:3] = np.sin(2 * np.pi * np.array([[1e3], [3e3], [5e3]]) * times) * np.exp(-((times - 0.025) / 4e-3) ** 2)
+    model = SimpleNamespace(frequencies=np.array([1e3, 3e3, 5e3, 9e3]))
+    return SimpleNamespace(capture=SimpleNamespace(times=times, voltages=voltages),
+                           plan=SimpleNamespace(focus_time=0.025, modes=np.array([0, 1, 2]), sample_rate=fs),
+                           metrics=SimpleNamespace(peak_voltage=1.0), decomposition=SimpleNamespace(model=model),
+                           focus_velocity=voltages[:3].sum(axis=0) * 1e-3)
+
+
+def test_a_one_panel_picture_draws_on_the_given_axes_and_writes_no_file(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    shot = fake_shot()
+    fig = Figure()
+    volts, spectrum, needed = fig.subplots(3, 1)
+    assert report.plot_voltages(shot, tmp_path / "v.png", ax=volts) is volts  # given ax, the path goes unused
+    assert report.plot_spectrogram(shot, shot.focus_velocity, shot.plan.sample_rate, 0.024, ax=spectrum) is spectrum
+    assert report.plot_modes_needed([1, 2, 3], {"6 mm": np.array([1.0, 0.5, 0.1])}, {"6 mm": [0, 1]},
+                                    title="modes", ax=needed) is needed
+    assert len(volts.lines) == 4 and volts.get_ylabel() == "voltage (V)"  # three actuators and T_F
+    assert spectrum.collections and spectrum.get_ylabel() == "frequency (kHz)"
+    assert len(needed.patches) >= 3 and needed.get_title() == "modes"
+    assert len(fig.axes) == 4  # the spectrogram's colour bar beside its panel, nothing else added
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_without_axes_a_one_panel_picture_saves_its_own_figure(tmp_path):
+    shot = fake_shot()
+    path = report.plot_voltages(shot, tmp_path / "v.png")
+    assert path == tmp_path / "v.png" and path.read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(ValueError, match="path .* or ax"):
+        report.plot_voltages(shot)
