@@ -9,6 +9,8 @@ import numpy as np
 
 __all__ = ["tau", "tau_norm", "nrmse", "focus_contrast", "margin_ratio"]
 
+_BLOCK = 256  # grid points per block of the margin's search (a few MB of samples)
+
 
 def _centred(a):
     a = np.asarray(a, dtype=float)
@@ -78,12 +80,17 @@ def margin_ratio(field, times, focus_time: float, target_mask, peak: float | Non
     worst : tuple of (int, float)
         Grid index and time (s) of the largest off-target velocity.
     """
-    field, times = np.asarray(field, float), np.asarray(times, float)
+    field, times = np.asarray(field), np.asarray(times, float)  # float32 records read as they are
     if peak is None:
         peak = float(np.max(np.abs(field[:, np.argmin(np.abs(times - focus_time))])))
     outside = np.flatnonzero(~np.asarray(target_mask, bool))
     if outside.size == 0 or peak <= 0:
         return (0.0 if peak > 0 else np.inf), (-1, float(focus_time))
-    off = np.abs(field[outside])
-    i, j = np.unravel_index(np.argmax(off), off.shape)
-    return float(off[i, j] / peak), (int(outside[i]), float(times[j]))
+    best, worst = -1.0, (-1, float(focus_time))
+    for start in range(0, outside.size, _BLOCK):  # a plate's scan is 10^7 samples: no copy of it whole
+        rows = outside[start:start + _BLOCK]
+        block = np.abs(field[rows])
+        i, j = np.unravel_index(np.argmax(block), block.shape)
+        if block[i, j] > best:
+            best, worst = float(block[i, j]), (int(rows[i]), float(times[j]))
+    return best / peak, worst
