@@ -1,7 +1,17 @@
-import numpy as np
-import pytest
+import os
 
-from modalctl.model.structures import Beam
+# One BLAS/OpenMP thread per test process, set before numpy loads its OpenBLAS. ``make test`` runs
+# one pytest worker per core (pytest-xdist); a worker whose OpenBLAS also starts a thread per core
+# oversubscribes the machine, and OpenBLAS's spinning threads then make an SVD 10 to 30 times slower
+# (measured on a 2-core machine: tests/test_uff.py + test_mdof.py 70 s -> 21 s). The suite's
+# matrices are small: one thread is as fast even alone. A value set outside is kept.
+for _threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_threads, "1")
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+
+from modalctl.model.structures import Beam  # noqa: E402
 
 
 @pytest.fixture
