@@ -25,8 +25,9 @@ demo: $(STAMP)
 	@echo "demo: closed loop on a drifted beam in demo/closed/ (the same, plus loop.png and the log)"
 	@echo "demo: the same after a learning shot updated the model in demo/learned/"
 
+# one pytest worker per core (pytest-xdist)
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto
 
 BENCHMARKS := modes_needed decompose_speed plant_speed margin_case margin_planner thesis_table focus_time \
 	identify_accuracy identify_limits identify_cycle tracking closed_loop closed_maps authority saturation stability \
