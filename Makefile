@@ -25,7 +25,7 @@ demo: $(STAMP)
 	@echo "demo: closed loop on a drifted beam in demo/closed/ (the same, plus loop.png and the log)"
 	@echo "demo: the same after a learning shot updated the model in demo/learned/"
 
-# one pytest worker per core (pytest-xdist)
+# one worker per core (pytest-xdist); the slowest tests go out first (tests/conftest.py)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n auto
 

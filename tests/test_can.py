@@ -41,6 +41,7 @@ def test_can_measures_what_sim_measures(model, tmp_path, capsys, loop):
     assert abs(can["peak_voltage"] - sim["peak_voltage"]) < 1e-4 * sim["peak_voltage"]
 
 
+@pytest.mark.slow
 def test_lost_can_frames_are_recovered(model, tmp_path, capsys):
     with CanBoardEmulator(model, PERTURBATION, faults={"drop": 997}, channel="drops") as board:
         code = main([*RUN, *CLOSED, "--watchdog", "3", "--transport", board.url + "&timeout=0.1",
@@ -49,6 +50,7 @@ def test_lost_can_frames_are_recovered(model, tmp_path, capsys):
     assert _metrics(tmp_path)["tau"] > 0.85
 
 
+@pytest.mark.slow
 def test_bus_off_ends_the_shot_with_the_log_on_disk(model, tmp_path, capsys):
     with CanBoardEmulator(model, PERTURBATION, faults={"bus_off": 15}, channel="busoff") as board:
         code = main([*RUN, *CLOSED, "--transport", board.url + "&timeout=0.1", "--out", str(tmp_path)])

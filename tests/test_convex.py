@@ -93,6 +93,7 @@ def test_the_margin_holds_on_every_sample_of_the_whole_model(case, margin_plan):
     assert margin_plan.report.program["status"] == "optimal"
 
 
+@pytest.mark.slow
 def test_a_margin_below_the_focus_own_side_lobes_is_refused_with_the_reachable_ratio(case):
     """The reduced sinc's own field off target at T_F is 0.30 of its peak (independently: the
     decomposition's reconstruction): 0.2 cannot be held at T_F itself, whatever the drive. The
@@ -137,6 +138,7 @@ def test_voltage_and_slew_limits_hold_on_every_sample(case, margin_plan):
     assert ratio(whole_field(case[0], v), case[1].target_mask, int(round(TF * FS))) <= 0.5 + 1e-9
 
 
+@pytest.mark.slow
 def test_a_voltage_limit_too_low_for_the_focus_itself_is_refused(case):
     with pytest.raises(PlanError, match="reaches the focus within voltage 0.05 V") as refused:
         plan(case[2], TF, convex(voltage_limit=0.05))
@@ -201,6 +203,7 @@ def test_a_correction_to_the_thesis_envelopes_holds_the_margin_and_the_focus(cas
                                atol=1e-8 * np.abs(dec.reconstruction).max())
 
 
+@pytest.mark.slow
 def test_only_the_last_of_the_growing_attempts_seeks_a_certificate(case, monkeypatch):
     """The automatic mode set adds modes while the margin is refused: the attempts followed by
     another refuse at once (their certificate, a bisection of margin programs, took minutes on a

@@ -55,6 +55,7 @@ def test_a_serial_board_unplugged_mid_shot_ends_in_exit_3_with_its_log_and_metri
     assert records["state"][-1] == 3 and 20 <= records.size <= 23  # every period up to the fault, then the fault
 
 
+@pytest.mark.slow
 def test_a_can_board_gone_mid_shot_ends_in_exit_3_with_its_log_and_metrics(model, tmp_path, capsys):
     with CanBoardEmulator(model, PERTURBATION, faults={"bus_off": 20}, channel="faults-gone") as board:
         code = main([*CLOSED, "--transport", f"{board.url}&timeout=0.1&heartbeat=0.3", "--out", str(tmp_path)])

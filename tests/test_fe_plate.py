@@ -47,6 +47,7 @@ def test_free_square_matches_leissa_with_three_rigid_modes():
     assert np.allclose(rigid, np.eye(3), atol=0.02)  # mass-normalized, on the grid as on the mesh
 
 
+@pytest.mark.slow
 def test_simply_supported_rectangle_matches_the_analytic_plate():
     """Frequencies within 0.1%, MAC >= 0.999 mode by mode, and the patches' gains and the
     sensors' readings as Navier's series gives them (up to each mode's sign)."""
@@ -68,6 +69,7 @@ def test_simply_supported_rectangle_matches_the_analytic_plate():
     assert np.allclose(sign * model.sensor_gains, exact.sensor_gains, atol=0.01 * np.abs(exact.sensor_gains).max())
 
 
+@pytest.mark.slow
 def test_stiff_elastic_rim_tends_to_clamped_and_a_soft_one_lies_between():
     outline, glass = Outline.rectangle(0.1, 0.07), MATERIALS["glass"]
     clamped, _ = FEPlate(outline, 1e-3, glass, {"rim": Support("clamped")}).modal_model(4, spacing=2e-3)
@@ -79,6 +81,7 @@ def test_stiff_elastic_rim_tends_to_clamped_and_a_soft_one_lies_between():
     assert soft.frequencies[0] > free.frequencies[0] * 0.5  # held by springs: not a free plate's rigid motion
 
 
+@pytest.mark.slow
 def test_rounded_panel_with_a_cut_out_weighs_what_it_should():
     """The lattice's weights add up to the panel's mass (holes and rounded corners cut out) and
     the shapes, normalized on the FE mass matrix, are normalized on the grid too."""
@@ -154,6 +157,7 @@ def test_the_command_refuses_a_band_the_mesh_budget_cannot_converge(tmp_path, ca
     assert "degrees of freedom" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_model_file_from_the_command_plays_a_focus(tmp_path, capsys):
     """Geometry in, a model file out that ``run --model`` takes like a scene: a clamped rounded
     panel with a hole and two patches, a bump focused on the HIL."""
@@ -178,6 +182,7 @@ def test_a_model_file_from_the_command_plays_a_focus(tmp_path, capsys):
     assert 0.5 < metrics["tau"] <= 1.0
 
 
+@pytest.mark.slow
 def test_a_finite_element_scene_is_solved_once_then_read_from_the_cache(tmp_path, monkeypatch):
     from modalctl.model.scenes import load_scene
 

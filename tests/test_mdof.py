@@ -108,6 +108,7 @@ def test_noise_at_40_db_no_mode_returned_off_by_more_than_one_percent():
             assert np.all(err < 0.01), (method.__name__, got.frequencies)
 
 
+@pytest.mark.slow
 def test_peer_case_under_noise_never_returns_a_mode_between_the_true_ones():
     """The heavily damped triplet (7-8%) of the peer's case at 40 dB below each FRF's peak (the
     noise level known, as from averages): what auto returns lies within 1% of a true mode."""

@@ -91,6 +91,7 @@ def test_thesis_margin_case_kappa_one_fails_and_optimizer_meets_it(beam):
     assert np.all(best.kappa <= gap_bounds(beam, best.modes) + 1e-9)
 
 
+@pytest.mark.slow
 def test_optimizer_plan_meets_the_margin_when_simulated(beam):
     """The thesis's case on the whole structure: the HIL (all 21 modes, perfect model) measures the
     margin the planner promised once the voltages are corrected near the focus; the plan that

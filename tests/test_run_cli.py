@@ -75,6 +75,7 @@ def test_margin_no_envelope_can_meet(capsys, tmp_path):
     assert code == 1 and "no envelope meets the 0.1 margin" in err and "best plan found reaches" in err
 
 
+@pytest.mark.slow
 def test_the_convex_planner_holds_the_margin_and_its_refusal_is_written_with_the_certificate(capsys, tmp_path):
     code, out, err = run(capsys, *RUN, "--focus-time", "25ms", "--modes", "9", "--planner", "convex",
                          "--margin", "0.5", "--out", str(tmp_path / "ok"))

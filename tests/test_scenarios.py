@@ -73,6 +73,7 @@ def test_scenarios_the_simulator_cannot_play_are_refused(options, words):
         Perturbation(**options)
 
 
+@pytest.mark.slow
 def test_run_with_a_finger_and_a_drift_ramp_open_and_closed(capsys, tmp_path):
     """A finger (0.5 N s/m at the focus) and a ramp (+1% by the focus): the truth says what it was,
     and the loops recover focus the open loop loses."""

@@ -12,7 +12,8 @@ from modalctl.model.scenes import SCENES, load_scene, thesis_tables
 ORTHONORMAL = {"plate-glass-clamped": 1e-4, "panel-rounded": 0.01}
 
 
-@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.slow) if name == "panel-rounded" else name
+                                  for name in SCENES])  # panel-rounded: an FE solve, seconds on an empty cache
 def test_scene_builds_orthonormal_model(name):
     model = load_scene(name)
     assert np.abs(gram(model.shapes, model.grid.mass) - np.eye(model.n_modes)).max() < ORTHONORMAL.get(name, 1e-6)

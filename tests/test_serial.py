@@ -69,6 +69,7 @@ def test_open_loop_over_serial_measures_what_sim_measures(model, tmp_path, capsy
     assert abs(serial["peak_voltage"] - sim["peak_voltage"]) < 1e-4 * sim["peak_voltage"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fault", ["corrupt", "drop", "truncate"])
 def test_a_lost_frame_is_skipped_and_the_watchdog_rides_it_out(model, tmp_path, capsys, fault):
     """Every 20th frame the board sends is corrupted, dropped or cut short: requests are repeated,
@@ -83,6 +84,7 @@ def test_a_lost_frame_is_skipped_and_the_watchdog_rides_it_out(model, tmp_path, 
     assert _metrics(tmp_path)["tau"] > 0.85
 
 
+@pytest.mark.slow
 def test_a_board_that_stops_answering_ends_the_shot_with_the_log_on_disk(model, tmp_path, capsys):
     with SerialBoardEmulator(model, PERTURBATION, faults={"silent_after": 20}) as board:
         code = main([*(a for a in RUN if a != "--json"), "--transport", f"serial://{board.path}?timeout=0.1",

@@ -42,6 +42,7 @@ def test_sweep_maps_open_against_closed(capsys, tmp_path):
     assert (tmp_path / "maps.png").stat().st_size > 10_000 and "| drift (%) |" in (tmp_path / "sweep.md").read_text()
 
 
+@pytest.mark.slow
 def test_sweep_runs_a_plate_on_its_own_grid(capsys, tmp_path):
     """A plate scene takes its own NxM grid (the beams' 211-point default would not fit it)."""
     code = main(["sweep", "--scene", "plate-glass", "--shape", "gaussian", "--param", "width=40mm",
@@ -64,6 +65,7 @@ def test_sweep_refuses_bad_input(capsys, tmp_path, args, message):
     assert code == 2 and message in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_dead_scheduler_address_is_refused_in_seconds(tmp_path, capsys):
     """Issue 26: ``sweep --scheduler`` of a dead address ended in an OSError after 30 s."""
     import socket

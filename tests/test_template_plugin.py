@@ -5,9 +5,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 TEMPLATE = Path(__file__).resolve().parents[1] / "templates" / "device-plugin"
 
 
+@pytest.mark.slow
 def test_template_plugin_installs_and_passes_its_own_tests(tmp_path):
     target = tmp_path / "site"
     install = subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps",

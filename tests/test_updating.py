@@ -72,6 +72,7 @@ def test_update_refuses_records_it_cannot_learn_from(shot):
         update(model, volts[:, :100], sensed, FS)
 
 
+@pytest.mark.slow
 def test_closed_loop_learns_the_truth_and_focuses_better(capsys, tmp_path):
     """``run --loop closed --learn``: the learning shot's record moves the model by the truth's
     common drift, and the shot planned on the updated model focuses better than the first."""
