@@ -48,6 +48,15 @@ def _metrics(path):
     return json.loads((path / "metrics.json").read_text())
 
 
+@pytest.fixture(scope="module")
+def on_board_sim(tmp_path_factory):
+    """The folder of sim://'s shot under TRUTH with the loops loaded into the board at 20 kHz: the
+    run the host's loops and the boards over the wire are held to, made once for them all."""
+    out = tmp_path_factory.mktemp("board")
+    assert main([*RUN, *TRUTH, "--loop", "board", "--control-rate", "20kHz", "--out", str(out)]) == 0
+    return out
+
+
 def test_parametric_references_follow_the_whole_model_within_the_unplanned_modes_share(shot):
     """The board's references, from the plan's parameters alone, against the host's (the whole
     model through the same lock-in): close on the low modes, never more than the modes the plan
@@ -79,28 +88,26 @@ def test_program_messages_round_trip_and_bad_ones_are_refused(shot):
         p.from_program(message)
 
 
-def test_loops_on_the_board_measure_what_the_host_loops_measure(tmp_path, capsys):
+def test_loops_on_the_board_measure_what_the_host_loops_measure(on_board_sim, tmp_path, capsys):
     """sim://: the same PI loops at 20 kHz, once exchanging every period with the host, once loaded
     into the board with parametric references; both far above open loop."""
     assert main([*RUN, *TRUTH, "--loop", "closed", "--control-rate", "20kHz", "--out", str(tmp_path / "host")]) == 0
-    assert main([*RUN, *TRUTH, "--loop", "board", "--control-rate", "20kHz", "--out", str(tmp_path / "board")]) == 0
     assert main([*RUN, *TRUTH, "--loop", "open", "--out", str(tmp_path / "open")]) == 0
-    host, board, open_ = (_metrics(tmp_path / n) for n in ("host", "board", "open"))
+    host, board, open_ = (_metrics(path) for path in (tmp_path / "host", on_board_sim, tmp_path / "open"))
     assert board["loop"]["on_board"] and board["loop"]["periods"] == host["loop"]["periods"]
     assert abs(board["tau"] - host["tau"]) < 0.01
     assert board["tau"] > open_["tau"] + 0.1
-    log, header = read_log(tmp_path / "board" / "log")
+    log, header = read_log(on_board_sim / "log")
     assert header["meta"]["on_board"] and len(header["meta"]["modes"]) == len(board["modes_used"])
     assert log["command"].shape == (host["loop"]["periods"], len(board["modes_used"]))
     assert np.any(log["command"] != 0)
 
 
 @pytest.mark.parametrize("link", ["serial", "can"])
-def test_loops_on_a_board_over_the_wire_run_above_the_link_budget(model, tmp_path, capsys, link):
+def test_loops_on_a_board_over_the_wire_run_above_the_link_budget(model, on_board_sim, tmp_path, capsys, link):
     """20 kHz is ten times what the link carries period by period; loaded into the board, the
     loops run there and the wire only carries the set-up and the log: the metrics are sim://'s."""
     run = [*RUN, "--loop", "board", "--control-rate", "20kHz"]
-    assert main([*run, *TRUTH, "--out", str(tmp_path / "sim")]) == 0
     emulator = (SerialBoardEmulator(model, PERTURBATION) if link == "serial"
                 else CanBoardEmulator(model, PERTURBATION, channel=f"onboard-{tmp_path.name}"))
     with emulator as board:
@@ -109,9 +116,9 @@ def test_loops_on_a_board_over_the_wire_run_above_the_link_budget(model, tmp_pat
         # the same rate exchanging every period is refused: the link cannot carry it
         assert main([*RUN, "--loop", "closed", "--control-rate", "20kHz", "--transport", url,
                      "--out", str(tmp_path / "refused")]) == 3
-    sim, wire = _metrics(tmp_path / "sim"), _metrics(tmp_path / link)
+    sim, wire = _metrics(on_board_sim), _metrics(tmp_path / link)
     assert abs(wire["tau"] - sim["tau"]) < 2e-3  # float32 parameters on the wire; CAN's scan noise differs
-    (sim_log, _), (wire_log, _) = read_log(tmp_path / "sim" / "log"), read_log(tmp_path / link / "log")
+    (sim_log, _), (wire_log, _) = read_log(on_board_sim / "log"), read_log(tmp_path / link / "log")
     assert np.allclose(wire_log["command"], sim_log["command"], rtol=1e-3, atol=1e-3 * np.abs(sim_log["command"]).max())
 
 
