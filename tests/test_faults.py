@@ -11,6 +11,7 @@ import pytest
 from modalctl.cli import main
 from modalctl.hil.can_board import CanBoardEmulator
 from modalctl.hil.scenario import Perturbation
+from modalctl.model.records import read_field_record
 from modalctl.hil.serial_board import SerialBoardEmulator
 from modalctl.io import protocol as p
 from modalctl.io.device import DeviceError, open_device
@@ -95,9 +96,10 @@ def test_a_rerun_after_a_host_killed_mid_capture_never_sees_that_hosts_data(mode
         assert main([*other, url, "--json", "--out", str(fresh)]) == 0
     capsys.readouterr()
     assert _metrics(rerun)["tau"] == pytest.approx(_metrics(fresh)["tau"], abs=1e-9)
-    ours, theirs = np.load(rerun / "fields.npz"), np.load(fresh / "fields.npz")
-    for name in ("field", "sensors", "voltages"):
-        np.testing.assert_array_equal(ours[name], theirs[name])
+    ours, theirs = read_field_record(rerun / "fields.npz"), read_field_record(fresh / "fields.npz")
+    np.testing.assert_array_equal(ours.field, theirs.field)
+    for name in ("sensors", "voltages"):
+        np.testing.assert_array_equal(ours.extra[name], theirs.extra[name])
 
 
 def test_a_second_host_on_a_busy_port_is_refused_and_the_first_goes_on(model, tmp_path, capsys):

@@ -8,6 +8,7 @@ import pytest
 
 from modalctl.cli import main
 from modalctl.io.device import DeviceContext, DeviceError, open_device, transports
+from modalctl.model.records import read_field_record
 from modalctl.model.scenes import load_scene
 from modalctl.plugin.manager import PluginError
 
@@ -30,8 +31,8 @@ def test_run_writes_metrics_fields_and_pictures(capsys, tmp_path):
                 "plan_seconds", "sim_seconds"):
         assert key in metrics
     assert 0.75 < metrics["tau"] < 0.95  # a 1% drift: DESIGN says about 0.85 open loop
-    fields = np.load(tmp_path / "fields.npz", allow_pickle=False)
-    assert fields["field"].shape == (351, fields["times"].size)
+    fields = read_field_record(tmp_path / "fields.npz")
+    assert fields.field.shape == (351, fields.times.size)
     for name in ("spacetime", "modal_bars", "voltages", "spectrogram"):
         assert (tmp_path / f"{name}.png").stat().st_size > 10_000
 
