@@ -44,6 +44,7 @@ from modalctl.options import ConvexOptions, LoopOptions, PlanOptions, RunOptions
 from modalctl.plan.decompose import Decomposition, decompose
 from modalctl.plan.dispatch import dispatch
 from modalctl.plan.drive import Drive, EnvelopeDrive, SplineDrive
+from modalctl.plan.growth import Growth, model_for
 from modalctl.plan.planner import Plan, PlanError, Planner, PlanReport, controllable, plan, plan_shot
 from modalctl.plugin.manager import PluginError, pick, plugin_manager
 from modalctl.plugin.spec import hookimpl
@@ -51,7 +52,8 @@ from modalctl.run import ShotResult, run
 
 __all__ = [
     # the researcher's path
-    "load_scene", "load_model", "SCENES", "make_shape", "decompose", "plan", "plan_shot", "connect", "run",
+    "load_scene", "load_model", "SCENES", "make_shape", "model_for", "Growth", "decompose", "plan", "plan_shot",
+    "connect", "run",
     "RunOptions", "PlanOptions", "LoopOptions", "ConvexOptions", "SurveyOptions",
     "ModalModel", "Grid", "Shape", "Decomposition", "Plan", "PlanReport", "ShotResult",
     # the contracts and the hook marker

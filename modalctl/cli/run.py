@@ -140,6 +140,7 @@ def run(args) -> int:
     out = Path(args.out)
     options = _run_options(args, out)
     model, shape = model_and_shape(args)
+    model, growth = _grown(args, model, shape, options)
     with open_device(args, model, shape) as device:  # its options checked before the folder is made
         claim(out, "run", identity(args), args.force, identity_defaults("run"))
         try:
@@ -152,7 +153,16 @@ def run(args) -> int:
         except DeviceError as fault:
             _halted(out, device, fault)
             raise
-        return _report(args, model, shot, device, out)
+        return _report(args, model, shot, device, out, growth)
+
+
+def _grown(args, model, shape, options):
+    """The model grown until its modes draw the shape (a finite-element plate's; see
+    :mod:`modalctl.plan.growth`), and how, or the model and None."""
+    from modalctl.plan.growth import model_for
+
+    say = None if args.quiet or args.json else (lambda line: print(line, flush=True))
+    return model_for(model, shape, options.plan, say)
 
 
 def _halted(out: Path, device, fault: Exception) -> None:
@@ -166,12 +176,14 @@ def _halted(out: Path, device, fault: Exception) -> None:
     write_json(out / "metrics.json", metrics)
 
 
-def _report(args, model, shot, device, out) -> int:
+def _report(args, model, shot, device, out, growth=None) -> int:
     """metrics.json, fields.npz and the pictures of a run; the summary on stdout."""
     from modalctl.outdir import record
 
     metrics = {**shot.to_dict(), "scene": model.meta.get("name", args.model), "shape": args.shape,
-               "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out)}
+               "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
+               "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
+                         "grown": None if growth is None else growth.to_dict()}}
     _write_fields(model, shot, out)
     if not args.no_plots:
         from modalctl.report import write_run_report
@@ -215,6 +227,10 @@ def _print_shot(args, m: dict, report) -> None:
     :class:`~modalctl.plan.planner.PlanReport`), the voltage and the times."""
     params = " ".join(f"{k}={v}" for k, v in args.param)
     print(f"{m['scene']}, {args.shape} {params}, T_F {args.focus_time * 1e3:g} ms, truth: {m['truth']}")
+    grown = m["model"]["grown"]
+    if grown:
+        print(f"model grown from {grown['from_modes']} modes below {grown['from_band_hz']:.0f} Hz to "
+              f"{grown['modes']} below {grown['band_hz']:.0f} Hz: {grown['reason']} (now {grown['tau']:.3f})")
     print(f"modes {m['modes_used']}")
     print(f"tau {m['tau']:.4f} (model {m['tau_model']:.4f})  tau_norm {m['tau_norm']:.4f}  NRMSE {m['nrmse']:.4f}")
     held = m["margin_planned"]

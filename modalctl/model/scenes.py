@@ -14,21 +14,16 @@ scene's ``meta`` (the thesis does not print it).
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 import warnings
 from dataclasses import dataclass
 from functools import lru_cache
-from importlib import metadata, resources
-from pathlib import Path
+from importlib import resources
 from typing import Callable
 
 import numpy as np
 
-from modalctl.outdir import atomic
-
-from . import fe_plate
+from .fe_models import cache_dir, solved
 from .fe_plate import MATERIALS, FEPlate, Hole, Outline, Support
 from .modes import ModalModel, ModelError
 from .projection import gram
@@ -133,36 +128,9 @@ def _spacing(plate: FEPlate, n_points) -> float:
     return float(max(span[0] / (n_points[0] - 1), span[1] / (n_points[1] - 1)))
 
 
-def cache_dir() -> Path:
-    """Where finite-element scenes are kept once solved: ``$MODALCTL_CACHE``, else
-    ``$XDG_CACHE_HOME/modalctl``, else ``~/.cache/modalctl``."""
-    if os.environ.get("MODALCTL_CACHE"):
-        return Path(os.environ["MODALCTL_CACHE"])
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "modalctl"
-
-
 def _fe_scene(name: str, plate: FEPlate, n_points, **options) -> ModalModel:
-    """The FE plate's model, from the cache when this plate, these options and these solver
-    versions were solved before (an ``.npz`` model file: no pickle)."""
-    spacing = _spacing(plate, n_points)
-    key = json.dumps({"plate": repr(plate), "spacing": spacing, "options": options, "solver": fe_plate.SOLVER_VERSION,
-                      "versions": [metadata.version(p) for p in ("scikit-fem", "gmsh", "numpy", "scipy")]},
-                     sort_keys=True)
-    path = cache_dir() / f"{name}-{hashlib.sha256(key.encode()).hexdigest()[:16]}.npz"
-    if path.is_file():
-        try:
-            return ModalModel.load(path)
-        except ModelError:
-            pass  # a damaged cache entry: solve again and replace it
-    model, _ = plate.modal_model(spacing=spacing, meta={"name": name, "source": "finite elements"}, **options)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic(path) as tmp:  # same suffix: save writes it as named
-            model.save(tmp)
-    except OSError as exc:
-        warnings.warn(f"{name}: could not keep the solved model in {path.parent} ({exc}); it will be solved again",
-                      UserWarning, stacklevel=3)
-    return model
+    """The FE plate's model on a lattice of ``n_points``, solved once and kept (:func:`solved`)."""
+    return solved(name, plate, _spacing(plate, n_points), **options)
 
 
 #: The clamped plate's patches (x, y centres, m): inward of plate-glass's, where a clamped plate's
