@@ -81,6 +81,9 @@ class ShotMetrics:
         The envelope optimizer's status, rounds and time, when it ran.
     program : dict or None
         The convex planner's program: solver, status, rounds, rows, columns, seconds.
+    play_seconds, scan_seconds : float
+        Wall time of the device's play (the loops' design and the shot, for a closed loop) and of
+        the field's scan after it, both inside ``sim_seconds``.
     """
 
     tau: float
@@ -109,6 +112,8 @@ class ShotMetrics:
     device_info: dict
     optimizer: dict | None = None
     program: dict | None = None
+    play_seconds: float = 0.0
+    scan_seconds: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -393,6 +398,7 @@ def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device
     """Scan the field the shot made and measure it: the one place where a shot's metrics are made."""
     model, focus_time, shape = dec.model, the_plan.focus_time, dec.shape
     times = np.union1d(the_plan.check_times(whole_shot=True), [focus_time])  # the margin: before and after
+    scanned = _time.perf_counter()
     try:
         field = device.scan(times, scan_indices(caps, model.grid.points, device.url))
     except DeviceError as exc:
@@ -403,8 +409,10 @@ def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device
     point = int(np.argmax(np.abs(focus) * shape.target_mask))
     index = scan_indices(caps, model.grid.points[[point]], device.url)
     focus_velocity = device.scan(played.capture.times, points=point if index is None else index)[0]
+    scan_seconds = _time.perf_counter() - scanned
     sim_seconds = _time.perf_counter() - start
-    metrics = _metrics(dec, the_plan, played.capture, (times, field), device, options, sim_seconds)
+    metrics = replace(_metrics(dec, the_plan, played.capture, (times, field), device, options, sim_seconds),
+                      play_seconds=played.seconds + played.design_seconds, scan_seconds=scan_seconds)
     loop = None if played.result is None else _loop_metrics(played, the_plan, options.loop, sim_seconds)
     return ShotResult(dec, the_plan, played.capture, times, field, focus, point, focus_velocity, metrics, loop)
 
