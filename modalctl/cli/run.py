@@ -139,8 +139,13 @@ def run(args) -> int:
     warnings.simplefilter("ignore", DecouplingWarning)  # printed below from the metrics
     out = Path(args.out)
     options = _run_options(args, out)
+    import time
+
+    started = time.perf_counter()
     model, shape = model_and_shape(args)
+    loaded = time.perf_counter()
     model, growth = _grown(args, model, shape, options)
+    stages = {"model_s": loaded - started, "growth_s": time.perf_counter() - loaded}
     with open_device(args, model, shape) as device:  # its options checked before the folder is made
         claim(out, "run", identity(args), args.force, identity_defaults("run"))
         try:
@@ -153,7 +158,7 @@ def run(args) -> int:
         except DeviceError as fault:
             _halted(out, device, fault)
             raise
-        return _report(args, model, shot, device, out, growth)
+        return _report(args, model, shot, device, out, growth, stages)
 
 
 def _grown(args, model, shape, options):
@@ -176,20 +181,27 @@ def _halted(out: Path, device, fault: Exception) -> None:
     write_json(out / "metrics.json", metrics)
 
 
-def _report(args, model, shot, device, out, growth=None) -> int:
-    """metrics.json, fields.npz and the pictures of a run; the summary on stdout."""
+def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
+    """metrics.json, fields.npz and the pictures of a run; the summary on stdout. ``stages``: the
+    seconds the command spent before the shot (its model, its growth), written with the writing's."""
+    import time
+
     from modalctl.outdir import record
 
+    started = time.perf_counter()
     metrics = {**shot.to_dict(), "scene": model.meta.get("name", args.model), "shape": args.shape,
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
                          "grown": None if growth is None else growth.to_dict()}}
     _write_fields(model, shot, out)
+    written = time.perf_counter()
     if not args.no_plots:
         from modalctl.report import write_run_report
 
         metrics["pictures"] = write_run_report(shot, out)
         record(out, [Path(picture).name for picture in metrics["pictures"].values()])
+    metrics["stages_s"] = {**(stages or {}), "write_fields_s": written - started,
+                           "pictures_s": time.perf_counter() - written}
     write_json(out / "metrics.json", metrics)
     fault = metrics.get("loop", {}).get("fault")
     if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
