@@ -104,3 +104,16 @@ def test_no_module_outside_the_hil_imports_it_and_the_command_line_imports_no_tr
     assert cli and {"modalctl.io.transports", "modalctl.hil"} <= set(cli[0]["forbidden_modules"])
     registered = {ep.value for ep in entry_points(group="modalctl")}
     assert "modalctl.hil.transport" in registered
+
+
+def test_no_module_over_600_lines_and_no_function_over_80():
+    """A reader takes a module in one sitting and a function in one screen (issue 35)."""
+    long = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        text = path.read_text()
+        if len(text.splitlines()) > 600:
+            long.append(f"{path.relative_to(ROOT)}: {len(text.splitlines())} lines")
+        long += [f"{path.relative_to(ROOT)}: {node.name} {node.end_lineno - node.lineno + 1} lines"
+                 for node in ast.walk(ast.parse(text))
+                 if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 80]
+    assert not long, "\n".join(long)
