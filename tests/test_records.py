@@ -33,7 +33,7 @@ def test_a_modal_field_reads_back_within_its_step_and_compresses_tenfold(plate, 
     path = write_field_record(tmp_path / "f.npz", t, plate.grid.points, field)
     back = read_field_record(path)
     peak = np.abs(field).max()
-    assert back.step == pytest.approx(peak * RESOLUTION)
+    assert back.step == pytest.approx(peak * RESOLUTION)  # nothing left by the modes: the finest step
     assert _kept(back, field)
     assert back.rank <= plate.n_modes
     np.testing.assert_array_equal(back.times, t)
@@ -49,6 +49,8 @@ def test_noise_is_kept_as_measured(plate, tmp_path):
     assert _kept(back, noisy)
     residual = back.field - field  # the noise, as measured
     assert np.std(residual) == pytest.approx(0.01 * np.abs(field).max(), rel=0.02)
+    assert np.std(back.field - noisy) < 0.05 * np.std(residual)  # the rounding: 1/28 of the noise
+    assert back.step <= 2.0 ** -10 * np.abs(noisy).max()
 
 
 def test_a_sample_beyond_sixteen_bits_of_the_residual_is_kept_too(tmp_path):

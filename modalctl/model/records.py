@@ -9,12 +9,14 @@ leaves:
 
 ``basis`` (n, r) and ``coefficients`` (r, nt) are the field's leading singular vectors (a
 randomized range finder, two passes over the field in blocks), ``residual`` (n, nt) is the rest
-rounded to ``step`` and packed in 16 bits (32 where it does not fit). Nothing of the measurement
-is dropped but what lies under ``step / 2`` (plus float32's rounding of the sums, ``2^-20`` of the
-peak): ``step`` is ``2^-16`` of the field's peak by
-default, a 17-bit vibrometer, far below any measured noise (the HIL's 40 dB is 650 steps), so a
-noise-free field's residual rounds to zero and compresses to nothing, and a noisy one keeps its
-noise. Files are ``.npz`` (no pickle) with a JSON header naming every array and its unit.
+rounded to ``step`` and packed in the fewest bits that hold it (8, 16 or 32). Nothing of the
+measurement is dropped but what lies under ``step / 2`` (plus float32's rounding of the sums,
+``2^-20`` of the peak). ``step`` is ``2^-16`` of the field's peak (a 17-bit vibrometer), or, where
+the modes leave more than that (the measurement's noise), an eighth of what they leave (its RMS):
+rounding then adds ``1/768`` to the noise's variance, and never coarser than ``2^-10`` of the peak.
+So a noise-free field's residual rounds to zero and compresses to nothing, and a noisy one keeps
+its noise in about five bits a sample. Files are ``.npz`` (no pickle) with a JSON header naming
+every array and its unit.
 """
 
 from __future__ import annotations
@@ -32,7 +34,9 @@ __all__ = ["FieldRecord", "write_field_record", "read_field_record", "RESOLUTION
 
 FORMAT = "modalctl.FieldRecord"
 VERSION = 1
-RESOLUTION = 2.0 ** -16  # the residual's step, relative to the field's peak
+RESOLUTION = 2.0 ** -16  # the residual's finest step, relative to the field's peak
+NOISE_STEPS = 8  # steps per RMS of what the modes leave: rounding adds 1 / (12 x 8^2) to its variance
+COARSEST = 2.0 ** -10  # the residual's coarsest step, relative to the field's peak
 RANK_MAX = 64  # columns of the range finder: a scene's modes and then some
 _BLOCK = 512  # grid points per block of each pass
 
@@ -65,9 +69,9 @@ class FieldRecord:
     extra: dict = field(default_factory=dict)
 
 
-def _low_rank(field: np.ndarray, rank: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """An orthonormal basis (n, k) of the field's range and its coefficients (k, nt), k <= ``rank``:
-    Halko, Martinsson and Tropp's range finder with one pass of power iteration."""
+def _low_rank(field: np.ndarray, rank: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
+    """An orthonormal basis (n, k) of the field's range, its coefficients (k, nt), k <= ``rank``
+    (Halko, Martinsson and Tropp's range finder), and the RMS of what they leave."""
     n, nt = field.shape
     probe = np.random.default_rng(seed).standard_normal((nt, rank)).astype(np.float32)
     sketch = np.empty((n, rank), np.float32)
@@ -75,26 +79,35 @@ def _low_rank(field: np.ndarray, rank: int, seed: int = 0) -> tuple[np.ndarray, 
         sketch[start:start + _BLOCK] = field[start:start + _BLOCK] @ probe
     basis = np.linalg.qr(sketch)[0]
     coefficients = np.zeros((rank, nt), np.float32)
+    energy = 0.0
     for start in range(0, n, _BLOCK):
-        coefficients += basis[start:start + _BLOCK].T @ field[start:start + _BLOCK]
+        block = field[start:start + _BLOCK]
+        coefficients += basis[start:start + _BLOCK].T @ block
+        energy += float(np.einsum("ij,ij->", block, block, dtype=np.float64))
     u, s, vt = np.linalg.svd(coefficients, full_matrices=False)
     keep = s > s[0] * 1e-7 if s.size and s[0] > 0 else np.zeros(s.size, bool)  # float32's own resolution
-    return (basis @ u[:, keep]).astype(np.float32), (s[keep, None] * vt[keep]).astype(np.float32)
+    left = max(0.0, energy - float(np.sum(s[keep].astype(np.float64) ** 2)))  # Pythagoras: the basis is orthonormal
+    return (basis @ u[:, keep]).astype(np.float32), (s[keep, None] * vt[keep]).astype(np.float32), \
+        float(np.sqrt(left / field.size))
 
 
 def _residual(field: np.ndarray, basis: np.ndarray, coefficients: np.ndarray, step: float) -> np.ndarray:
-    """What the low-rank part leaves, rounded to ``step``: int16, or int32 where that overflows."""
+    """What the low-rank part leaves, rounded to ``step``, in the fewest bits that hold it (8, 16, 32)."""
     out = np.empty(field.shape, np.int32)
     for start in range(0, field.shape[0], _BLOCK):
         rows = slice(start, start + _BLOCK)
         out[rows] = np.rint((field[rows] - basis[rows] @ coefficients) / step)
-    small = np.iinfo(np.int16)
-    return out.astype(np.int16) if out.min() >= small.min and out.max() <= small.max else out
+    low, high = (int(out.min()), int(out.max())) if out.size else (0, 0)
+    for kind in (np.int8, np.int16):
+        if np.iinfo(kind).min <= low and high <= np.iinfo(kind).max:
+            return out.astype(kind)
+    return out
 
 
 def write_field_record(path, times, points, values, resolution: float = RESOLUTION, extra: dict | None = None) -> Path:
     """Write the field ``values`` (n, nt) m/s measured at ``times`` (nt,) s on ``points`` (n, d) m to
-    ``path`` (``.npz``), every sample kept within ``resolution`` times its peak, and the arrays of
+    ``path`` (``.npz``), every sample kept within half a step (``resolution`` times its peak, or
+    an eighth of the RMS of what its modes leave: see the module's notes), and the arrays of
     ``extra`` as they are (their names prefixed ``extra_`` on file). Returns the path."""
     field = np.ascontiguousarray(values, np.float32)
     times, points = np.asarray(times, float), np.asarray(points, float).reshape(len(field), -1)
@@ -103,9 +116,9 @@ def write_field_record(path, times, points, values, resolution: float = RESOLUTI
     if not np.all(np.isfinite(field)):
         raise ModelError("field record: the field holds NaN or infinite samples")
     peak = float(np.max(np.abs(field))) if field.size else 0.0
-    step = peak * resolution if peak > 0 else 1.0
-    basis, coefficients = _low_rank(field, min(RANK_MAX, *field.shape)) if peak > 0 else (
-        np.zeros((field.shape[0], 0), np.float32), np.zeros((0, field.shape[1]), np.float32))
+    basis, coefficients, left = _low_rank(field, min(RANK_MAX, *field.shape)) if peak > 0 else (
+        np.zeros((field.shape[0], 0), np.float32), np.zeros((0, field.shape[1]), np.float32), 0.0)
+    step = max(peak * resolution, min(left / NOISE_STEPS, peak * COARSEST)) if peak > 0 else 1.0
     residual = _residual(field, basis, coefficients, step)
     header = {"format": FORMAT, "version": VERSION, "step_m_per_s": step, "resolution": resolution,
               "field": "basis @ coefficients + step * residual", "units": {
