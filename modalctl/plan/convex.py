@@ -26,6 +26,14 @@ break a limit (for the margin, every lobe of the field above ``aim`` of it) join
 until none does. With a robust band the same margin rows hold on drifted copies of the model,
 each of which must still reach a share of the focus at the target's peak.
 
+**The check on every point**: the off-target points are nested boxes (:class:`~.convex_basis.Cover`),
+each with a bound on ``|w|`` over its points at any modal state (an affine fit of every mode over
+the box's points, plus its largest residual on them: proven on every grid point, nothing assumed
+between them); the field is computed, by blocks, only on the smallest boxes whose bound exceeds
+the level at stake, at the samples where it does. The rounds need it exact only above ``aim`` of
+the margin (every row lies there); the ratio the plan reports is the largest over every point and
+sample, exactly.
+
 **Objective**: the drive's energy, each basis function's own energy on the actuators times its
 coefficient squared (the cross terms of overlapping functions left out): the smoothest drive,
 least dissipated in the amplifiers and exciting least of what the model does not know; the peak

@@ -1,6 +1,9 @@
 """The convex planner's columns and their exact responses: :class:`Basis` (the bump and hat
 families, scaled to volts) and :class:`Responses` (every mode's state per unit of each column, by
-the zero-order hold's recursion). The program built on them: :mod:`modalctl.plan.convex`."""
+the zero-order hold's recursion); and where the margin is checked: :class:`Cover` (the off-target
+points as nested boxes, each with a proven bound on the field over its points, so that the field
+is computed only where the margin may be at stake). The program built on them:
+:mod:`modalctl.plan.convex`."""
 
 from __future__ import annotations
 
@@ -15,7 +18,12 @@ from modalctl.options import ConvexOptions
 
 from .drive import BumpFamily, HatFamily, SplineDrive, hann, hat
 
-__all__ = ["Basis", "Responses"]
+__all__ = ["Basis", "Responses", "Cover"]
+
+LEAF = 16  # points in a cover's smallest boxes at most: where the bound is not enough, their field, exactly
+SPLITS = 3  # halvings from a box to its children (eight children)
+CHUNK = 4096  # samples of the field's bound at once (its memory: the boxes' few rows times this)
+SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |phi_k(x_i)| |eta'_k|
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,3 +215,188 @@ class Responses:
     def displacement(self, n: int) -> np.ndarray:
         """Every mode's displacement at sample ``n`` per unit of each column, shape (K, columns)."""
         return 2 * (self.q[:, None] * self.states(n)).real
+
+
+@dataclass(eq=False)
+class _Box:
+    """Points ``start:stop`` of a :class:`Cover`'s order, and what bounds the field on each of its
+    children: the affine fits' rows ``fit`` ((1 + d) c, K: every child's constant, then its slope
+    along each axis), their largest residuals ``residual`` (c, K) and the span of the children's
+    points about their centres, ``low`` and ``high`` (c, d)."""
+
+    start: int
+    stop: int
+    children: tuple = ()
+    fit: np.ndarray | None = None
+    residual: np.ndarray | None = None
+    low: np.ndarray | None = None
+    high: np.ndarray | None = None
+
+    def bounds(self, velocity: np.ndarray, speed: np.ndarray) -> np.ndarray:
+        """Each child's bound on ``|w|`` over its points at each column of ``velocity`` (K, s)
+        (``speed``: its absolute value), shape (c, s)."""
+        c = len(self.children)
+        y = (self.fit @ velocity).reshape(-1, c, velocity.shape[1])
+        a, slope = y[0], y[1:]  # (c, s), (d, c, s)
+        low, high = slope * self.low.T[:, :, None], slope * self.high.T[:, :, None]
+        most = a + np.maximum(low, high).sum(axis=0)
+        least = a + np.minimum(low, high).sum(axis=0)
+        return np.maximum(most, -least) + self.residual @ speed
+
+
+class Cover:
+    """The off-target grid points as nested boxes, with a bound on the field over each box's points
+    that is proven, not sampled.
+
+    A box (its points halved at the median along its longer side, three times over to its eight
+    children, down to :data:`LEAF` points) fits every mode affinely over its own points,
+    ``phi_k(x_i) = a_k + b_k . (x_i - x_B) + r_ik``, and keeps ``R_k = max_i |r_ik|`` over them
+    and the span ``[low, high]`` of ``x_i - x_B``. At a sample with modal velocities ``eta'_k``,
+    with ``A = sum_k a_k eta'_k`` and ``B = sum_k b_k eta'_k``, every point ``i`` of the box has
+
+        ``|w(x_i)| = |A + B . (x_i - x_B) + sum_k r_ik eta'_k|
+                   <= max(A + max_d B . d, -(A + min_d B . d)) + sum_k R_k |eta'_k|``
+
+    (``d`` over the span: the affine part's extremes are at its corners). The whole set's bound
+    is ``sum_k max_i |phi_k(x_i)| |eta'_k|``. **What it guarantees**: for every off-target grid
+    point and every sample, ``|w(x_i, t_n)|`` is at most the bound of every box that holds the
+    point (the residuals and spans are the points' own, so nothing is assumed about the modes'
+    smoothness; :data:`SLACK` of the whole set's bound is added for round-off). It says nothing
+    of the surface between grid points, which the model does not describe. A search goes down
+    the boxes only where their bound exceeds the level asked, at the samples where it does; the
+    field is computed, by BLAS, only on the smallest boxes reached, at those samples: on a panel of
+    8,000 off-target points a few per cent of the points-by-samples the whole grid would take.
+
+    Parameters
+    ----------
+    shapes : ndarray, shape (K, n)
+        Every mode's value at each of the points.
+    points : ndarray, shape (n, d)
+        Their coordinates (m), d = 1 or 2.
+    leaf : int
+    """
+
+    def __init__(self, shapes: np.ndarray, points: np.ndarray, leaf: int = LEAF):
+        shapes, points = np.asarray(shapes, float), np.asarray(points, float).reshape(np.shape(shapes)[1], -1)
+        self.leaf = int(leaf)
+        self.reach = np.abs(shapes).max(axis=1) if shapes.size else np.zeros(shapes.shape[0])  # (K,)
+        order = []
+        self.root = self._build(np.arange(shapes.shape[1]), shapes, points, order)
+        self.order = np.concatenate([o[0] for o in order]) if order else np.zeros(0, int)  # the cover's position -> the point's
+        self.values = np.ascontiguousarray(shapes[:, self.order].T)  # (n, K), each box's points contiguous
+
+    @property
+    def size(self) -> int:
+        return self.order.size
+
+    def _build(self, idx: np.ndarray, shapes, points, order: list) -> _Box:
+        start = order[-1][1] if order else 0
+        if idx.size <= self.leaf:
+            order.append((idx, start + idx.size))
+            return _Box(start, start + idx.size)
+        parts = [idx]
+        for _ in range(SPLITS):
+            parts = [half for p in parts for half in (_halves(p, points) if p.size > self.leaf else (p,))]
+        children = tuple(self._build(p, shapes, points, order) for p in parts)
+        fits = [_affine(shapes[:, p], points[p]) for p in parts]
+        fit = np.concatenate([np.stack([f[0][j] for f in fits]) for j in range(points.shape[1] + 1)])
+        return _Box(start, start + idx.size, children, fit, np.stack([f[1] for f in fits]),
+                    np.stack([f[2] for f in fits]), np.stack([f[3] for f in fits]))
+
+    def _descend(self, box: _Box, velocity, speed, slack, cols, floor: float, leaf, pruned) -> None:
+        """Down from ``box`` at the columns ``cols`` whose bound on it exceeds ``floor``: ``leaf(box,
+        cols, field)`` on the smallest boxes reached, ``pruned(cols, bound)`` where a child's
+        bound is at most ``floor``."""
+        if not box.children:
+            leaf(box, cols, self.values[box.start:box.stop] @ velocity)
+            return
+        for child, bound in zip(box.children, box.bounds(velocity, speed) + slack):
+            over = bound > floor
+            if pruned is not None and not over.all():
+                pruned(cols[~over], bound[~over])
+            if over.any():
+                self._descend(child, velocity[:, over], speed[:, over], slack[over], cols[over], floor, leaf, pruned)
+
+    def top(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
+        """The largest ``|w|`` over the points at each column of ``velocity`` (K, N), shape (N,):
+        exact (to round-off) wherever it exceeds ``floor``; elsewhere a bound on it, at most
+        ``floor``, stands in."""
+        velocity = np.asarray(velocity, float)
+        out = np.zeros(velocity.shape[1])
+        if self.size == 0:
+            return out
+        for first in range(0, velocity.shape[1], CHUNK):
+            v = velocity[:, first:first + CHUNK]
+            speed = np.abs(v)
+            whole = self.reach @ speed
+            top = out[first:first + CHUNK]
+            top[:] = whole
+            near = np.flatnonzero(whole > floor)
+            if near.size == 0:
+                continue
+            top[near] = 0.0
+
+            def leaf(box, cols, field, top=top):
+                top[cols] = np.maximum(top[cols], np.abs(field).max(axis=0))
+
+            def pruned(cols, bound, top=top):
+                top[cols] = np.maximum(top[cols], bound)
+
+            self._descend(self.root, v[:, near], speed[:, near], SLACK * whole[near], near, floor, leaf, pruned)
+        return out
+
+    def largest(self, velocity: np.ndarray) -> float:
+        """The largest ``|w|`` over every point and column of ``velocity`` (K, N), exactly: the field
+        on every point at the few columns whose bound is largest gives a floor, and :meth:`top`
+        above it the rest."""
+        velocity = np.asarray(velocity, float)
+        if self.size == 0 or velocity.shape[1] == 0:
+            return 0.0
+        if not self.root.children:  # a few points
+            return float(np.abs(self.values @ velocity).max())
+        rough = np.concatenate([self.root.bounds(velocity[:, i:i + CHUNK], np.abs(velocity[:, i:i + CHUNK]))
+                                .max(axis=0) for i in range(0, velocity.shape[1], CHUNK)])
+        likely = np.argsort(rough)[-8:]
+        found = float(np.abs(self.values @ velocity[:, likely]).max())
+        return max(found, float(self.top(velocity, found).max()))
+
+    def field(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
+        """The field at each column of ``velocity`` (K, s) on every point (in their given order),
+        shape (n, s): exact wherever the bound exceeds ``floor`` (every point whose ``|w|`` does),
+        zero elsewhere. Ask for a few columns at a time: it is the points-by-columns array."""
+        velocity = np.asarray(velocity, float)
+        out = np.zeros((self.size, velocity.shape[1]))
+        if self.size == 0 or velocity.shape[1] == 0:
+            return out
+        speed = np.abs(velocity)
+        whole = self.reach @ speed
+        near = np.flatnonzero(whole > floor)
+
+        def leaf(box, cols, field):
+            out[box.start:box.stop, cols] = field
+
+        if near.size:
+            self._descend(self.root, velocity[:, near], speed[:, near], SLACK * whole[near], near, floor, leaf, None)
+        result = np.empty_like(out)
+        result[self.order] = out
+        return result
+
+
+def _halves(idx: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``idx`` split at the median of its points along their longer side."""
+    p = points[idx]
+    axis = int(np.argmax(np.ptp(p, axis=0)))
+    ranked = idx[np.argsort(p[:, axis], kind="stable")]
+    return ranked[:idx.size // 2], ranked[idx.size // 2:]
+
+
+def _affine(shapes: np.ndarray, points: np.ndarray):
+    """Every mode (K, m) fitted affinely over ``points`` (m, d) about their box's centre: the fit
+    (1 + d, K), its largest residual on them (K,), and the points' span about the centre, low and
+    high (d,)."""
+    centre = 0.5 * (points.max(axis=0) + points.min(axis=0))
+    offset = points - centre
+    design = np.hstack([np.ones((points.shape[0], 1)), offset])
+    fit = np.linalg.lstsq(design, shapes.T, rcond=None)[0]
+    residual = np.abs(shapes.T - design @ fit).max(axis=0)
+    return fit, residual, offset.min(axis=0), offset.max(axis=0)

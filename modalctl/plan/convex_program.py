@@ -16,13 +16,13 @@ from modalctl.model.modes import ModalModel
 from modalctl.model.propagate import Plant
 from modalctl.options import PlanOptions
 
-from .convex_basis import Basis, Responses
+from .convex_basis import Basis, Cover, Responses
 from .dispatch import dispatch
 from .qp import QP, solve_qp
 
 __all__ = ["Program", "Solution"]
 
-CHUNK = 2048  # samples of the field scanned at once (the whole shot's field at once is hundreds of MB)
+PEAKS = 64  # time-local peaks whose field is searched for lobes at once (the points-by-peaks array)
 
 
 @dataclass
@@ -116,6 +116,7 @@ class Program:
         weights = dispatch(model, self.modes, np.ones(self.modes.size))
         self.basis = Basis.build(model.omega[self.modes], weights, self.samples, self.focus, self.fs, options.convex)
         self.outside = np.flatnonzero(~np.asarray(target_mask, bool))
+        self.cover = Cover(model.shapes[:, self.outside], model.grid.points[self.outside])
         velocity = np.zeros(model.n_modes)
         velocity[self.modes] = self.targets
         self.velocity_at_focus = velocity  # every mode's: the kept modes' targets, zero for the others
@@ -207,44 +208,48 @@ class Program:
         return self.basis.weights @ drive.forces(t) + drive.channels(t, self.basis.weights.shape[0])
 
     def off_target(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
-        """The largest off-target |w| at every sample, shape (N,), exactly wherever it may exceed
-        ``floor``: elsewhere (where ``sum_k max_x |phi_k(x)| |eta'_k|``, an upper bound, does not)
-        that bound stands in for it."""
-        shapes = self.model.shapes[:, self.outside]
-        top = np.abs(velocity).T @ np.abs(shapes).max(axis=1)  # the bound, every sample
-        near = np.flatnonzero(top > floor)
-        for start in range(0, near.size, CHUNK):
-            n = near[start:start + CHUNK]
-            top[n] = np.abs(shapes.T @ velocity[:, n]).max(axis=0)
-        return top
+        """The largest off-target |w| at every sample, shape (N,), exactly wherever it exceeds
+        ``floor``; elsewhere a bound on it, at most ``floor``, stands in (:meth:`Cover.top
+        <.convex_basis.Cover.top>`: the field is computed only where the bound of the off-target
+        points' boxes exceeds ``floor``)."""
+        return self.cover.top(velocity, floor)
 
     def _new_margin_rows(self, rows: _Rows, velocities: list, tops: list, margin: float) -> int:
         """Rows ``|w| <= aim * bound`` at every lobe above it, at each time-local peak above it, on
         every plant; returns how many were added (each is also kept in :attr:`cuts`)."""
         aim = self.options.convex.aim
         added = 0
-        shapes = self.model.shapes[:, self.outside]
         for s, (velocity, top) in enumerate(zip(velocities, tops)):
             bound = self._margin_bound(s, margin)
             peaks = _local_peaks(top)
             over = peaks[top[peaks] > aim * bound]
-            if over.size == 0:
-                continue
-            fields = np.abs(shapes.T @ velocity[:, over])  # (n_out, peaks)
-            for c, n in enumerate(over):
-                lobes = _local_peaks(fields[:, c])
-                lobes = lobes[fields[lobes, c] > aim * bound]
-                if lobes.size == 0:
-                    lobes = np.array([int(np.argmax(fields[:, c]))])
-                velocity_rows = self.responses[s].velocity(int(n))
-                for i in lobes:
-                    key = (s, int(i), int(n))
-                    if key in rows.keys:
-                        continue
-                    self.cuts[key] = shapes[:, i] @ velocity_rows / self._margin_bound(s, 1.0)
-                    self.cut_offsets[key] = self._offset(s, shapes[:, i], int(n)) / self._margin_bound(s, 1.0)
-                    self._add_margin_row(rows, key, margin)
-                    added += 1
+            for first in range(0, over.size, PEAKS):  # exact where |w| may exceed aim * bound, zero elsewhere
+                block = over[first:first + PEAKS]
+                added += self._lobe_rows(rows, s, block, np.abs(self.cover.field(velocity[:, block], aim * bound)),
+                                         margin)
+        return added
+
+    def _lobe_rows(self, rows: _Rows, s: int, over: np.ndarray, fields: np.ndarray, margin: float) -> int:
+        """The rows of plant ``s`` at samples ``over``, at every lobe of ``fields`` (n_out, len(over))
+        above ``aim`` of the bound."""
+        aim = self.options.convex.aim
+        bound = self._margin_bound(s, margin)
+        shapes = self.model.shapes[:, self.outside]
+        added = 0
+        for c, n in enumerate(over):
+            lobes = _local_peaks(fields[:, c])
+            lobes = lobes[fields[lobes, c] > aim * bound]
+            if lobes.size == 0:
+                lobes = np.array([int(np.argmax(fields[:, c]))])
+            velocity_rows = self.responses[s].velocity(int(n))
+            for i in lobes:
+                key = (s, int(i), int(n))
+                if key in rows.keys:
+                    continue
+                self.cuts[key] = shapes[:, i] @ velocity_rows / self._margin_bound(s, 1.0)
+                self.cut_offsets[key] = self._offset(s, shapes[:, i], int(n)) / self._margin_bound(s, 1.0)
+                self._add_margin_row(rows, key, margin)
+                added += 1
         return added
 
     def _new_limit_rows(self, rows: _Rows, volts: np.ndarray) -> int:
@@ -300,7 +305,7 @@ class Program:
                 break
             tic = _time.perf_counter()
             volts, velocities = self.play(x)
-            tops = [self.off_target(v, 0.5 * opts.aim * self._margin_bound(s, margin))
+            tops = [self.off_target(v, opts.aim * self._margin_bound(s, margin))  # exact where rows may be
                     for s, v in enumerate(velocities)]
             ratios = [float(top.max()) / self._margin_bound(s, 1.0) for s, top in enumerate(tops)]
             self.seconds["check"] += _time.perf_counter() - tic
@@ -329,8 +334,8 @@ class Program:
     def _solution(self, x, status, history, rows, start) -> Solution:
         volts, velocities = self.play(x)
         peaks = [float(np.max(np.abs(self.model.shapes.T @ v[:, self.focus]))) for v in velocities]
-        ratios = [float(self.off_target(v, 0.25 * p).max()) / p if p > 0 else np.inf
-                  for v, p in zip(velocities, peaks)]  # each plant's ratio over its own focus peak
+        ratios = [self.cover.largest(v) / p if p > 0 else np.inf
+                  for v, p in zip(velocities, peaks)]  # each plant's ratio over its own focus peak, exact
         self.seconds["total"] = _time.perf_counter() - start + self.seconds["tables"]
         slew = float(np.abs(np.diff(volts, axis=1)).max() * self.fs) if volts.shape[1] > 1 else 0.0
         return Solution(x, ratios[0], ratios[1:], float(np.abs(volts).max()), slew, len(history), rows,

@@ -1,0 +1,146 @@
+"""The convex planner's off-target cover (:class:`modalctl.plan.convex_basis.Cover`) against the
+whole grid: its boxes' bounds hold every point's field at every sample, on random drives of the
+program's basis on a plate and a beam, and the ratio a plan on a plate reports is the one its
+field has on every point of the grid, the plant run independently."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from modalctl.model.propagate import Plant
+from modalctl.model.scenes import load_scene
+from modalctl.model.shape import parse_params
+from modalctl.options import PlanOptions
+from modalctl.plan.convex import Program
+from modalctl.plan.convex_basis import Cover
+from modalctl.plan.decompose import decompose
+from modalctl.plan.planner import plan
+from modalctl.plugin.manager import get_shape
+
+FS = 500e3
+TF = 0.025
+BLOCK = 2048  # samples of the whole grid's field at once in these checks
+
+
+def convex(**changes) -> PlanOptions:
+    return PlanOptions(**{"planner": "convex", "margin": 0.5, "sample_rate": FS, **changes})
+
+
+def target(model, name, **params):
+    generator = get_shape(name)
+    return generator.generate(model.grid, **parse_params(generator, params))
+
+
+@pytest.fixture(scope="module")
+def plate():
+    """plate-glass (7,171 points, 21 modes), a 30 mm Gaussian at (20, 10) mm on the 17 modes the
+    automatic set takes (tau 0.98)."""
+    model = load_scene("plate-glass")
+    shape = target(model, "gaussian", width="30mm", center="20mm,10mm")
+    return model, shape, decompose(model, shape, (0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 13, 15, 16, 19, 20))
+
+
+def random_drives(model, shape, dec, count, seed):
+    """Every mode's velocity (K, N) on ``count`` drives of random columns of the program's basis."""
+    modes = np.asarray(dec.modes_used, int)
+    program = Program(model, modes, dec.coefficients[modes], shape.target_mask, TF, convex())
+    rng = np.random.default_rng(seed)
+    return program, [program.play(rng.standard_normal(program.basis.size))[1][0] for _ in range(count)]
+
+
+def whole_grid_top(model, outside, velocity):
+    """The largest off-target |w| at every sample, on every point (the plain product, by blocks)."""
+    shapes = model.shapes[:, outside]
+    return np.concatenate([np.abs(shapes.T @ velocity[:, n:n + BLOCK]).max(axis=0)
+                           for n in range(0, velocity.shape[1], BLOCK)])
+
+
+def boxes(box):
+    yield box
+    for child in box.children:
+        yield from boxes(child)
+
+
+def check_every_box(cover, velocity):
+    """Each box's bound on each child's points >= the field on every one of those points."""
+    for box in boxes(cover.root):
+        if not box.children:
+            continue
+        bounds = box.bounds(velocity, np.abs(velocity))
+        for child, bound in zip(box.children, bounds):
+            field = np.abs(cover.values[child.start:child.stop] @ velocity).max(axis=0)
+            assert np.all(bound >= field * (1 - 1e-12)), "a box's bound below its points' field"
+
+
+@pytest.mark.slow
+def test_on_random_drives_of_a_plate_the_bound_holds_every_grid_point_at_every_sample(plate):
+    """Random columns of the basis drive all 21 modes of the plate: at every sample the cover's
+    search (bounds where they suffice, the field below them) is the whole grid's largest |w|
+    wherever that exceeds the floor and at least it everywhere; every box's bound holds each of
+    its points; its largest value is the whole grid's, exactly."""
+    model, shape, dec = plate
+    program, drives = random_drives(model, shape, dec, 2, seed=7)
+    cover = program.cover
+    assert cover.size == program.outside.size and np.array_equal(np.sort(cover.order), np.arange(cover.size))
+    for velocity in drives:
+        true = whole_grid_top(model, program.outside, velocity)
+        for share in (0.0, 0.3, 0.6, 0.9):
+            floor = share * true.max()
+            top = cover.top(velocity, floor)
+            assert np.all(top >= true * (1 - 1e-12))
+            above = true > floor
+            np.testing.assert_allclose(top[above], true[above], rtol=1e-12, atol=0)
+            assert np.all(top[~above] <= floor)
+        assert cover.largest(velocity) == pytest.approx(true.max(), rel=1e-12)
+        check_every_box(cover, velocity[:, ::37])
+
+
+def test_on_random_drives_of_a_beam_the_bound_holds_every_grid_point_at_every_sample():
+    """The same on a beam (one coordinate): thesis-al-cc on 1,051 points, 21 modes."""
+    model = load_scene("thesis-al-cc")
+    shape = target(model, "sinc", width="18mm", center="24mm")
+    dec = decompose(model, shape, 9)
+    program, drives = random_drives(model, shape, dec, 2, seed=3)
+    for velocity in drives:
+        true = whole_grid_top(model, program.outside, velocity)
+        top = program.cover.top(velocity, 0.5 * true.max())
+        assert np.all(top >= true * (1 - 1e-12))
+        np.testing.assert_allclose(top[true > 0.5 * true.max()], true[true > 0.5 * true.max()], rtol=1e-12)
+        assert program.cover.largest(velocity) == pytest.approx(true.max(), rel=1e-12)
+        check_every_box(program.cover, velocity[:, ::11])
+
+
+def test_the_field_it_gives_is_exact_wherever_it_may_exceed_the_floor(plate):
+    """:meth:`Cover.field` (the rows' lobes are searched on it): the whole grid's field at every
+    point whose |w| exceeds the floor, zero only where it does not."""
+    model, shape, dec = plate
+    program, (velocity,) = random_drives(model, shape, dec, 1, seed=11)
+    columns = velocity[:, program.focus - 40:program.focus + 40]
+    full = model.shapes[:, program.outside].T @ columns
+    floor = 0.5 * np.abs(full).max()
+    field = program.cover.field(columns, floor)
+    np.testing.assert_allclose(field[np.abs(full) > floor], full[np.abs(full) > floor], rtol=1e-12)
+    given = field != 0
+    np.testing.assert_allclose(field[given], full[given], rtol=1e-12)
+    assert np.all(np.abs(full[field == 0]) <= floor)
+
+
+@pytest.mark.slow
+def test_a_plate_plan_holds_the_margin_on_every_grid_point(plate):
+    """Planned under 0.5 on the plate, played on the plant independently: the ratio it reports is
+    the whole grid's at every sample (to round-off), and within the margin; and the same on the
+    drifted copies of a robust plan, each over its own focus peak."""
+    model, shape, dec = plate
+    focus = int(round(TF * FS))
+    for options, drifts in ((convex(), ()), (convex(robust_drift=0.01), (-0.01, -0.005, 0.005, 0.01))):
+        the_plan = plan(dec, TF, options)
+        reported = [the_plan.report.whole_model_margin_ratio, *the_plan.report.details.get("robust_margin_ratios", [])]
+        assert len(reported) == 1 + len(drifts)
+        for drift, ratio in zip((0.0, *drifts), reported):
+            truth = replace(model, frequencies=model.frequencies * (1 + drift))
+            velocity = Plant(truth, FS).simulate(the_plan.voltages())
+            off = whole_grid_top(model, np.flatnonzero(~shape.target_mask), velocity).max()
+            peak = np.abs(model.shapes.T @ velocity[:, focus]).max()
+            assert off / peak == pytest.approx(ratio, rel=1e-9)
+            assert off / peak <= 0.5 * (1 + 1e-4)
