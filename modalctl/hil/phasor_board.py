@@ -37,7 +37,7 @@ from modalctl.model.propagate import Plant
 
 from .block import BlockLockIn, BlockPlant
 from .lifted import PeriodMap
-from .scenario import scan_noise
+from .vibrometer import scan_field
 
 __all__ = ["HILBoard", "BoardSetup"]
 
@@ -275,14 +275,12 @@ class HILBoard(PhasorBoard):
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:
         """Velocity (n_points, nt) of the shot at the samples nearest to ``times`` (s), as a
-        scanning vibrometer repeating it would see it (m/s); ``points``: grid indices (default all)."""
-        idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self.velocity.shape[1] - 1)
-        shapes = self.plant.model.shapes
-        rows = slice(None) if points is None else np.atleast_1d(points)
-        field = shapes[:, rows].T @ self.velocity[:, idx]
-        if not self.scan_noise:
-            return field
-        return field + scan_noise((self.setup.seed, SCAN_STREAM), idx, shapes.shape[1], self.scan_noise, rows)
+        scanning vibrometer repeating it would see it (m/s, float32: the modes' velocities there times
+        their shapes, :func:`~modalctl.hil.vibrometer.scan_field`); ``points``: grid indices (default all)."""
+        velocity = self.velocity  # the modes' at every DAC sample, played back once
+        idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, velocity.shape[1] - 1)
+        return scan_field(self.plant.model.shapes, velocity[:, idx], idx, points, self.scan_noise,
+                          (self.setup.seed, SCAN_STREAM))
 
     def _play(self, n: int, target: np.ndarray, measure: bool = True) -> np.ndarray | None:
         s, start = self.schedule, self.sample

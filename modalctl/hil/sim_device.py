@@ -15,7 +15,8 @@ from modalctl.model.shape import ParamError
 
 from .finger import FingerPlant
 from .plant import HOLDS, Plant, truncation
-from .scenario import Perturbation, perturb, scan_noise
+from .scenario import Perturbation, perturb
+from .vibrometer import scan_field
 
 __all__ = ["SimDevice"]
 
@@ -161,7 +162,9 @@ class SimDevice(Device):
         return self._board
 
     def scan(self, times: np.ndarray, points=None) -> np.ndarray:
-        """Velocity (n_points, nt) at the samples nearest to ``times`` of the last shot (m/s).
+        """Velocity (n_points, nt) at the samples nearest to ``times`` of the last shot (m/s, float32:
+        :func:`~modalctl.hil.vibrometer.scan_field`, the modes' velocities there times their shapes,
+        with the vibrometer's noise).
 
         ``points``: grid indices to measure (default all), like moving the vibrometer's spot.
         """
@@ -170,12 +173,8 @@ class SimDevice(Device):
         if self._modal is None:
             raise DeviceError(f"{self.url}: no shot to scan")
         idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._modal.shape[1] - 1)
-        shapes = self.truth.shapes[self._kept]
-        rows = slice(None) if points is None else np.atleast_1d(points)
-        field = shapes[:, rows].T @ self._modal[:, idx]
-        if not self._noise_sigma:
-            return field
-        return field + scan_noise((self.perturbation.seed, self._shots), idx, shapes.shape[1], self._noise_sigma, rows)
+        return scan_field(self.truth.shapes[self._kept], self._modal[:, idx], idx, points, self._noise_sigma or 0.0,
+                          (self.perturbation.seed, self._shots))
 
     def modal_truth(self) -> tuple[np.ndarray, np.ndarray]:
         """Simulation-only: the simulated modes (positional in the model) and their velocities (k, n)."""
