@@ -144,3 +144,16 @@ def test_a_plate_plan_holds_the_margin_on_every_grid_point(plate):
             peak = np.abs(model.shapes.T @ velocity[:, focus]).max()
             assert off / peak == pytest.approx(ratio, rel=1e-9)
             assert off / peak <= 0.5 * (1 + 1e-4)
+
+
+def test_a_lobe_on_a_plate_is_one_row_not_one_per_grid_line(plate):
+    """Two bumps of |w| off target: two crests (the rows' places), each the largest point of its
+    bump over its neighbours in the plane, where a crest along each grid line gave one per line."""
+    model, shape, dec = plate
+    modes = np.asarray(dec.modes_used, int)
+    program = Program(model, modes, dec.coefficients[modes], shape.target_mask, TF, convex())
+    points = model.grid.points[program.outside]
+    centres = points[[100, points.shape[0] - 300]]
+    size = sum(np.exp(-np.sum((points - c) ** 2, axis=1) / (2 * 0.006 ** 2)) for c in centres)
+    crests = program.cover.lobes(size, 0.5)
+    np.testing.assert_allclose(np.sort(points[crests], axis=0), np.sort(centres, axis=0), atol=1e-12)

@@ -24,6 +24,7 @@ LEAF = 16  # points in a cover's smallest boxes at most: where the bound is not 
 SPLITS = 3  # halvings from a box to its children (eight children)
 CHUNK = 4096  # samples of the field's bound at once (its memory: the boxes' few rows times this)
 SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |phi_k(x_i)| |eta'_k|
+SERIAL = 65536 * 4  # multiply-adds a product of the cover's stays under: OpenBLAS's threading threshold
 
 
 @dataclass(frozen=True, eq=False)
@@ -236,12 +237,12 @@ class _Box:
         """Each child's bound on ``|w|`` over its points at each column of ``velocity`` (K, s)
         (``speed``: its absolute value), shape (c, s)."""
         c = len(self.children)
-        y = (self.fit @ velocity).reshape(-1, c, velocity.shape[1])
+        y = _product(self.fit, velocity).reshape(-1, c, velocity.shape[1])
         a, slope = y[0], y[1:]  # (c, s), (d, c, s)
         low, high = slope * self.low.T[:, :, None], slope * self.high.T[:, :, None]
         most = a + np.maximum(low, high).sum(axis=0)
         least = a + np.minimum(low, high).sum(axis=0)
-        return np.maximum(most, -least) + self.residual @ speed
+        return np.maximum(most, -least) + _product(self.residual, speed)
 
 
 class Cover:
@@ -284,6 +285,7 @@ class Cover:
         self.root = self._build(np.arange(shapes.shape[1]), shapes, points, order)
         self.order = np.concatenate([o[0] for o in order]) if order else np.zeros(0, int)  # the cover's position -> the point's
         self.values = np.ascontiguousarray(shapes[:, self.order].T)  # (n, K), each box's points contiguous
+        self.neighbours = _neighbours(points)  # (n, deg), in the given order; n pads
 
     @property
     def size(self) -> int:
@@ -308,7 +310,7 @@ class Cover:
         cols, field)`` on the smallest boxes reached, ``pruned(cols, bound)`` where a child's
         bound is at most ``floor``."""
         if not box.children:
-            leaf(box, cols, self.values[box.start:box.stop] @ velocity)
+            leaf(box, cols, _product(self.values[box.start:box.stop], velocity))
             return
         for child, bound in zip(box.children, box.bounds(velocity, speed) + slack):
             over = bound > floor
@@ -353,12 +355,20 @@ class Cover:
         if self.size == 0 or velocity.shape[1] == 0:
             return 0.0
         if not self.root.children:  # a few points
-            return float(np.abs(self.values @ velocity).max())
+            return float(np.abs(_product(self.values, velocity)).max())
         rough = np.concatenate([self.root.bounds(velocity[:, i:i + CHUNK], np.abs(velocity[:, i:i + CHUNK]))
                                 .max(axis=0) for i in range(0, velocity.shape[1], CHUNK)])
         likely = np.argsort(rough)[-8:]
-        found = float(np.abs(self.values @ velocity[:, likely]).max())
+        found = float(np.abs(_product(self.values, velocity[:, likely])).max())
         return max(found, float(self.top(velocity, found).max()))
+
+    def lobes(self, size: np.ndarray, level: float) -> np.ndarray:
+        """The points where ``size`` (n,: a field's absolute value, in the points' order) exceeds
+        ``level`` and is at least its value at each of the point's neighbours (along a line, the
+        points before and after; on a plate, those within 1.5 grid spacings): each lobe's crest."""
+        above = np.flatnonzero(size > level)
+        padded = np.append(size, -np.inf)
+        return above[size[above] >= padded[self.neighbours[above]].max(axis=1)]
 
     def field(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
         """The field at each column of ``velocity`` (K, s) on every point (in their given order),
@@ -382,6 +392,40 @@ class Cover:
         return result
 
 
+def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a @ b``, by blocks of ``b``'s columns of at most :data:`SERIAL` multiply-adds each. The
+    cover's products are many and small: OpenBLAS's threads, which it starts above that size, spin
+    on them (a 24 x 22 by 22 x 4096 product 40 times slower on a loaded 2-core machine)."""
+    step = max(1, SERIAL // max(1, a.shape[0] * a.shape[1]))
+    if b.shape[1] <= step:
+        return a @ b
+    out = np.empty((a.shape[0], b.shape[1]), np.result_type(a, b))
+    for first in range(0, b.shape[1], step):
+        np.matmul(a, b[:, first:first + step], out=out[:, first:first + step])
+    return out
+
+
+def _neighbours(points: np.ndarray) -> np.ndarray:
+    """Each point's neighbours, shape (n, deg), padded with n: along a line the points before and
+    after it in their order; on a plate the points within 1.5 times the grid's median spacing."""
+    n = points.shape[0]
+    if points.shape[1] == 1 or n < 3:
+        index = np.arange(n)
+        return np.stack([np.where(index > 0, index - 1, n), np.where(index < n - 1, index + 1, n)], axis=1)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(points)
+    spacing = float(np.median(tree.query(points, k=2)[0][:, 1]))
+    pairs = tree.query_pairs(1.5 * spacing, output_type="ndarray")
+    pairs = np.vstack([pairs, pairs[:, ::-1]])
+    pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    counts = np.bincount(pairs[:, 0], minlength=n)
+    out = np.full((n, max(int(counts.max()), 1)), n)
+    slot = np.arange(pairs.shape[0]) - np.repeat(np.cumsum(counts) - counts, counts)
+    out[pairs[:, 0], slot] = pairs[:, 1]
+    return out
+
+
 def _halves(idx: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``idx`` split at the median of its points along their longer side."""
     p = points[idx]
@@ -396,7 +440,9 @@ def _affine(shapes: np.ndarray, points: np.ndarray):
     high (d,)."""
     centre = 0.5 * (points.max(axis=0) + points.min(axis=0))
     offset = points - centre
-    design = np.hstack([np.ones((points.shape[0], 1)), offset])
-    fit = np.linalg.lstsq(design, shapes.T, rcond=None)[0]
-    residual = np.abs(shapes.T - design @ fit).max(axis=0)
+    reach = np.where(np.ptp(points, axis=0) > 0, 0.5 * np.ptp(points, axis=0), 1.0)
+    design = np.hstack([np.ones((points.shape[0], 1)), offset / reach])  # within [-1, 1]: well conditioned
+    fit = np.linalg.lstsq(design.T @ design, _product(design.T, shapes.T), rcond=None)[0]  # (1 + d, K)
+    residual = np.abs(shapes.T - _product(design, fit)).max(axis=0)  # whatever the fit, this makes it a bound
+    fit[1:] /= reach[:, None]
     return fit, residual, offset.min(axis=0), offset.max(axis=0)

@@ -237,8 +237,7 @@ class Program:
         shapes = self.model.shapes[:, self.outside]
         added = 0
         for c, n in enumerate(over):
-            lobes = _local_peaks(fields[:, c])
-            lobes = lobes[fields[lobes, c] > aim * bound]
+            lobes = self.cover.lobes(fields[:, c], aim * bound)
             if lobes.size == 0:
                 lobes = np.array([int(np.argmax(fields[:, c]))])
             velocity_rows = self.responses[s].velocity(int(n))
