@@ -28,6 +28,7 @@ controller gives back.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,8 +36,8 @@ import numpy as np
 from modalctl.model.propagate import hold_coefficients
 from modalctl.model.touch import velocity_residues
 
-__all__ = ["TouchEstimate", "TouchEstimator", "CANDIDATES", "SURE", "TOUCH_MAX", "TOUCH_MIN", "SETTLE", "MEMORIES", "AGREE",
-           "PLACE_MEMORY", "PLACE_EVIDENCE", "FIT_MIN"]
+__all__ = ["TouchEstimate", "TouchEstimator", "candidate_places", "CANDIDATES", "SURE", "TOUCH_MAX", "TOUCH_MIN",
+           "SETTLE", "MEMORIES", "AGREE", "PLACE_MEMORY", "PLACE_EVIDENCE", "FIT_MIN"]
 
 CANDIDATES = 512  # candidate points at most (evenly spread over the grid's)
 TOUCH_MAX = 20.0  # N s/m: no touch damps more (twenty times a pressing finger); near a node of every
@@ -106,6 +107,10 @@ class TouchEstimator:
     """Least squares on the kept modes' envelopes for one touch's damping and position, over several
     memories at once, each period read with the longest memory that agrees with the shorter ones.
 
+    The place is searched among candidate points (:func:`candidate_places`), and refined over the
+    points a candidate stands for when the evidence moves the touch to it; the search is skipped
+    in the periods where no candidate could move it (a bound from the residuals alone).
+
     Parameters
     ----------
     frequencies, damping : array_like, shape (k,)
@@ -131,13 +136,13 @@ class TouchEstimator:
         p = -2 * np.pi * f * z + 0j  # the untouched pole in the carrier's frame (1/s)
         self.a, self.g0, self.g1 = hold_coefficients(p, self.period, "foh")
         self.r = velocity_residues(f, z)
-        shapes = np.asarray(shapes, float)
+        self.shapes = shapes = np.asarray(shapes, float)
         if at is None:
-            self.candidates = np.unique(np.linspace(0, shapes.shape[1] - 1, min(CANDIDATES, shapes.shape[1]))
-                                        .round().astype(int))
+            self.candidates, self._cells = candidate_places(shapes)
         else:
-            self.candidates = np.array([int(at)])
+            self.candidates, self._cells = np.array([int(at)]), [np.array([int(at)])]
         self.q = shapes[:, self.candidates].T ** 2 / 2  # (p, k)
+        self._q2 = self.q ** 2
         self.readable = np.ones(f.size, bool) if readable is None else np.asarray(readable, bool)
         self.memories = np.sort(np.atleast_1d(np.asarray(memories, float)))
         if not (self.memories.size and np.all(np.isfinite(self.memories)) and self.memories[0] > 0):
@@ -145,36 +150,54 @@ class TouchEstimator:
         self.forget = np.exp(-self.period / self.memories)  # (m,)
         self.placed_by = min(int(np.searchsorted(self.memories, PLACE_MEMORY)), self.memories.size - 1)
         self.settle = SETTLE * self.memories[0] / self.period  # periods
+        # e = z - a z0 - r (g0 u0 + g1 u) and h = T (a z0 + z) / 2 on the readable modes, as one
+        # weighted sum of the inputs' two slots (z, u), the last period's and this one's: the slots
+        # take turns (weights for this period in slot 1, then in slot 0), so nothing is copied
+        read = self.readable.astype(float)
+        one, none, half = np.ones_like(self.a), np.zeros_like(self.a), self.period / 2
+        last = [-self.a, -self.r * self.g0], [half * self.a, none]  # (e, h) weights of (z, u) last period
+        this = [one, -self.r * self.g1], [half * one, none]  # and this period
+        self._weights = np.array([[[*this[0], *last[0]], [*this[1], *last[1]]],  # this period in slot 0
+                                  [[*last[0], *this[0]], [*last[1], *this[1]]]]) * read  # (slot, 2, 4, k)
+        self._reads = float(np.count_nonzero(self.readable))
+        self._keep = self.forget[:, None, None, None]
+        self._memory = self.memories.tolist()
+        m = self.memories.size  # where each memory's sums at a place land in (m, 2, 2, 3), flattened
+        self._picks = np.concatenate([np.ravel_multi_index((np.arange(m), a, b, np.full(m, c)), (m, 2, 2, 3))
+                                      for a, b, c in ((0, 1, 0), (1, 1, 1), (0, 0, 2))])
         self.reset()
 
     def reset(self) -> None:
         m, k = self.memories.size, self.a.size
-        # per memory and mode: sum |h|^2, sum Re(h* e), sum |e|^2; per memory the weighted count
-        self._s, self._rr, self._e = np.zeros((m, k)), np.zeros((m, k)), np.zeros((m, k))
+        # per memory and mode, the sums of the products of (e, h): [[|e|^2, Re(h* e)], [., |h|^2]];
+        # per memory the weighted count
+        self._sums = np.zeros((m, 2, 2, k))
         self._n = np.zeros(m)
         self._periods = 0
-        self._prev = None  # z[n-1], U[n-1]
+        self._inputs = np.zeros((4, k), complex)  # two slots of (z, U): the last period's and this one's
+        self._slot = 1  # this period's
+        self._started = False
         self._best = None
         self._row = None  # the place's pattern q over the modes (k,)
         self._chosen = 0  # the memory the last estimate was read with
-        self._last_place = None  # row of q
+        self._place = None  # (grid index, candidate row or None, q, q^2, the per-memory weights (k, 3))
 
     def update(self, envelope: np.ndarray, drive: np.ndarray) -> None:
         """Learn from one period: each mode's own envelope (k,) and the lock-in envelope of the
         modal force it received (k,), complex, at the period's end."""
-        z, u = np.asarray(envelope, complex), np.asarray(drive, complex)
-        if self._prev is not None:
-            z0, u0 = self._prev
-            e = (z - self.a * z0 - self.r * (self.g0 * u0 + self.g1 * u)) * self.readable
-            h = self.period * (self.a * z0 + z) / 2 * self.readable
-            lam = self.forget[:, None]
-            self._s = lam * self._s + np.abs(h) ** 2
-            self._rr = lam * self._rr + np.real(np.conj(h) * e)
-            self._e = lam * self._e + np.abs(e) ** 2
-            self._n = self.forget * self._n + 1
+        x, slot = self._inputs, self._slot
+        x[2 * slot], x[2 * slot + 1] = envelope, drive
+        if self._started:
+            eh = np.einsum("rjk,jk->rk", self._weights[slot], x)  # (e, h), (2, k)
+            parts = eh.view(float).reshape(2, -1, 2)  # real and imaginary parts
+            self._sums *= self._keep
+            self._sums += np.einsum("ikc,jkc->ijk", parts, parts)
+            self._n *= self.forget
+            self._n += 1
             self._periods += 1
             self._best = None
-        self._prev = (z, u)
+        self._started = True
+        self._slot = 1 - slot
 
     @property
     def estimate(self) -> TouchEstimate:
@@ -184,87 +207,193 @@ class TouchEstimator:
         return self._best
 
     def _solve(self) -> TouchEstimate:
-        row = self._place()
-        if row is None:
-            self._row = None
-            return TouchEstimate(0.0, np.inf, None, 0.0)
-        q = self._row = self.q[row]
-        nums, dens = self._rr @ q, self._s @ q ** 2  # per memory (m,)
-        j, floor = self._agreeing(nums, dens)
+        j = max(self._chosen, self.placed_by)  # the memory the place is read with
+        place = self._place
+        if place is None:
+            place = self._locate(j, None, 0.0, 0.0)
+            if place is None:
+                self._row = None
+                return TouchEstimate(0.0, np.inf, None, 0.0)
+            per = self._at(place)
+            each = None
+        else:
+            per = self._at(place)
+            held = _explained_one(per[0][j], per[1][j])
+            each, losses = self._each(j)
+            # a place explains at most what the modes that lose would if each lost on its own
+            # (Cauchy-Schwarz on them; a pattern q = phi^2 / 2 is never negative): when even that
+            # would not move the place, no candidate can, and the search is skipped
+            if not (held > 0 and losses - held <= PLACE_EVIDENCE * _variance(per[2][j], per[3][j], losses)):
+                moved = self._locate(j, place, held, per[2][j])
+                if moved is not place:
+                    place, per = moved, self._at(moved)
+        index, q = place[0], place[2]
+        self._row = q
+        nums, dens, energies, counts = per
+        placed_by, (j, floor, errors) = j, _agreeing(nums, dens, energies, counts)
         self._chosen = j
-        num, den = nums[j], dens[j]
-        index, memory = int(self.candidates[row]), float(self.memories[j])
+        num, den, memory = nums[j], dens[j], self._memory[j]
         if not (den > 0 and num < 0):  # nothing damps the modes there now
-            return TouchEstimate(0.0, self._stderr(j, den, 0.0), index, 0.0, memory=memory)
+            return TouchEstimate(0.0, _stderr(energies[j], counts[j], den, 0.0), index, 0.0, memory=memory)
         c = min(-num / den, TOUCH_MAX)
-        stderr = self._stderr(j, den, num ** 2 / den)
-        fit = self._fit(j, num ** 2 / den)
+        explained = num * num / den
+        each = each if j == placed_by and each is not None else self._each(j)[0]
+        fit = min(explained / each, 1.0) if each > 0 else 0.0
         trusted = c >= TOUCH_MIN and fit >= FIT_MIN and self._periods >= self.settle
-        sure = min(c - SURE * stderr, floor) if trusted else 0.0
-        return TouchEstimate(float(c), stderr, index, float(max(0.0, sure)), fit, memory)
+        sure = min(c - SURE * errors[j], floor) if trusted else 0.0
+        return TouchEstimate(c, errors[j], index, max(0.0, sure), fit, memory)
 
-    def _fit(self, j: int, explained: float) -> float:
-        """Share of the modes' losses that one touch explains: ``explained`` (what the touch's
-        damping takes out of the residual energy) over what a decay of each mode's own would take
-        out (``sum_k Re(h_k* e_k)^2 / |h_k|^2``; at least as much, equal when the modes lose in the
-        touch's pattern). Residuals that are not losses (noise, a drift at right angles, a mode the
-        touch cannot reach that is read with others' noise) weigh in neither."""
-        s, rr = self._s[j], self._rr[j]
-        each = np.sum(np.divide(rr ** 2, s, out=np.zeros_like(s), where=s > 0))
-        return float(min(explained / each, 1.0)) if each > 0 else 0.0
+    def _at(self, place) -> tuple[list, list, list, list]:
+        """Per memory at ``place``: the sums against its pattern (``sum_k q_k Re(h_k* e_k)``,
+        ``sum_k q_k^2 |h_k|^2``), the residual energy ``sum_k |e_k|^2`` and the weighted count of
+        complex residuals, as lists of floats (a few memories: plain floats from here on)."""
+        per = (self._sums.reshape(-1, self.a.size) @ place[4]).ravel()[self._picks].tolist()
+        m = self.memories.size
+        return per[:m], per[m:2 * m], per[2 * m:], (self._n * self._reads).tolist()
 
-    def _agreeing(self, nums: np.ndarray, dens: np.ndarray) -> tuple[int, float]:
-        """The longest memory whose damping at the place (``-nums / dens``, one per memory) lies
-        within ``AGREE`` standard errors of every shorter memory's (Lepski's rule): a touch that
-        changed shows in the short memories first, and the long ones that still remember the old
-        touch fall outside them. Returns its index and the least damping any memory up to it is sure
-        of (N s/m; ``c - SURE * stderr``)."""
-        read = dens > 0
-        damping = np.where(read, -nums / np.where(read, dens, 1), np.nan)
-        half = np.array([AGREE * self._stderr(j, den, num ** 2 / den) if ok else np.inf
-                         for j, (num, den, ok) in enumerate(zip(nums, dens, read))])
-        chosen = next((j for j in range(damping.size - 1, 0, -1)
-                       if read[j] and np.all(np.abs(damping[j] - damping[:j]) <= half[:j])), 0)
-        # what every memory up to it is sure of: a lift shows in the shortest first
-        return chosen, float(np.min(damping[:chosen + 1] - SURE / AGREE * half[:chosen + 1]))
+    def _each(self, j: int) -> tuple[float, float]:
+        """What a decay of each mode's own would take out of memory ``j``'s residual energy:
+        ``sum_k Re(h_k* e_k)^2 / |h_k|^2`` (the fit's denominator), and the part of it the modes
+        that lose (``Re(h_k* e_k) < 0``) take: at least what any one touch takes (Cauchy-Schwarz).
+        A mode never driven has ``|h| = Re(h* e) = 0``: it adds nothing."""
+        s, rr = self._sums[j, 1, 1], self._sums[j, 0, 1]
+        ratio = s + TINY
+        np.divide(rr, ratio, out=ratio)
+        return float(rr @ ratio), float(np.minimum(rr, 0.0) @ ratio)
 
-    def _place(self) -> int | None:
-        """The candidate (row of ``q``) whose pattern over the modes explains the most of the
-        residuals with a damping in (0, TOUCH_MAX]; None before any data. Read with the memory the
-        last period's estimate agreed on (PLACE_MEMORY at least), and moved from the last place only
-        when another explains more by ``PLACE_EVIDENCE`` residual variances (a likelihood ratio):
-        a beam's points either side of a symmetric focus differ only in the modes the scene leaves
-        still, whose noise would otherwise move the place, and with it the damping, period by period."""
-        j = max(self._chosen, self.placed_by)
-        num, den = self.q @ self._rr[j], (self.q ** 2) @ self._s[j]  # (p,)
-        if not np.any(den > 0):
+    def _locate(self, j: int, last, held: float, energy: float):
+        """The place, ``(grid index, candidate row or None, q, q^2, weights)``, read with memory
+        ``j``; None before any data. ``last``: the place so far, explaining ``held`` of memory
+        ``j``'s residual ``energy``.
+
+        The candidate whose pattern over the modes explains the most of the residuals with a damping
+        in (0, TOUCH_MAX], moved to from the last place only when it explains more by
+        ``PLACE_EVIDENCE`` residual variances (a likelihood ratio): a beam's points either side of a
+        symmetric focus differ only in the modes the scene leaves still, whose noise would otherwise
+        move the place, and with it the damping, period by period. When it moves (or first lands)
+        to a candidate that stands for several points, the best of those is the place."""
+        rr, s = self._sums[j, 0, 1], self._sums[j, 1, 1]
+        num, den = self.q @ rr, self._q2 @ s  # (p,)
+        if last is None and not den.max() > 0:
             return None
-        plausible = (den > 0) & (num < 0) & (-num <= TOUCH_MAX * den)
-        explained = np.where(plausible, num ** 2 / np.where(den > 0, den, 1), 0.0)
-        best = int(np.argmax(explained)) if explained.max() > 0 else int(np.argmax(den))
-        last = self._last_place
-        if last is not None and explained[best] > 0:
-            if explained[best] - explained[last] <= PLACE_EVIDENCE * self._variance(j, explained[best]):
-                best = last
-        self._last_place = best
-        return best
+        explained = _explained(num, den)
+        best = int(explained.argmax())
+        top = float(explained[best])
+        if not top > 0:  # no plausible touch anywhere: the candidate the modes' motion reaches most
+            best = int(den.argmax())
+        if last is not None:
+            if last[1] == best:
+                return last
+            if top > 0 and top - held <= PLACE_EVIDENCE * _variance(energy, self._n[j] * self._reads, top):
+                return last
+        self._place = self._refine(best, rr, s, top)
+        return self._place
 
-    def _samples(self, j: int) -> float:
-        """The weighted count of complex residuals memory ``j`` holds (periods times readable modes)."""
-        return self._n[j] * np.count_nonzero(self.readable)
+    def _refine(self, row: int, rr: np.ndarray, s: np.ndarray, explained: float):
+        """The place among the points candidate ``row`` stands for: the one explaining the most."""
+        cell = self._cells[row]
+        index, at = int(self.candidates[row]), row
+        if cell.size > 1:
+            q = self.shapes[:, cell].T ** 2 / 2  # (c, k)
+            q2 = q ** 2
+            there = _explained(q @ rr, q2 @ s)
+            best = int(np.argmax(there))
+            if there[best] > explained and cell[best] != index:
+                index, at = int(cell[best]), None
+        q = self.shapes[:, index] ** 2 / 2
+        q2 = q ** 2
+        return index, at, q, q2, np.column_stack([q, q2, np.ones_like(q)])
 
-    def _variance(self, j: int, explained: float) -> float:
-        """Residual variance per complex sample in memory ``j`` once ``explained`` is taken out."""
-        return max(float(np.sum(self._e[j])) - explained, 0.0) / max(self._samples(j) - 1, 1)
-
-    def _stderr(self, j: int, den: float, explained: float) -> float:
-        """Standard error of the damping (N s/m) read with memory ``j``: the residual variance per
-        complex sample over twice ``den``."""
-        if self._samples(j) <= 1 or not den > 0:
-            return np.inf
-        return float(np.sqrt(self._variance(j, explained) / (2 * den)))
+    @property
+    def place_pattern(self) -> np.ndarray | None:
+        """The pattern ``q_k = phi_k(x0)^2 / 2`` over the kept modes at the estimated place (k,), None
+        before any data."""
+        self.estimate  # solving places the touch
+        return self._row
 
     def added_decay(self) -> np.ndarray:
         """Each kept mode's decay rate (1/s) the touch surely adds, shape (k,): ``sure * q_k(x0)``."""
         estimate = self.estimate  # solving places the touch: self._row
         return np.zeros(self.a.size) if self._row is None else estimate.sure * self._row
+
+
+def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int, float, list]:
+    """The longest memory whose damping at the place (``-nums / dens``, one per memory) lies
+    within ``AGREE`` standard errors of every shorter memory's (Lepski's rule): a touch that
+    changed shows in the short memories first, and the long ones that still remember the old
+    touch fall outside them. Returns its index, the least damping any memory up to it is sure
+    of (N s/m; ``c - SURE * stderr``) and every memory's standard error. A few memories: plain
+    floats, no arrays."""
+    damping, half, errors = [], [], []
+    for num, den, energy, count in zip(nums, dens, energies, counts):
+        if den > 0:  # _stderr, written out: this runs every period for every memory
+            error = math.sqrt(max(energy - num * num / den, 0.0) / max(count - 1, 1) / (2 * den)) \
+                if count > 1 else np.inf
+            damping.append(-num / den)
+            half.append(AGREE * error)
+        else:
+            error = np.inf
+            damping.append(np.nan)
+            half.append(np.inf)
+        errors.append(error)
+    chosen = 0
+    for j in range(len(damping) - 1, 0, -1):
+        if dens[j] > 0:
+            d = damping[j]
+            for i in range(j):
+                if not abs(d - damping[i]) <= half[i]:
+                    break
+            else:
+                chosen = j
+                break
+    # what every memory up to it is sure of: a lift shows in the shortest first
+    floor = np.inf
+    for i in range(chosen + 1):
+        f = damping[i] - SURE / AGREE * half[i]
+        if f != f:
+            floor = np.nan
+            break
+        floor = min(floor, f)
+    return chosen, floor, errors
+
+
+TINY = 1e-300  # added to a sum of squares that may be zero: below the rounding of any that is not
+
+
+def _explained(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """What a touch at each place takes out of the residual energy, ``num^2 / den``, where its damping
+    ``-num / den`` lies in (0, TOUCH_MAX]; zero elsewhere. ``den`` is zero only where ``num`` is."""
+    ratio = den + TINY
+    np.divide(num, ratio, out=ratio)  # minus the damping
+    explained = num * ratio
+    explained *= (ratio < 0) & (ratio >= -TOUCH_MAX)
+    return explained
+
+
+def _explained_one(num: float, den: float) -> float:
+    """:func:`_explained` at one place, in floats."""
+    if not den > 0:
+        return 0.0
+    damping = num / den
+    return num * damping if -TOUCH_MAX <= damping < 0 else 0.0
+
+
+def _variance(energy: float, count: float, explained: float) -> float:
+    """Residual variance per complex sample once ``explained`` is taken out of the residual ``energy``
+    (the forgotten sum of ``|e|^2`` over ``count`` weighted samples)."""
+    return max(energy - explained, 0.0) / max(count - 1, 1)
+
+
+def _stderr(energy: float, count: float, den: float, explained: float) -> float:
+    """Standard error of the damping (N s/m): the residual variance per complex sample over twice ``den``."""
+    if count <= 1 or not den > 0:
+        return np.inf
+    return math.sqrt(_variance(energy, count, explained) / (2 * den))
+
+
+def candidate_places(shapes: np.ndarray) -> tuple[np.ndarray, list]:
+    """The candidate places (grid indices, ascending): at most :data:`CANDIDATES`, evenly spread over
+    the grid's indices, and for each the points it stands for (itself)."""
+    n = shapes.shape[1]
+    chosen = np.unique(np.linspace(0, n - 1, min(CANDIDATES, n)).round().astype(int))
+    return chosen, [np.array([i]) for i in chosen]
