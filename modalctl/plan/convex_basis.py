@@ -24,6 +24,7 @@ LEAF = 16  # points in a cover's smallest boxes at most: where the bound is not 
 SPLITS = 3  # halvings from a box to its children (eight children)
 CHUNK = 4096  # samples of the field's bound at once (its memory: the boxes' few rows times this)
 SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |phi_k(x_i)| |eta'_k|
+STRIDE = 32  # lags between the states a response table keeps
 SERIAL = 65536 * 4  # multiply-adds a product of the cover's stays under: OpenBLAS's threading threshold
 
 
@@ -128,13 +129,65 @@ class Basis:
         return np.hstack(blocks) * self.scale
 
 
+class _Table:
+    """Every mode's states after each lag of one family's prototypes (C rows, for their real and
+    imaginary parts), kept every :data:`STRIDE` lags: ``z(l) = e^r z(l0) + g0 sum_{s<r}
+    e^(r-1-s) P(l0 + s)`` from the last one kept, ``l0 = l - r``, one small product, so that the
+    tables take ``1/STRIDE`` of the memory the whole recursion's would (on 256 modes and 200
+    prototypes, 9 GB). Past the prototypes' support the states decay as ``e^l``.
+
+    Parameters
+    ----------
+    e, g0 : ndarray, shape (K,)
+        The zero-order hold's recursion ``z[n] = e z[n-1] + g0 u[n-1]`` of every mode.
+    proto : ndarray, shape (C, L)
+    """
+
+    def __init__(self, e: np.ndarray, g0: np.ndarray, proto: np.ndarray):
+        self.e, self.g0 = np.asarray(e, complex), np.asarray(g0, complex)
+        proto = np.atleast_2d(np.asarray(proto, complex))
+        blocks = -(-proto.shape[1] // STRIDE)
+        self.end = blocks * STRIDE  # the last state kept: the input is zero from L on
+        self.inputs = np.zeros((2, self.end, proto.shape[0]))  # (part, lag, C)
+        self.inputs[0, :proto.shape[1]] = proto.real.T
+        self.inputs[1, :proto.shape[1]] = proto.imag.T
+        self.powers = self.e[:, None] ** np.arange(STRIDE + 1)  # (K, STRIDE + 1)
+        weights = self.powers[:, STRIDE - 1::-1] * self.g0[:, None]  # (K, STRIDE): g0 e^(STRIDE-1-s)
+        self.kept = np.zeros((2, blocks + 1, self.e.size, proto.shape[0]), complex)  # (part, block, K, C)
+        for b in range(blocks):
+            for part in range(2):
+                step = _product(weights, self.inputs[part, b * STRIDE:(b + 1) * STRIDE])
+                self.kept[part, b + 1] = self.powers[:, STRIDE, None] * self.kept[part, b] + step
+
+    def at(self, lag: np.ndarray) -> list:
+        """The states at lags ``lag`` (j,), zero before the first: two arrays (K, C, j)."""
+        lag = np.asarray(lag, int)
+        shape = (self.e.size, self.kept.shape[3], lag.size)
+        out = [np.zeros(shape, complex), np.zeros(shape, complex)]
+        after = np.flatnonzero(lag >= self.end)
+        if after.size:
+            decay = self.e[:, None] ** (lag[after] - self.end)[None, :]  # (K, j')
+            for part in range(2):
+                out[part][:, :, after] = self.kept[part, -1][:, :, None] * decay[:, None, :]
+        for j in np.flatnonzero((lag >= 0) & (lag < self.end)):
+            block, r = divmod(int(lag[j]), STRIDE)
+            for part in range(2):
+                z = self.powers[:, r, None] * self.kept[part, block]
+                if r:
+                    inputs = self.inputs[part, block * STRIDE:block * STRIDE + r]  # (r, C)
+                    z = z + self.g0[:, None] * (self.powers[:, r - 1::-1] @ inputs)
+                out[part][:, :, j] = z
+        return out
+
+
 class Responses:
     """Every mode's exact response to the basis, on one model (the zero-order hold's recursion).
 
     For each family's prototype input ``P`` (complex for the carriers' bumps), the partial-fraction
     states of every mode (``z[n] = e z[n-1] + g0 u[n-1]``, velocity ``2 Re(r z)``, displacement
     ``2 Re(q z)``, as :class:`modalctl.model.propagate.Plant`) are tabulated over the prototype's
-    support for its real and imaginary parts; after the support they decay as ``e^n``.
+    support for its real and imaginary parts (every :data:`STRIDE` lags, the rest one short product
+    away: :class:`_Table`); after the support they decay as ``e^n``.
 
     Parameters
     ----------
@@ -161,32 +214,13 @@ class Responses:
         if basis.hats is not None:
             self.hat_table = self._table(g0, hat(basis.hats.half)[None, :].astype(complex))
 
-    def _table(self, g0, proto: np.ndarray):
-        """States after 0..L samples of each prototype row, for its real and imaginary parts:
-        two arrays (K, C, L + 1) complex."""
-        pad = np.zeros((proto.shape[0], 1))
-        states = []
-        for part in (proto.real, proto.imag):
-            table = np.empty((self.e.size, proto.shape[0], proto.shape[1] + 1), complex)
-            for k in range(self.e.size):
-                table[k] = lfilter([0, g0[k]], [1, -self.e[k]], np.hstack([part, pad]), axis=1)
-            states.append(table)
-        return states
+    def _table(self, g0, proto: np.ndarray) -> _Table:
+        return _Table(self.e, g0, proto)
 
-    def _at(self, table, lag: np.ndarray):
-        """The tabulated states at lags ``lag`` (j,) from each copy's first sample, decayed past the
-        support; zero before it. Two arrays (K, C, j)."""
-        re, im = table
-        length = re.shape[2] - 1
-        out = [np.zeros(re.shape[:2] + (lag.size,), complex) for _ in range(2)]
-        inside = (lag >= 0) & (lag <= length)
-        after = lag > length
-        decay = self.e[:, None] ** (lag[after] - length)[None, :] if after.any() else None
-        for o, t in zip(out, (re, im)):
-            o[:, :, inside] = t[:, :, lag[inside]]
-            if decay is not None:
-                o[:, :, after] = t[:, :, -1][:, :, None] * decay[:, None, :]
-        return out
+    def _at(self, table: _Table, lag: np.ndarray):
+        """The states at lags ``lag`` (j,) from each copy's first sample; zero before it. Two
+        arrays (K, C, j)."""
+        return table.at(lag)
 
     def states(self, n: int) -> np.ndarray:
         """Every mode's state at sample ``n`` per unit of each column, shape (K, columns) complex."""
@@ -307,16 +341,19 @@ class Cover:
 
     def _descend(self, box: _Box, velocity, speed, slack, cols, floor: float, leaf, pruned) -> None:
         """Down from ``box`` at the columns ``cols`` whose bound on it exceeds ``floor``: ``leaf(box,
-        cols, field)`` on the smallest boxes reached, ``pruned(cols, bound)`` where a child's
-        bound is at most ``floor``."""
+        cols, field)`` on the smallest boxes reached, ``pruned(cols, bound)`` with the largest bound
+        of the children it stops at (-inf where none)."""
         if not box.children:
             leaf(box, cols, _product(self.values[box.start:box.stop], velocity))
             return
-        for child, bound in zip(box.children, box.bounds(velocity, speed) + slack):
-            over = bound > floor
-            if pruned is not None and not over.all():
-                pruned(cols[~over], bound[~over])
-            if over.any():
+        bounds = box.bounds(velocity, speed) + slack
+        overs = bounds > floor
+        if pruned is not None and not overs.all():
+            pruned(cols, np.where(overs, -np.inf, bounds).max(axis=0))
+        for child, over in zip(box.children, overs):
+            if over.all():
+                self._descend(child, velocity, speed, slack, cols, floor, leaf, pruned)
+            elif over.any():
                 self._descend(child, velocity[:, over], speed[:, over], slack[over], cols[over], floor, leaf, pruned)
 
     def top(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:

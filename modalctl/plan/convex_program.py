@@ -234,22 +234,29 @@ class Program:
         above ``aim`` of the bound."""
         aim = self.options.convex.aim
         bound = self._margin_bound(s, margin)
-        shapes = self.model.shapes[:, self.outside]
         added = 0
         for c, n in enumerate(over):
             lobes = self.cover.lobes(fields[:, c], aim * bound)
             if lobes.size == 0:
                 lobes = np.array([int(np.argmax(fields[:, c]))])
-            velocity_rows = self.responses[s].velocity(int(n))
-            for i in lobes:
-                key = (s, int(i), int(n))
-                if key in rows.keys:
-                    continue
-                self.cuts[key] = shapes[:, i] @ velocity_rows / self._margin_bound(s, 1.0)
-                self.cut_offsets[key] = self._offset(s, shapes[:, i], int(n)) / self._margin_bound(s, 1.0)
-                self._add_margin_row(rows, key, margin)
-                added += 1
+            added += self._cuts(rows, s, lobes, int(n), margin)
         return added
+
+    def _cuts(self, rows: _Rows, s: int, points: np.ndarray, n: int, margin: float) -> int:
+        """The rows ``|w| <= aim * bound`` of plant ``s`` at off-target ``points`` (positions in
+        :attr:`outside`) and sample ``n`` the program does not have yet; returns how many."""
+        new = [int(i) for i in points if (s, int(i), n) not in rows.keys]
+        if not new:
+            return 0
+        shapes = self.model.shapes[:, self.outside[new]]  # (K, l)
+        cuts = shapes.T @ self.responses[s].velocity(n) / self._margin_bound(s, 1.0)
+        for i, weights, cut in zip(new, shapes.T, cuts):
+            key = (s, i, n)
+            if key not in self.cuts:
+                self.cuts[key] = cut
+                self.cut_offsets[key] = self._offset(s, weights, n) / self._margin_bound(s, 1.0)
+            self._add_margin_row(rows, key, margin)
+        return len(new)
 
     def _new_limit_rows(self, rows: _Rows, volts: np.ndarray) -> int:
         """Voltage and slew rows at the time-local peaks that break the limits; returns how many."""
@@ -296,6 +303,7 @@ class Program:
         qp = QP(self.basis.energy(self.fs), np.zeros(self.basis.size), a_eq, b_eq, rows)
         bound = opts.energy_bound * self.focus_energy(qp)
         history, status, x, duals = [], "not solved", np.zeros(self.basis.size), None
+        played = None
         for round_ in range(1, opts.rounds + 1):
             tic = _time.perf_counter()
             x, status, duals = solve_qp(opts.solver, qp, bound, duals)
@@ -304,8 +312,10 @@ class Program:
                 break
             tic = _time.perf_counter()
             volts, velocities = self.play(x)
-            tops = [self.off_target(v, opts.aim * self._margin_bound(s, margin))  # exact where rows may be
-                    for s, v in enumerate(velocities)]
+            floors = [opts.aim * self._margin_bound(s, margin) for s in range(len(velocities))]
+            tops = [self.off_target(v, floor) for v, floor in zip(velocities, floors)]  # exact where rows may be
+            played = (x, volts, velocities, [top.max() if top.max() > floor else None
+                                             for top, floor in zip(tops, floors)])
             ratios = [float(top.max()) / self._margin_bound(s, 1.0) for s, top in enumerate(tops)]
             self.seconds["check"] += _time.perf_counter() - tic
             history.append({"round": round_, "ratio": ratios[0], "peak_voltage": float(np.abs(volts).max()),
@@ -316,7 +326,7 @@ class Program:
                 break
             self._new_margin_rows(rows, velocities, tops, margin)
             self.seconds["rows"] += _time.perf_counter() - tic
-        return self._solution(x, status, history, len(rows), start)
+        return self._solution(x, status, history, len(rows), start, played)
 
     def focus_energy(self, qp: QP) -> float:
         """The least energy of the focus alone on the basis (the scale of ``energy_bound``): with an
@@ -330,11 +340,17 @@ class Program:
         """The modes whose velocity at T_F the equalities fix: every one, or the kept ones with a leak."""
         return np.arange(self.model.n_modes) if self.options.convex.leak is None else self.modes
 
-    def _solution(self, x, status, history, rows, start) -> Solution:
-        volts, velocities = self.play(x)
+    def _solution(self, x, status, history, rows, start, played=None) -> Solution:
+        """``played``: the last round's ``(x, volts, velocities, largest)``, ``largest`` each plant's
+        largest off-target ``|w|`` where the round found it exactly (above its floor), else None."""
+        if played is not None and played[0] is x:
+            _, volts, velocities, known = played
+        else:
+            volts, velocities = self.play(x)
+            known = [None] * len(velocities)
         peaks = [float(np.max(np.abs(self.model.shapes.T @ v[:, self.focus]))) for v in velocities]
-        ratios = [self.cover.largest(v) / p if p > 0 else np.inf
-                  for v, p in zip(velocities, peaks)]  # each plant's ratio over its own focus peak, exact
+        ratios = [(self.cover.largest(v) if top is None else top) / p if p > 0 else np.inf
+                  for v, p, top in zip(velocities, peaks, known)]  # each plant's over its own focus peak, exact
         self.seconds["total"] = _time.perf_counter() - start + self.seconds["tables"]
         slew = float(np.abs(np.diff(volts, axis=1)).max() * self.fs) if volts.shape[1] > 1 else 0.0
         return Solution(x, ratios[0], ratios[1:], float(np.abs(volts).max()), slew, len(history), rows,
