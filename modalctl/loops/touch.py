@@ -63,15 +63,20 @@ class CommandFilter:
         return self._io[:, 1:]
 
     def reset(self) -> None:
-        self._io = np.zeros((self.B.shape[0], self.B.shape[1] + 1), complex)  # (input, state) per mode
+        k, o = self.B.shape
+        self._io = np.zeros((k, o + 1), complex)  # (input, state) per mode
+        self._input = self._io[:, 0]
+        self._parts = self._io.view(float).reshape(k, o + 1, 2)  # the same, real and imaginary parts
+        self._next = np.empty((k, o + 1, 2))  # a step's output and next state, real and imaginary parts
+        self._state, self._state_next = self._parts[:, 1:], self._next[:, 1:]
+        self._output = self._next.view(complex)[:, 0, 0]
 
     def step(self, value: np.ndarray) -> np.ndarray:
         """The filtered value (k,) at this sample of the input ``value`` (k,); the filter moves on."""
-        io = self._io
-        io[:, 0] = value
-        out = np.matmul(self._step, io.view(float).reshape(io.shape[0], -1, 2)).reshape(io.shape[0], -1).view(complex)
-        io[:, 1:] = out[:, 1:]
-        return out[:, 0]
+        self._input[:] = value
+        np.matmul(self._step, self._parts, out=self._next)  # the output, then the next state
+        self._state[:] = self._state_next
+        return self._output.copy()
 
 
 class TouchControl(Controller):

@@ -17,6 +17,12 @@ a press or a lift from the last fraction of a millisecond. A resonance drift add
 ``e_k``, at right angles to ``h_k``: it does not bias ``c``. Where the touch rests is the candidate
 point whose pattern ``q(x)`` over the modes explains the most of the residuals (a beam's symmetric
 points look alike; so does their damping of every mode, which is all a controller needs).
+The place is searched in the modes' coordinates, not the grid's: on a plate's thousands of points
+the candidates are a few hundred patterns spread over all the points' (:func:`candidate_places`),
+each standing for the points whose pattern is nearest its own, among which the place is refined
+when the evidence moves it there; and a period skips the search when no pattern at all could move
+it (a bound from the residuals alone). A period costs ``O(modes x candidates)``, about 30 us of
+CPU on panel-rounded's 8591 points and 21 modes (500 us when all the grid was searched by index).
 The estimate's standard error comes from the residuals left; :attr:`TouchEstimate.sure` is the
 damping the estimate is confident of (``c - SURE * stderr``, and no more than any shorter memory is
 sure of: a lift shows in the shortest first; zero below ``TOUCH_MIN``, before
@@ -39,7 +45,9 @@ from modalctl.model.touch import velocity_residues
 __all__ = ["TouchEstimate", "TouchEstimator", "candidate_places", "CANDIDATES", "SURE", "TOUCH_MAX", "TOUCH_MIN",
            "SETTLE", "MEMORIES", "AGREE", "PLACE_MEMORY", "PLACE_EVIDENCE", "FIT_MIN"]
 
-CANDIDATES = 512  # candidate points at most (evenly spread over the grid's)
+CANDIDATES = 512  # candidate places searched each period at most (spread over the points' patterns)
+CANDIDATES_MIN = 64  # and at least, however many modes
+SEARCH_WORK = 4096  # multiply-adds a period's place search may take: fewer candidates with many modes
 TOUCH_MAX = 20.0  # N s/m: no touch damps more (twenty times a pressing finger); near a node of every
 # mode a candidate would "explain" the residuals with an unbounded damping: it is not one
 SURE = 3.0  # standard errors taken off the estimate before it is given back
@@ -107,9 +115,12 @@ class TouchEstimator:
     """Least squares on the kept modes' envelopes for one touch's damping and position, over several
     memories at once, each period read with the longest memory that agrees with the shorter ones.
 
-    The place is searched among candidate points (:func:`candidate_places`), and refined over the
-    points a candidate stands for when the evidence moves the touch to it; the search is skipped
-    in the periods where no candidate could move it (a bound from the residuals alone).
+    The place is searched among candidate points (every grid point when there are at most
+    :data:`CANDIDATES`; otherwise fewer, spread over the modes' patterns, each standing for the
+    points whose pattern is nearest its own) and refined over the points it stands for when the
+    evidence moves the touch to it; the search is skipped in the periods where no pattern could
+    move it (a bound from the residuals alone): a period costs ``O(modes x candidates)`` whatever
+    the grid.
 
     Parameters
     ----------
@@ -138,11 +149,16 @@ class TouchEstimator:
         self.r = velocity_residues(f, z)
         self.shapes = shapes = np.asarray(shapes, float)
         if at is None:
-            self.candidates, self._cells = candidate_places(shapes)
+            self.candidates, cells = candidate_places(shapes)
         else:
-            self.candidates, self._cells = np.array([int(at)]), [np.array([int(at)])]
+            self.candidates, cells = np.array([int(at)]), [np.array([int(at)])]
         self.q = shapes[:, self.candidates].T ** 2 / 2  # (p, k)
         self._q2 = self.q ** 2
+        # the points each candidate stands for, one cell after another (candidate i's: rows
+        # starts[i]:starts[i + 1]), and their patterns, when the cells hold more than their candidate
+        self._members = np.concatenate(cells)
+        self._starts = np.concatenate([[0], np.cumsum([c.size for c in cells])])
+        self._cell_q = shapes[:, self._members].T ** 2 / 2 if self._members.size > self.candidates.size else None
         self.readable = np.ones(f.size, bool) if readable is None else np.asarray(readable, bool)
         self.memories = np.sort(np.atleast_1d(np.asarray(memories, float)))
         if not (self.memories.size and np.all(np.isfinite(self.memories)) and self.memories[0] > 0):
@@ -152,48 +168,57 @@ class TouchEstimator:
         self.settle = SETTLE * self.memories[0] / self.period  # periods
         # e = z - a z0 - r (g0 u0 + g1 u) and h = T (a z0 + z) / 2 on the readable modes, as one
         # weighted sum of the inputs' two slots (z, u), the last period's and this one's: the slots
-        # take turns (weights for this period in slot 1, then in slot 0), so nothing is copied
+        # take turns (weights for this period in slot 1, then in slot 0), so nothing is copied. A
+        # last column, its inputs all one, makes e = 1 and h = 0 there: its |e|^2 sums count the periods.
+        k = f.size
         read = self.readable.astype(float)
-        one, none, half = np.ones_like(self.a), np.zeros_like(self.a), self.period / 2
+        one, none, half = np.ones(k), np.zeros(k), self.period / 2
         last = [-self.a, -self.r * self.g0], [half * self.a, none]  # (e, h) weights of (z, u) last period
         this = [one, -self.r * self.g1], [half * one, none]  # and this period
-        self._weights = np.array([[[*this[0], *last[0]], [*this[1], *last[1]]],  # this period in slot 0
-                                  [[*last[0], *this[0]], [*last[1], *this[1]]]]) * read  # (slot, 2, 4, k)
+        self._weights = np.zeros((2, 2, 4, k + 1), complex)  # (slot, (e, h), input, mode)
+        self._weights[..., :k] = np.array([[[*this[0], *last[0]], [*this[1], *last[1]]],  # this period in slot 0
+                                           [[*last[0], *this[0]], [*last[1], *this[1]]]]) * read
+        self._weights[0, 0, 0, k] = self._weights[1, 0, 2, k] = 1  # e = this period's z = 1
         self._reads = float(np.count_nonzero(self.readable))
         self._keep = self.forget[:, None, None, None]
         self._memory = self.memories.tolist()
-        m = self.memories.size  # where each memory's sums at a place land in (m, 2, 2, 3), flattened
-        self._picks = np.concatenate([np.ravel_multi_index((np.arange(m), a, b, np.full(m, c)), (m, 2, 2, 3))
-                                      for a, b, c in ((0, 1, 0), (1, 1, 1), (0, 0, 2))])
+        m = self.memories.size  # where each memory's sums at a place land in (m, 2, 2, 4), flattened
+        self._picks = np.concatenate([np.ravel_multi_index((np.arange(m), a, b, np.full(m, c)), (m, 2, 2, 4))
+                                      for a, b, c in ((0, 1, 0), (1, 1, 1), (0, 0, 2), (0, 0, 3))])
         self.reset()
 
     def reset(self) -> None:
         m, k = self.memories.size, self.a.size
-        # per memory and mode, the sums of the products of (e, h): [[|e|^2, Re(h* e)], [., |h|^2]];
-        # per memory the weighted count
-        self._sums = np.zeros((m, 2, 2, k))
-        self._n = np.zeros(m)
+        # per memory and mode, the forgotten sums of the products of (e, h): [[|e|^2, Re(h* e)], [., |h|^2]];
+        # the last column's |e|^2: the weighted count of periods
+        self._sums = np.zeros((m, 2, 2, k + 1))
+        self._table = self._sums.reshape(-1, k + 1)  # the same, a row per memory and product
+        self._losses = [(self._sums[j, 0, 1, :k], self._sums[j, 1, 1, :k]) for j in range(m)]  # Re(h* e), |h|^2
         self._periods = 0
-        self._inputs = np.zeros((4, k), complex)  # two slots of (z, U): the last period's and this one's
+        x = self._inputs = np.ones((4, k + 1), complex)  # two slots of (z, U): the last period's and this one's
+        self._slots = [(x[0, :k], x[1, :k]), (x[2, :k], x[3, :k])]
+        self._eh = np.empty((2, k + 1), complex)  # this period's (e, h)
+        self._parts = self._eh.view(float).reshape(2, k + 1, 2)  # their real and imaginary parts
+        self._products = np.empty((2, 2, k + 1))
         self._slot = 1  # this period's
         self._started = False
         self._best = None
         self._row = None  # the place's pattern q over the modes (k,)
         self._chosen = 0  # the memory the last estimate was read with
-        self._place = None  # (grid index, candidate row or None, q, q^2, the per-memory weights (k, 3))
+        self._place = None  # (grid index, q, the weights of the per-memory sums at it (k + 1, 4))
 
     def update(self, envelope: np.ndarray, drive: np.ndarray) -> None:
         """Learn from one period: each mode's own envelope (k,) and the lock-in envelope of the
         modal force it received (k,), complex, at the period's end."""
-        x, slot = self._inputs, self._slot
-        x[2 * slot], x[2 * slot + 1] = envelope, drive
+        slot = self._slot
+        z, u = self._slots[slot]
+        z[:], u[:] = envelope, drive
         if self._started:
-            eh = np.einsum("rjk,jk->rk", self._weights[slot], x)  # (e, h), (2, k)
-            parts = eh.view(float).reshape(2, -1, 2)  # real and imaginary parts
+            np.einsum("rjk,jk->rk", self._weights[slot], self._inputs, out=self._eh)  # (e, h), (2, k + 1)
+            parts = self._parts
+            np.einsum("ikc,jkc->ijk", parts, parts, out=self._products)
             self._sums *= self._keep
-            self._sums += np.einsum("ikc,jkc->ijk", parts, parts)
-            self._n *= self.forget
-            self._n += 1
+            self._sums += self._products
             self._periods += 1
             self._best = None
         self._started = True
@@ -210,7 +235,7 @@ class TouchEstimator:
         j = max(self._chosen, self.placed_by)  # the memory the place is read with
         place = self._place
         if place is None:
-            place = self._locate(j, None, 0.0, 0.0)
+            place = self._locate(j, None, 0.0, 0.0, 0.0)
             if place is None:
                 self._row = None
                 return TouchEstimate(0.0, np.inf, None, 0.0)
@@ -224,10 +249,10 @@ class TouchEstimator:
             # (Cauchy-Schwarz on them; a pattern q = phi^2 / 2 is never negative): when even that
             # would not move the place, no candidate can, and the search is skipped
             if not (held > 0 and losses - held <= PLACE_EVIDENCE * _variance(per[2][j], per[3][j], losses)):
-                moved = self._locate(j, place, held, per[2][j])
+                moved = self._locate(j, place, held, per[2][j], per[3][j])
                 if moved is not place:
                     place, per = moved, self._at(moved)
-        index, q = place[0], place[2]
+        index, q = place[0], place[1]
         self._row = q
         nums, dens, energies, counts = per
         placed_by, (j, floor, errors) = j, _agreeing(nums, dens, energies, counts)
@@ -247,62 +272,65 @@ class TouchEstimator:
         """Per memory at ``place``: the sums against its pattern (``sum_k q_k Re(h_k* e_k)``,
         ``sum_k q_k^2 |h_k|^2``), the residual energy ``sum_k |e_k|^2`` and the weighted count of
         complex residuals, as lists of floats (a few memories: plain floats from here on)."""
-        per = (self._sums.reshape(-1, self.a.size) @ place[4]).ravel()[self._picks].tolist()
+        per = (self._table @ place[2]).take(self._picks).tolist()
         m = self.memories.size
-        return per[:m], per[m:2 * m], per[2 * m:], (self._n * self._reads).tolist()
+        return per[:m], per[m:2 * m], per[2 * m:3 * m], per[3 * m:]
 
     def _each(self, j: int) -> tuple[float, float]:
         """What a decay of each mode's own would take out of memory ``j``'s residual energy:
         ``sum_k Re(h_k* e_k)^2 / |h_k|^2`` (the fit's denominator), and the part of it the modes
         that lose (``Re(h_k* e_k) < 0``) take: at least what any one touch takes (Cauchy-Schwarz).
         A mode never driven has ``|h| = Re(h* e) = 0``: it adds nothing."""
-        s, rr = self._sums[j, 1, 1], self._sums[j, 0, 1]
+        rr, s = self._losses[j]
         ratio = s + TINY
         np.divide(rr, ratio, out=ratio)
         return float(rr @ ratio), float(np.minimum(rr, 0.0) @ ratio)
 
-    def _locate(self, j: int, last, held: float, energy: float):
-        """The place, ``(grid index, candidate row or None, q, q^2, weights)``, read with memory
-        ``j``; None before any data. ``last``: the place so far, explaining ``held`` of memory
-        ``j``'s residual ``energy``.
+    def _locate(self, j: int, last, held: float, energy: float, count: float):
+        """The place, ``(grid index, q, weights)``, read with memory ``j``; None before any data.
+        ``last``: the place so far, explaining ``held`` of memory ``j``'s residual ``energy`` over
+        ``count`` weighted samples.
 
-        The candidate whose pattern over the modes explains the most of the residuals with a damping
-        in (0, TOUCH_MAX], moved to from the last place only when it explains more by
-        ``PLACE_EVIDENCE`` residual variances (a likelihood ratio): a beam's points either side of a
-        symmetric focus differ only in the modes the scene leaves still, whose noise would otherwise
-        move the place, and with it the damping, period by period. When it moves (or first lands)
-        to a candidate that stands for several points, the best of those is the place."""
-        rr, s = self._sums[j, 0, 1], self._sums[j, 1, 1]
+        The point whose pattern over the modes explains the most of the residuals with a damping in
+        (0, TOUCH_MAX] among the candidates and the points the best candidate stands for, moved to
+        from the last place only when it explains more by ``PLACE_EVIDENCE`` residual variances (a
+        likelihood ratio): a beam's points either side of a symmetric focus differ only in the modes
+        the scene leaves still, whose noise would otherwise move the place, and with it the damping,
+        period by period."""
+        k = self.a.size
+        rr, s = self._losses[j]
         num, den = self.q @ rr, self._q2 @ s  # (p,)
         if last is None and not den.max() > 0:
             return None
         explained = _explained(num, den)
         best = int(explained.argmax())
         top = float(explained[best])
-        if not top > 0:  # no plausible touch anywhere: the candidate the modes' motion reaches most
-            best = int(den.argmax())
+        if top > 0:
+            index, top = self._refine(best, rr, s, top)
+        else:  # no plausible touch anywhere: the candidate the modes' motion reaches most
+            index = int(self.candidates[den.argmax()])
         if last is not None:
-            if last[1] == best:
+            if index == last[0]:
                 return last
-            if top > 0 and top - held <= PLACE_EVIDENCE * _variance(energy, self._n[j] * self._reads, top):
+            if top > 0 and top - held <= PLACE_EVIDENCE * _variance(energy, count, top):
                 return last
-        self._place = self._refine(best, rr, s, top)
+        q = self.shapes[:, index] ** 2 / 2
+        weights = np.zeros((k + 1, 4))  # q, q^2, the modes, the count (times the modes read)
+        weights[:-1, 0], weights[:-1, 1], weights[:-1, 2], weights[-1, 3] = q, q ** 2, 1.0, self._reads
+        self._place = index, q, weights
         return self._place
 
-    def _refine(self, row: int, rr: np.ndarray, s: np.ndarray, explained: float):
-        """The place among the points candidate ``row`` stands for: the one explaining the most."""
-        cell = self._cells[row]
-        index, at = int(self.candidates[row]), row
-        if cell.size > 1:
-            q = self.shapes[:, cell].T ** 2 / 2  # (c, k)
-            q2 = q ** 2
-            there = _explained(q @ rr, q2 @ s)
-            best = int(np.argmax(there))
-            if there[best] > explained and cell[best] != index:
-                index, at = int(cell[best]), None
-        q = self.shapes[:, index] ** 2 / 2
-        q2 = q ** 2
-        return index, at, q, q2, np.column_stack([q, q2, np.ones_like(q)])
+    def _refine(self, row: int, rr: np.ndarray, s: np.ndarray, explained: float) -> tuple[int, float]:
+        """The point that explains the most among those candidate ``row`` stands for, and what it
+        explains (``explained``: what the candidate does)."""
+        first, end = self._starts[row], self._starts[row + 1]
+        if end - first > 1:
+            q = self._cell_q[first:end]
+            there = _explained(q @ rr, (q * q) @ s)
+            best = int(there.argmax())
+            if there[best] > explained:
+                return int(self._members[first + best]), float(there[best])
+        return int(self.candidates[row]), explained
 
     @property
     def place_pattern(self) -> np.ndarray | None:
@@ -324,17 +352,19 @@ def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int
     touch fall outside them. Returns its index, the least damping any memory up to it is sure
     of (N s/m; ``c - SURE * stderr``) and every memory's standard error. A few memories: plain
     floats, no arrays."""
+    inf, sqrt = math.inf, math.sqrt
     damping, half, errors = [], [], []
     for num, den, energy, count in zip(nums, dens, energies, counts):
         if den > 0:  # _stderr, written out: this runs every period for every memory
-            error = math.sqrt(max(energy - num * num / den, 0.0) / max(count - 1, 1) / (2 * den)) \
-                if count > 1 else np.inf
+            left = energy - num * num / den
+            error = sqrt((left if left > 0 else 0.0) / (count - 1 if count > 2 else 1) / (2 * den)) \
+                if count > 1 else inf
             damping.append(-num / den)
             half.append(AGREE * error)
         else:
-            error = np.inf
-            damping.append(np.nan)
-            half.append(np.inf)
+            error = inf
+            damping.append(math.nan)
+            half.append(inf)
         errors.append(error)
     chosen = 0
     for j in range(len(damping) - 1, 0, -1):
@@ -347,13 +377,13 @@ def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int
                 chosen = j
                 break
     # what every memory up to it is sure of: a lift shows in the shortest first
-    floor = np.inf
+    floor, scale = inf, SURE / AGREE
     for i in range(chosen + 1):
-        f = damping[i] - SURE / AGREE * half[i]
+        f = damping[i] - scale * half[i]
         if f != f:
-            floor = np.nan
-            break
-        floor = min(floor, f)
+            return chosen, math.nan, errors
+        if f < floor:
+            floor = f
     return chosen, floor, errors
 
 
@@ -391,9 +421,40 @@ def _stderr(energy: float, count: float, den: float, explained: float) -> float:
     return math.sqrt(_variance(energy, count, explained) / (2 * den))
 
 
-def candidate_places(shapes: np.ndarray) -> tuple[np.ndarray, list]:
-    """The candidate places (grid indices, ascending): at most :data:`CANDIDATES`, evenly spread over
-    the grid's indices, and for each the points it stands for (itself)."""
-    n = shapes.shape[1]
-    chosen = np.unique(np.linspace(0, n - 1, min(CANDIDATES, n)).round().astype(int))
-    return chosen, [np.array([i]) for i in chosen]
+def candidate_places(shapes: np.ndarray, count: int | None = None) -> tuple[np.ndarray, list]:
+    """The candidate places (grid indices, ascending) and, for each, the points it stands for.
+
+    Points at a node of every mode are left out: no touch there reaches the modes. Every other point
+    is a candidate when there are at most ``count`` (default :data:`CANDIDATES`, fewer when many
+    modes make each candidate dearer: :data:`SEARCH_WORK` multiply-adds a period). Otherwise the
+    candidates are spread over the points' patterns ``q = phi^2 / 2`` over the modes, each pattern
+    scaled to unit length (what a touch's evidence depends on: scaling ``q`` scales its damping, not
+    how much it explains): farthest-point sampling, each candidate standing for the points whose
+    pattern is nearest or second nearest its own (points that look alike to the estimator,
+    wherever they lie: a plate's symmetric points fall together; the second nearest, so that a
+    point on the border between two candidates is reached from either)."""
+    k, n = shapes.shape
+    if count is None:
+        count = int(min(CANDIDATES, max(CANDIDATES_MIN, SEARCH_WORK // max(k, 1))))
+    pattern = shapes.T ** 2
+    size = np.linalg.norm(pattern, axis=1)
+    live = np.flatnonzero(size > 0)
+    if live.size == 0:  # no mode moves anywhere: nothing to tell the points apart
+        live = np.arange(n)
+    if live.size <= count:
+        return live, [np.array([i]) for i in live]
+    pattern = pattern[live] / size[live, None]  # unit length
+    chosen = [int(np.argmax(size[live]))]  # the liveliest point first
+    nearest, second = np.full(live.size, np.inf), np.full(live.size, np.inf)  # squared distances
+    owner, neighbour = np.zeros(live.size, int), np.zeros(live.size, int)
+    for i in range(count):
+        if i:
+            chosen.append(int(np.argmax(nearest)))
+        d = 2 - 2 * (pattern @ pattern[chosen[-1]])  # squared distances to the new candidate
+        closest, second_closest = d < nearest, (d < second) & (d >= nearest)
+        second[closest], neighbour[closest] = nearest[closest], owner[closest]
+        nearest[closest], owner[closest] = d[closest], i
+        second[second_closest], neighbour[second_closest] = d[second_closest], i
+    chosen = np.array(chosen)
+    order = np.argsort(live[chosen])
+    return live[chosen[order]], [live[(owner == i) | (neighbour == i)] for i in order]
