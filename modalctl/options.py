@@ -87,9 +87,13 @@ class ConvexOptions(_Options):
         measured need 2-4 times, an unreachable margin climbs without end.
     certify : bool
         When the margin program is refused, find the smallest ratio a drive reaches (a bisection
-        of margin programs, the refusal's certificate: seconds on a beam, a minute or more on a
-        plate); False refuses at once, for callers that only need to know (the automatic mode
-        set's growing attempts).
+        of margin programs, the refusal's certificate: seconds on a beam or a panel); False
+        refuses at once, for callers that only need to know (the automatic mode set's growing
+        attempts).
+    certify_seconds : float or None
+        The time the certificate may take (s); None: until it is done. Once past, the bisection
+        stops where it is and the refusal says what it proved by then: the smallest ratio a drive
+        was found to hold, the largest margin refused, whether the least-energy drive was found.
     """
 
     early: float = 3e-3
@@ -106,10 +110,13 @@ class ConvexOptions(_Options):
     reference: str | None = None
     energy_bound: float = 1000.0
     certify: bool = True
+    certify_seconds: float | None = 30.0
 
     def __post_init__(self):
         if self.reference not in (None, "envelope"):
             raise ValueError(f"reference must be None or 'envelope', got {self.reference!r}")
+        if self.certify_seconds is not None and not self.certify_seconds >= 0:
+            raise ValueError(f"certify_seconds must be None or zero or more, got {self.certify_seconds!r}")
 
 
 @dataclass(frozen=True)

@@ -157,3 +157,69 @@ def test_a_lobe_on_a_plate_is_one_row_not_one_per_grid_line(plate):
     size = sum(np.exp(-np.sum((points - c) ** 2, axis=1) / (2 * 0.006 ** 2)) for c in centres)
     crests = program.cover.lobes(size, 0.5)
     np.testing.assert_allclose(np.sort(points[crests], axis=0), np.sort(centres, axis=0), atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def beam_case():
+    """thesis-al-cc on 211 points, the thesis's margin case (sinc 18 mm at 24 mm, 9 modes)."""
+    model = load_scene("thesis-al-cc", 211)
+    shape = target(model, "sinc", width="18mm", center="24mm")
+    return model, shape, decompose(model, shape, 9)
+
+
+def test_a_certificate_stopped_by_its_budget_says_what_it_proved(beam_case, monkeypatch):
+    """0.5 within 6 V is refused (test_convex.py: the smallest ratio 0.51-0.6). With a budget of
+    two and a half programs (a clock that counts programs), the bisection stops after the
+    least-energy drive and two margin programs; the refusal says so, and what it says it proved
+    holds: a plan asked for the ratio it says a drive reaches is found within 6 V and holds it on
+    every sample of the plant run independently, and the margin it says it refused is below it."""
+    import types
+
+    import modalctl.plan.convex_program as program_module
+    from modalctl.options import ConvexOptions
+    from modalctl.plan.planner import PlanError
+
+    model, shape, dec = beam_case
+    clock = {"now": 0.0}
+    monkeypatch.setattr(program_module, "_time", types.SimpleNamespace(perf_counter=lambda: clock["now"]))
+    original = Program.solve
+
+    def one_second_each(self, *args, **kwargs):
+        found = original(self, *args, **kwargs)
+        clock["now"] += 1.0
+        return found
+
+    monkeypatch.setattr(Program, "solve", one_second_each)
+    options = convex(voltage_limit=6.0, convex=ConvexOptions(certify_seconds=2.5))
+    with pytest.raises(PlanError, match="budget") as refused:
+        plan(dec, TF, options)
+    certificate = refused.value.certificate
+    assert certificate["bisection"]["complete"] is False and certificate["bisection"]["programs"] == 3
+    assert certificate["status"] == "infeasible"  # the margin program's own failure was the solver's proof
+    reached = refused.value.needed
+    assert 0.5 <= certificate["largest_refused"] < reached and reached == certificate["smallest_ratio"]
+    assert f"{reached:.3f}" in str(refused.value) and "lies between" in str(refused.value)
+    monkeypatch.undo()
+    held = plan(dec, TF, convex(voltage_limit=6.0, margin=reached * (1 + 1e-4)))
+    volts = held.voltages()
+    assert np.abs(volts).max() <= 6.0 * (1 + 1e-9)
+    field = model.shapes.T @ Plant(model, FS).simulate(volts)
+    focus = int(round(TF * FS))
+    assert np.abs(field[~shape.target_mask]).max() / np.abs(field[:, focus]).max() <= reached * (1 + 1e-4) + 1e-9
+
+
+def test_a_certificate_with_no_time_gives_the_least_energy_drives_ratio(beam_case):
+    """A budget of zero: the least-energy drive within 6 V alone (its program starts from the rows
+    the refused one found), no bisection; the refusal gives its ratio as reached, the margin asked
+    as the largest refused, and says the margin program's failure was the solver's proof."""
+    from modalctl.options import ConvexOptions
+    from modalctl.plan.planner import PlanError
+
+    _, _, dec = beam_case
+    with pytest.raises(PlanError, match="budget") as refused:
+        plan(dec, TF, convex(voltage_limit=6.0, convex=ConvexOptions(certify_seconds=0.0)))
+    certificate = refused.value.certificate
+    bisection = certificate["bisection"]
+    assert bisection["complete"] is False and bisection["programs"] == 1 and bisection["free"] == "optimal"
+    assert certificate["largest_refused"] == 0.5 and refused.value.needed > 0.5
+    assert certificate["status"] == "infeasible" and "solver's proof" in str(refused.value)

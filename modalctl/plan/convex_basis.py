@@ -111,11 +111,13 @@ class Basis:
         samples = np.atleast_1d(samples)
         blocks = []
         for family in self.bumps:
-            proto = family.prototypes(self.omega, sample_rate)  # (m, width)
             phase = family.phases(self.omega, sample_rate, focus_time)  # (m, j)
             lag = samples[:, None] - family.offsets[None, :]  # (s, j)
-            inside = (lag >= 0) & (lag < family.width)
-            values = np.where(inside[None], proto[:, np.clip(lag, 0, family.width - 1)], 0) * phase[:, None, :]
+            at, copy = np.nonzero((lag >= 0) & (lag < family.width))  # the bumps the samples are on: a few
+            values = np.zeros((self.omega.size,) + lag.shape, complex)
+            n = lag[at, copy] + 0.5  # the prototype, as BumpFamily.prototypes, there only
+            values[:, at, copy] = (hann(family.width)[lag[at, copy]][None, :]
+                                   * np.exp(1j * self.omega[:, None] * n[None, :] / sample_rate)) * phase[:, copy]
             per_mode = self.weights[channel][:, None, None] * values  # (m, s, j)
             blocks.append(np.stack([per_mode.real, -per_mode.imag], axis=-1).transpose(1, 0, 2, 3)
                           .reshape(samples.size, -1))

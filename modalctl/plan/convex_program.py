@@ -20,8 +20,10 @@ from .convex_basis import Basis, Cover, Responses
 from .dispatch import dispatch
 from .qp import QP, solve_qp
 
-__all__ = ["Program", "Solution"]
+__all__ = ["Program", "Solution", "OUT_OF_TIME", "PROOFS"]
 
+OUT_OF_TIME = "out of time"  # a solve stopped at its deadline
+PROOFS = ("infeasible", "infeasible or past the energy bound", "past the energy bound")  # the solvers' proofs
 PEAKS = 64  # time-local peaks whose field is searched for lobes at once (the points-by-peaks array)
 
 
@@ -139,6 +141,7 @@ class Program:
         self.cut_offsets = {}  # the offset's part of each, in the same units
         self.limit_cuts = {}  # and every voltage and slew row
         self.limit_offsets = {}
+        self.certified = None  # what the last smallest_ratio did and proved
 
     # -- rows ------------------------------------------------------------------------------------
     def equality(self) -> tuple[np.ndarray, np.ndarray]:
@@ -286,10 +289,11 @@ class Program:
         return added
 
     # -- the solve ---------------------------------------------------------------------------------
-    def solve(self, margin: float | None = None) -> Solution:
+    def solve(self, margin: float | None = None, deadline: float | None = None) -> Solution:
         """The least-energy drive under ``margin`` (default: the options'; inf: none) and the
         limits, by constraint generation from every row an earlier solve found. Returns the last
-        iterate and how far it got."""
+        iterate and how far it got; past ``deadline`` (``time.perf_counter``'s), it stops at the
+        next round with the status :data:`OUT_OF_TIME`."""
         opts = self.options.convex
         margin = self.margin if margin is None else float(margin)
         start = _time.perf_counter()
@@ -309,6 +313,9 @@ class Program:
             x, status, duals = solve_qp(opts.solver, qp, bound, duals)
             self.seconds["solve"] += _time.perf_counter() - tic
             if status != "optimal":
+                break
+            if deadline is not None and _time.perf_counter() > deadline and round_ > 1:
+                status = OUT_OF_TIME
                 break
             tic = _time.perf_counter()
             volts, velocities = self.play(x)
@@ -356,28 +363,49 @@ class Program:
         return Solution(x, ratios[0], ratios[1:], float(np.abs(volts).max()), slew, len(history), rows,
                         dict(self.seconds), status, history)
 
-    def smallest_ratio(self, low: float, rel_tol: float = 0.01,
-                       progress: bool = False) -> tuple[Solution | None, float]:
+    def smallest_ratio(self, low: float, rel_tol: float = 0.01, progress: bool = False,
+                       seconds: float | None = None) -> tuple[Solution | None, float]:
         """The smallest margin a drive within the limits (and ``energy_bound``) holds, by bisection
         on the margin program from ``low`` (refused there) to the least-energy drive's own ratio.
-        Returns that drive's solution (None when no drive reaches the focus within the limits)
-        and the largest margin refused. ``progress``: a bar over the bisection's programs."""
-        free = self.solve(np.inf)
+        Returns that drive's solution (None when none was found) and the largest margin refused.
+        ``progress``: a bar over the bisection's programs. ``seconds``: the time it may take; once
+        past, the bisection stops where it is (no program starts after it, a program running then
+        stops at its next round). What it did and proved is in :attr:`certified`: ``complete``,
+        ``programs``, ``seconds``, ``free`` (the least-energy program's status), ``held`` (the
+        smallest ratio a drive was found to hold), ``refused`` (the largest margin refused),
+        ``proven`` (whether every refusal in the bisection was the solver's proof, infeasible or
+        past the energy bound, rather than its rounds running out)."""
+        start = _time.perf_counter()
+        deadline = None if seconds is None else start + seconds
+        info = {"complete": False, "programs": 1, "free": None, "held": None, "refused": low, "proven": True}
+        self.certified = info
+        free = self.solve(np.inf, deadline)
+        info.update(free=free.status, seconds=_time.perf_counter() - start)
         if not free.holds(np.inf, self.options):
+            info["complete"] = free.status != OUT_OF_TIME
             return None, low
         best, high = free, max([free.ratio, *free.robust_ratios])
         steps = max(0, int(np.ceil(np.log2(max(high - low, 1e-300) / (rel_tol * high)))))
         with tqdm(total=steps, desc="margin refused: the smallest ratio", unit="program", disable=not progress,
                   leave=False) as bar:
             while high - low > rel_tol * high:
+                if deadline is not None and _time.perf_counter() > deadline:
+                    break
                 middle = 0.5 * (low + high)
-                found = self.solve(middle)
+                found = self.solve(middle, deadline)
+                info["programs"] += 1
                 if found.holds(middle, self.options):
                     best, high = found, min(middle, max([found.ratio, *found.robust_ratios]))
+                elif found.status == OUT_OF_TIME:
+                    break
                 else:
                     low = middle
-                bar.set_postfix_str(f"{low:.3f} refused, {high:.3f} held")
+                    info["proven"] &= found.status in PROOFS
+                bar.set_postfix_str(f"{low:.3f} refused, {high:.3f} held, {_time.perf_counter() - start:.0f} s")
                 bar.update()
+            else:
+                info["complete"] = True
+        info.update(held=high, refused=min(low, high), seconds=_time.perf_counter() - start)
         return best, min(low, high)
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from modalctl.options import PlanOptions
 
-from .convex_program import Program, Solution
+from .convex_program import PROOFS, Program, Solution
 from .planner import PlanError
 from .qp import SOLVERS
 
@@ -20,14 +20,20 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
     out of reach whatever the limits (exact). Otherwise the smallest margin a drive within the
     limits and the energy bound holds, by bisection on the margin program, says whether the margin
     was out of reach (the answer above it) or the solver failed (at or below it); without
-    ``ConvexOptions.certify`` the refusal is said at once, unproven.
+    ``ConvexOptions.certify`` the refusal is said at once, unproven. The bisection takes at most
+    ``ConvexOptions.certify_seconds``: stopped there, the refusal says what it had proven (the
+    ratio a drive was found to hold, the largest margin refused) and that the smallest ratio lies
+    between. The certificate's ``status`` is ``infeasible`` when the margin program's failure was
+    the solver's proof (infeasible, or past the energy bound), whatever the bisection found.
     """
     margin, lobes, solver = options.margin, program.focus_lobes, options.convex.solver
     if not options.convex.certify:
         return PlanError(f"the {margin:g} margin program was refused ({failed.status}; not certified)", None,
                          margin, {"solver": solver, "margin_program": failed.status, "margin": margin,
                                   "focus_lobes": lobes, "status": "not certified"})
-    best, refused = program.smallest_ratio(max(margin, lobes), progress=progress)
+    budget = options.convex.certify_seconds
+    best, refused = program.smallest_ratio(max(margin, lobes), progress=progress, seconds=budget)
+    done = program.certified or {"complete": True}
     limits = ", ".join(f"{name} {value:g} {unit}" for name, value, unit in
                        (("voltage", options.voltage_limit, "V"), ("slew", options.slew_limit, "V/s"))
                        if value is not None) or "no voltage limit"
@@ -39,8 +45,18 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
                    "unkept_modes_at_focus": "still" if leak is None else f"leak {leak:g}",
                    "smallest_ratio": reached, "largest_refused": refused, "limits": limits,
                    "energy_bound": options.convex.energy_bound,
-                   "peak_voltage_at_smallest": None if best is None else best.peak_voltage}
+                   "peak_voltage_at_smallest": None if best is None else best.peak_voltage,
+                   "bisection": {key: done.get(key) for key in ("complete", "programs", "seconds", "free", "proven")},
+                   "certify_seconds": budget}
+    proof = failed.status in PROOFS
+    if not done["complete"]:
+        return _incomplete(certificate, failed, best, reached, refused, lobes, limits, budget, done, proof)
     if best is None:
+        if done.get("free") not in (None, *PROOFS):  # the least-energy program gave up: no proof
+            certificate["status"] = "not certified"
+            return PlanError(f"no drive found that reaches the focus within {limits}, even without the margin "
+                             f"(the least-energy program: {done['free']}; unproven): lengthen the focus time or "
+                             f"raise the limits", None, margin, certificate)
         certificate["status"] = "infeasible"
         return PlanError(f"no drive on this basis reaches the focus within {limits}, even without the margin: "
                          f"lengthen the focus time or raise the limits", None, margin, certificate)
@@ -59,3 +75,27 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
                      f"drive reaches is {reached:.3f} ({refused:.3f} refused: infeasible, or past "
                      f"{options.convex.energy_bound:g} times the focus's own least energy)", reached, margin,
                      certificate)
+
+
+def _incomplete(certificate, failed, best, reached, refused, lobes, limits, budget, done, proof) -> PlanError:
+    """The refusal of a certificate its time budget stopped: what was proven by then."""
+    margin = certificate["margin"]
+    stopped = (f"the certificate stopped at its {budget:g} s budget (ConvexOptions.certify_seconds) after "
+               f"{done['programs']} margin programs")
+    if lobes > margin:
+        why = f"the focus's own side lobes at T_F are {lobes:.3f} of its peak, on every drive that builds it"
+    elif proof:
+        why = f"the margin program is {failed.status} (the solver's proof)"
+    else:
+        why = f"the margin program stopped ({failed.status}), unproven"
+    certificate["status"] = "infeasible" if lobes > margin or proof else "not certified"
+    if best is None:
+        return PlanError(f"the {margin:g} margin was refused: {why}; {stopped}, before the least-energy drive "
+                         f"within {limits} was found ({done['free']}): whether any drive reaches the focus "
+                         f"within them is unknown", None, margin, certificate)
+    if reached <= margin * (1 + 1e-4):
+        certificate["status"] = "solver failure"
+    return PlanError(f"the {margin:g} margin was refused: {why}; {stopped}: a drive within {limits} reaches "
+                     f"{reached:.3f} (its plan holds it on every sample), {refused:.3f} was refused"
+                     f"{'' if done['proven'] else ' (not every refusal proven)'}: the smallest ratio lies "
+                     f"between", reached, margin, certificate)
