@@ -48,6 +48,7 @@ __all__ = ["TouchEstimate", "TouchEstimator", "candidate_places", "CANDIDATES", 
 CANDIDATES = 512  # candidate places searched each period at most (spread over the points' patterns)
 CANDIDATES_MIN = 64  # and at least, however many modes
 SEARCH_WORK = 4096  # multiply-adds a period's place search may take: fewer candidates with many modes
+CELL_STORE = 1 << 22  # values (32 MB): up to this, the points' patterns are stored cell after cell
 TOUCH_MAX = 20.0  # N s/m: no touch damps more (twenty times a pressing finger); near a node of every
 # mode a candidate would "explain" the residuals with an unbounded damping: it is not one
 SURE = 3.0  # standard errors taken off the estimate before it is given back
@@ -154,11 +155,15 @@ class TouchEstimator:
             self.candidates, cells = np.array([int(at)]), [np.array([int(at)])]
         self.q = shapes[:, self.candidates].T ** 2 / 2  # (p, k)
         self._q2 = self.q ** 2
-        # the points each candidate stands for, one cell after another (candidate i's: rows
-        # starts[i]:starts[i + 1]), and their patterns, when the cells hold more than their candidate
+        # the points each candidate stands for, one cell after another (candidate i's: members
+        # starts[i]:starts[i + 1]), and every point's pattern, when the cells hold more than their candidate
         self._members = np.concatenate(cells)
         self._starts = np.concatenate([[0], np.cumsum([c.size for c in cells])])
-        self._cell_q = shapes[:, self._members].T ** 2 / 2 if self._members.size > self.candidates.size else None
+        self._patterns = self._cells = None
+        if self._members.size > self.candidates.size:
+            self._patterns = shapes.T ** 2 / 2  # (n, k)
+            if self._members.size * f.size <= CELL_STORE:  # the cells' patterns in a row: no gathering
+                self._cells = self._patterns[self._members]
         self.readable = np.ones(f.size, bool) if readable is None else np.asarray(readable, bool)
         self.memories = np.sort(np.atleast_1d(np.asarray(memories, float)))
         if not (self.memories.size and np.all(np.isfinite(self.memories)) and self.memories[0] > 0):
@@ -325,7 +330,7 @@ class TouchEstimator:
         explains (``explained``: what the candidate does)."""
         first, end = self._starts[row], self._starts[row + 1]
         if end - first > 1:
-            q = self._cell_q[first:end]
+            q = self._patterns[self._members[first:end]] if self._cells is None else self._cells[first:end]
             there = _explained(q @ rr, (q * q) @ s)
             best = int(there.argmax())
             if there[best] > explained:
@@ -426,7 +431,8 @@ def candidate_places(shapes: np.ndarray, count: int | None = None) -> tuple[np.n
 
     Points at a node of every mode are left out: no touch there reaches the modes. Every other point
     is a candidate when there are at most ``count`` (default :data:`CANDIDATES`, fewer when many
-    modes make each candidate dearer: :data:`SEARCH_WORK` multiply-adds a period). Otherwise the
+    modes make each candidate dearer: :data:`SEARCH_WORK` multiply-adds a period, but no fewer than
+    ``sqrt(2 n)`` for n points, where a cell's points cost what the candidates do). Otherwise the
     candidates are spread over the points' patterns ``q = phi^2 / 2`` over the modes, each pattern
     scaled to unit length (what a touch's evidence depends on: scaling ``q`` scales its damping, not
     how much it explains): farthest-point sampling, each candidate standing for the points whose
@@ -434,13 +440,13 @@ def candidate_places(shapes: np.ndarray, count: int | None = None) -> tuple[np.n
     wherever they lie: a plate's symmetric points fall together; the second nearest, so that a
     point on the border between two candidates is reached from either)."""
     k, n = shapes.shape
-    if count is None:
-        count = int(min(CANDIDATES, max(CANDIDATES_MIN, SEARCH_WORK // max(k, 1))))
     pattern = shapes.T ** 2
     size = np.linalg.norm(pattern, axis=1)
     live = np.flatnonzero(size > 0)
     if live.size == 0:  # no mode moves anywhere: nothing to tell the points apart
         live = np.arange(n)
+    if count is None:  # and enough that a cell's points (about 2 n / count) cost no more than the candidates
+        count = int(min(CANDIDATES, max(CANDIDATES_MIN, SEARCH_WORK // max(k, 1), math.isqrt(2 * live.size))))
     if live.size <= count:
         return live, [np.array([i]) for i in live]
     pattern = pattern[live] / size[live, None]  # unit length
