@@ -19,10 +19,11 @@ point whose pattern ``q(x)`` over the modes explains the most of the residuals (
 points look alike; so does their damping of every mode, which is all a controller needs).
 The place is searched in the modes' coordinates, not the grid's: on a plate's thousands of points
 the candidates are a few hundred patterns spread over all the points' (:func:`candidate_places`),
-each standing for the points whose pattern is nearest its own, among which the place is refined
-when the evidence moves it there; and a period skips the search when no pattern at all could move
-it (a bound from the residuals alone). A period costs ``O(modes x candidates)``, about 30 us of
-CPU on panel-rounded's 8591 points and 21 modes (500 us when all the grid was searched by index).
+each standing for the points whose pattern is nearest or second nearest its own, among which the
+best candidate's place is refined; and a period skips the search when no pattern at all could move
+the place (a bound from the residuals alone). A period costs ``O(modes x candidates)``: with the
+lock-in filter of the commands about 24 us of CPU on panel-rounded (8591 points, 21 modes; 90 us
+before, with 512 candidates by index and per-memory Python) and 21 us on thesis-al-cc.
 The estimate's standard error comes from the residuals left; :attr:`TouchEstimate.sure` is the
 damping the estimate is confident of (``c - SURE * stderr``, and no more than any shorter memory is
 sure of: a lift shows in the shortest first; zero below ``TOUCH_MIN``, before
