@@ -119,10 +119,10 @@ class TouchEstimator:
 
     The place is searched among candidate points (every grid point when there are at most
     :data:`CANDIDATES`; otherwise fewer, spread over the modes' patterns, each standing for the
-    points whose pattern is nearest its own) and refined over the points it stands for when the
-    evidence moves the touch to it; the search is skipped in the periods where no pattern could
-    move it (a bound from the residuals alone): a period costs ``O(modes x candidates)`` whatever
-    the grid.
+    points whose pattern is nearest or second nearest its own) and among the points the best
+    candidate stands for; the search is skipped in the periods where no pattern could move the
+    place (a bound from the residuals alone): a period costs ``O(modes x candidates)`` whatever
+    the grid (:func:`candidate_places`).
 
     Parameters
     ----------
