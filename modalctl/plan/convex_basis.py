@@ -241,7 +241,7 @@ class Responses:
     def driven(self, volts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every mode's velocity and displacement at samples 0..N under ``volts`` (a, N) from rest,
         by the same recursion: two arrays (K, N + 1)."""
-        force = np.hstack([self.gains @ volts, np.zeros((self.gains.shape[0], 1))])
+        force = np.hstack([_product(self.gains, volts), np.zeros((self.gains.shape[0], 1))])
         z = np.stack([lfilter([0, g], [1, -e], f) for g, e, f in zip(self.g0, self.e, force)])
         return 2 * (self.r[:, None] * z).real, 2 * (self.q[:, None] * z).real
 
