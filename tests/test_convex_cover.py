@@ -13,7 +13,6 @@ from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
 from modalctl.options import PlanOptions
 from modalctl.plan.convex import Program
-from modalctl.plan.convex_basis import Cover
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import plan
 from modalctl.plugin.manager import get_shape

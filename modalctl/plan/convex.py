@@ -14,25 +14,30 @@ of microseconds). Each column is scaled to volts.
 **Predictions, exact**: every basis function of a family is a time-shifted copy of one prototype
 (with a phase for the carriers), so the response of every mode of the model to a whole family is
 one table per prototype: the zero-order-hold recursion of :mod:`modalctl.model.propagate` over the
-prototype's support, and its free decay after, in closed form. The modal state at any sample is
-then a lookup per column (:class:`~.convex_basis.Responses`); the plan's field on the plant
-matches it to round-off.
+prototype's support (kept every 32 lags, a lag between them one short product from the last kept),
+and its free decay after, in closed form. The modal state at any sample is then a lookup per
+column (:class:`~.convex_basis.Responses`); the plan's field on the plant matches it to round-off.
 
 **Constraints**: the modal state at T_F (every mode's velocity: the kept modes' targets, zero
 for the others; the kept modes' displacement zero, each at its velocity peak); the margin on
 every off-target point and sample of the whole model, and the voltage and slew limits at every
 sample, by constraint generation: the exact plant plays the drive, and the time-local peaks that
-break a limit (for the margin, every lobe of the field above ``aim`` of it) join the program
-until none does. With a robust band the same margin rows hold on drifted copies of the model,
-each of which must still reach a share of the focus at the target's peak.
+break a limit (for the margin, every lobe of the field above ``aim`` of it: on a plate a crest at
+least its neighbours in the plane) join the program until none does. With a robust band the same
+margin rows hold on drifted copies of the model, each of which must still reach a share of the
+focus at the target's peak.
 
 **The check on every point**: the off-target points are nested boxes (:class:`~.convex_basis.Cover`),
-each with a bound on ``|w|`` over its points at any modal state (an affine fit of every mode over
-the box's points, plus its largest residual on them: proven on every grid point, nothing assumed
-between them); the field is computed, by blocks, only on the smallest boxes whose bound exceeds
-the level at stake, at the samples where it does. The rounds need it exact only above ``aim`` of
-the margin (every row lies there); the ratio the plan reports is the largest over every point and
-sample, exactly.
+each with a bound on ``|w|`` over its points at any modal state: every mode fitted affinely over the
+box's points, ``phi_k(x_i) = a_k + b_k . (x_i - x_B) + r_ik``, so that ``|w(x_i)| <= max over the
+box's span of |A + B . d| + sum_k max_i |r_ik| |eta'_k|`` (``A``, ``B`` the fits times the modal
+velocities). The residuals are the points' own: the bound holds on every grid point at every
+sample, whatever the modes' smoothness, and says nothing between grid points (where the model
+says nothing either). The field is computed, by blocks, only on the smallest boxes whose bound
+exceeds the level at stake, at the samples where it does: on panel-rounded a few per cent of the
+points-by-samples product. The rounds need it exact only above ``aim`` of the margin (every row
+lies there); the ratio the plan reports is the largest over every point and sample, exactly
+(``tests/test_convex_cover.py`` checks both against the whole grid).
 
 **Objective**: the drive's energy, each basis function's own energy on the actuators times its
 coefficient squared (the cross terms of overlapping functions left out): the smoothest drive,
@@ -45,7 +50,9 @@ proof (with ``ConvexOptions.leak`` the left-out modes may move at T_F, and the b
 less). Otherwise, once the margin program fails (infeasible, or its least energy provably past
 ``ConvexOptions.energy_bound`` times the focus's own: DAQP's dual bound), a bisection on the
 margin program finds the smallest margin a drive within the limits holds: that drive's ratio,
-above the margin, is the answer, with the largest margin refused beside it.
+above the margin, is the answer, with the largest margin refused beside it. The bisection takes
+at most ``ConvexOptions.certify_seconds``; stopped there, the refusal says what it had proven (a
+drive found to hold a ratio, the largest margin refused) and that the smallest lies between.
 
 The columns and their responses are in :mod:`.convex_basis`, the program in
 :mod:`.convex_program`, the solver adapters in :mod:`.qp`, the refusal's certificate in

@@ -319,7 +319,7 @@ class Cover:
         self.reach = np.abs(shapes).max(axis=1) if shapes.size else np.zeros(shapes.shape[0])  # (K,)
         order = []
         self.root = self._build(np.arange(shapes.shape[1]), shapes, points, order)
-        self.order = np.concatenate([o[0] for o in order]) if order else np.zeros(0, int)  # the cover's position -> the point's
+        self.order = np.concatenate([o[0] for o in order]) if order else np.zeros(0, int)  # position -> point
         self.values = np.ascontiguousarray(shapes[:, self.order].T)  # (n, K), each box's points contiguous
         self.neighbours = _neighbours(points)  # (n, deg), in the given order; n pads
 

@@ -48,9 +48,8 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
                    "peak_voltage_at_smallest": None if best is None else best.peak_voltage,
                    "bisection": {key: done.get(key) for key in ("complete", "programs", "seconds", "free", "proven")},
                    "certify_seconds": budget}
-    proof = failed.status in PROOFS
     if not done["complete"]:
-        return _incomplete(certificate, failed, best, reached, refused, lobes, limits, budget, done, proof)
+        return _incomplete(certificate, best)
     if best is None:
         if done.get("free") not in (None, *PROOFS):  # the least-energy program gave up: no proof
             certificate["status"] = "not certified"
@@ -77,18 +76,20 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
                      certificate)
 
 
-def _incomplete(certificate, failed, best, reached, refused, lobes, limits, budget, done, proof) -> PlanError:
+def _incomplete(certificate: dict, best: Solution | None) -> PlanError:
     """The refusal of a certificate its time budget stopped: what was proven by then."""
-    margin = certificate["margin"]
-    stopped = (f"the certificate stopped at its {budget:g} s budget (ConvexOptions.certify_seconds) after "
-               f"{done['programs']} margin programs")
+    margin, lobes, limits = certificate["margin"], certificate["focus_lobes"], certificate["limits"]
+    reached, refused, done = certificate["smallest_ratio"], certificate["largest_refused"], certificate["bisection"]
+    failed = certificate["margin_program"]
+    stopped = (f"the certificate stopped at its {certificate['certify_seconds']:g} s budget "
+               f"(ConvexOptions.certify_seconds) after {done['programs']} margin programs")
     if lobes > margin:
         why = f"the focus's own side lobes at T_F are {lobes:.3f} of its peak, on every drive that builds it"
-    elif proof:
-        why = f"the margin program is {failed.status} (the solver's proof)"
+    elif failed in PROOFS:
+        why = f"the margin program is {failed} (the solver's proof)"
     else:
-        why = f"the margin program stopped ({failed.status}), unproven"
-    certificate["status"] = "infeasible" if lobes > margin or proof else "not certified"
+        why = f"the margin program stopped ({failed}), unproven"
+    certificate["status"] = "infeasible" if lobes > margin or failed in PROOFS else "not certified"
     if best is None:
         return PlanError(f"the {margin:g} margin was refused: {why}; {stopped}, before the least-energy drive "
                          f"within {limits} was found ({done['free']}): whether any drive reaches the focus "
