@@ -1,0 +1,314 @@
+"""Haptic surfaces at the beam's speed: each stage of a shot's command, from the beam to a tablet panel.
+
+    python benchmarks/plate_speed.py                  # commands, then the cost curve (about 25 min)
+    python benchmarks/plate_speed.py --part commands  # one part: commands, curve
+    python benchmarks/plate_speed.py --no-baseline    # without the previous commit's numbers
+    python benchmarks/plate_speed.py --report-only    # redraw from results/plate_speed.json
+
+writes benchmarks/results/plate_speed.{json,md,png}.
+
+1. ``commands``: ``modalctl run`` as a user types it (a bump at (-20, 5) mm, T_F 25 ms; the sinc
+   on the beam) on thesis-al-cc, plate-glass, plate-glass-clamped, panel-rounded and the tablet
+   panel (210 x 150 x 0.7 mm glass, clamped, eight 14 x 10 mm patches, ``model fe --band 20kHz``,
+   a 20 mm bump), open loop, closed loop with 1% drift and 40 dB, and closed loop with a finger
+   and the touch controller: each command in a fresh process, its wall time (median of
+   ``REPEATS``) and peak memory, and its stages from its ``metrics.json`` (import and start-up,
+   model, growth, plan, play, scan, writing the field, pictures). Beside it, the same commands on
+   the commit before this work (``BASELINE``), installed in a virtual environment of its own, in the
+   same run (``--tau-target 0.95`` there on the finite-element scenes: at the default target it
+   refused them).
+2. ``curve``: the cost as the work grows: modes kept (8 to 256 on the tablet panel, ``--modes N``),
+   grid points (panel-rounded from 31 x 18 to 241 x 141) and shot length (T_F 10 to 100 ms), each
+   stage's time and the command's peak memory, and the fitted log-log slope of each (1: linear).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+from common import RESULTS, read_json, write_json, write_markdown
+
+ROOT = Path(__file__).resolve().parents[1]
+PYTHON = sys.executable
+BASELINE = "a5e4a24"  # main before issues 35 and 36
+REPEATS = 3
+TABLET = ROOT / "benchmarks" / ".cache" / "tablet.npz"  # solved once, not committed (64 MB)
+TABLET_PATCHES = [f"--patch={x - 7}mm,{x + 7}mm,{y - 5}mm,{y + 5}mm" for y in (-55, 55) for x in (-75, -25, 25, 75)]
+TABLET_COMMAND = ["model", "fe", "--outline", "rect:210mm,150mm,r=8mm", "--thickness", "0.7mm", "--material", "glass",
+                  "--boundary", "clamped", *TABLET_PATCHES, "--sensor", "0,0",
+                  "--band", "20kHz", "--out", str(TABLET)]
+BUMP = ["--shape", "bump", "--param", "width=30mm", "--param", "center=-20mm,5mm"]
+CASES = {  # scene: (where the model comes from, the shape)
+    "thesis-al-cc": (["--scene", "thesis-al-cc"], ["--shape", "sinc", "--param", "width=18mm", "--param", "center=24mm"]),
+    "plate-glass": (["--scene", "plate-glass"], BUMP),
+    "plate-glass-clamped": (["--scene", "plate-glass-clamped"], BUMP),
+    "panel-rounded": (["--scene", "panel-rounded"], BUMP),
+    "tablet": (["--model", str(TABLET), "--tau-target", "0.95"],  # at 0.98 it grows past 20 kHz: 0.966 there
+               ["--shape", "bump", "--param", "width=20mm", "--param", "center=-20mm,5mm"]),
+}
+LOOPS = {"open": [], "closed": ["--loop", "closed", "--drift", "1%", "--snr", "40"],
+         "touch": ["--loop", "closed", "--drift", "1%", "--snr", "40", "--finger", "1Ns/m", "--controller", "touch"]}
+STAGES = ("start-up", "model", "growth", "plan", "play", "scan", "write", "pictures")
+
+
+def measured(command: list[str], python: str = PYTHON, env: dict | None = None) -> dict:
+    """Run ``python -c 'modalctl main' command`` in a fresh process: its exit code, wall time (s),
+    peak resident memory (MB) and, when it wrote one, its metrics.json."""
+    out = Path(command[command.index("--out") + 1]) if "--out" in command else None
+    code = "import sys; from modalctl.cli import main; sys.exit(main(sys.argv[1:]))"
+    start = time.perf_counter()
+    process = subprocess.Popen([python, "-c", code, *command], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               env={**os.environ, **(env or {})}, cwd=tempfile.gettempdir())
+    _, status, usage = os.wait4(process.pid, 0)
+    wall = time.perf_counter() - start
+    stderr = process.stderr.read().decode(errors="replace")
+    row = {"exit": os.waitstatus_to_exitcode(status), "wall_s": wall, "peak_mb": usage.ru_maxrss / 1024}
+    if row["exit"] != 0:
+        row["error"] = stderr.strip().splitlines()[-1] if stderr.strip() else "?"
+    metrics = out / "metrics.json" if out else None
+    if metrics is not None and metrics.is_file() and row["exit"] == 0:
+        row["metrics"] = json.loads(metrics.read_text())
+        row["folder_mb"] = sum(p.stat().st_size for p in out.iterdir()) / 1e6
+    return row
+
+
+def stages(row: dict) -> dict:
+    """Seconds per stage from a run's metrics (start-up: the wall time no stage accounts for)."""
+    m = row.get("metrics")
+    if m is None:
+        return {}
+    own = m.get("stages_s", {})
+    found = {"model": own.get("model_s"), "growth": own.get("growth_s"), "plan": m.get("plan_seconds"),
+             "play": m.get("play_seconds"), "scan": m.get("scan_seconds"), "write": own.get("write_fields_s"),
+             "pictures": own.get("pictures_s")}
+    if found["play"] is None and m.get("sim_seconds") is not None:  # the baseline: play and scan together
+        found["play"] = m["sim_seconds"]
+    known = sum(v for v in found.values() if v is not None)
+    return {"start-up": max(0.0, row["wall_s"] - known), **found}
+
+
+def median_row(rows: list[dict]) -> dict:
+    """The run with the median wall time, the wall time and peak memory medians over ``rows``."""
+    ok = [r for r in rows if r["exit"] == 0] or rows
+    middle = sorted(ok, key=lambda r: r["wall_s"])[len(ok) // 2]
+    return {**middle, "wall_s": float(np.median([r["wall_s"] for r in ok])),
+            "peak_mb": float(np.median([r["peak_mb"] for r in ok])), "repeats": len(ok)}
+
+
+def summary(row: dict) -> dict:
+    """What the tables keep of a run."""
+    m = row.get("metrics", {})
+    loop = m.get("loop") or {}
+    return {"exit": row["exit"], "error": row.get("error"), "wall_s": row["wall_s"], "peak_mb": row["peak_mb"],
+            "repeats": row.get("repeats", 1), "folder_mb": row.get("folder_mb"), "stages_s": stages(row),
+            "tau": m.get("tau"), "margin_ratio": m.get("margin_ratio"), "modes_kept": len(m.get("modes_used", [])),
+            "model_modes": (m.get("model") or {}).get("modes"), "grown": (m.get("model") or {}).get("grown"),
+            "step_us": None if loop.get("step_seconds_median") is None else 1e6 * loop["step_seconds_median"],
+            "real_time_factor": loop.get("real_time_factor")}
+
+
+def baseline_python() -> str | None:
+    """A python whose ``modalctl`` is the commit :data:`BASELINE`, in a virtual environment of its own
+    (made once under benchmarks/.cache); None when it cannot be made."""
+    where = ROOT / "benchmarks" / ".cache" / f"baseline-{BASELINE}"
+    python = where / "venv" / "bin" / "python"
+    if python.exists():
+        return str(python)
+    try:
+        if not (where / "src").exists():
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(where / "src"), BASELINE],
+                           check=True, capture_output=True)
+        subprocess.run([PYTHON, "-m", "venv", str(where / "venv")], check=True)
+        subprocess.run([str(python), "-m", "pip", "install", "--quiet", "-e", str(where / "src")], check=True)
+    except (subprocess.CalledProcessError, OSError) as exc:
+        print(f"no baseline: {exc}", file=sys.stderr)
+        return None
+    return str(python)
+
+
+def run_commands(baseline: bool, quick: bool) -> dict:
+    """Part 1: every case and loop, now and (when asked) on the baseline."""
+    if not TABLET.exists():
+        TABLET.parent.mkdir(parents=True, exist_ok=True)
+        print("solving the tablet panel once:", " ".join(TABLET_COMMAND), flush=True)
+        solved = measured(TABLET_COMMAND)
+        if solved["exit"] != 0:
+            raise SystemExit(f"the tablet panel could not be solved: {solved.get('error')}")
+    tablet = measured([*TABLET_COMMAND[:-1], str(TABLET.with_name("tablet-again.npz"))])  # timed with a warm cache
+    old = baseline_python() if baseline else None
+    scratch = Path(tempfile.mkdtemp(prefix="plate-speed-"))
+    rows = {}
+    for case, (model, shape) in CASES.items():
+        for loop, extra in LOOPS.items():
+            if quick and (case == "tablet" and loop == "touch"):
+                continue
+            repeats = 1 if case == "tablet" or quick else REPEATS
+            command = ["run", *model, *shape, "--focus-time", "25ms", *extra, "--out", str(scratch / "run"), "--force",
+                       "--quiet"]
+            print(f"{case} {loop}: modalctl {' '.join(command)}", flush=True)
+            now = median_row([measured(command) for _ in range(repeats)])
+            rows[f"{case}/{loop}"] = {"now": summary(now)}
+            if old is not None and case != "tablet":
+                then = command + (["--tau-target", "0.95"] if case in ("plate-glass-clamped", "panel-rounded") else [])
+                rows[f"{case}/{loop}"]["baseline"] = summary(median_row([measured(then, old) for _ in range(repeats)]))
+    shutil.rmtree(scratch, ignore_errors=True)
+    return {"cases": rows, "tablet_model": {"wall_s": tablet["wall_s"], "peak_mb": tablet["peak_mb"],
+                                             "exit": tablet["exit"], "command": " ".join(TABLET_COMMAND)},
+            "baseline": BASELINE if old else None}
+
+
+def run_curve(quick: bool) -> dict:
+    """Part 2: stage times against modes kept, grid points and shot length; fitted slopes."""
+    scratch = Path(tempfile.mkdtemp(prefix="plate-curve-"))
+    out = ["--out", str(scratch / "run"), "--force", "--quiet", "--no-plots"]
+    tablet_shape = CASES["tablet"][1]
+    series = {
+        "modes kept (tablet panel)": [(n, ["run", "--model", str(TABLET), *tablet_shape, "--focus-time", "25ms",
+                                           "--modes", str(n), "--margin", "none", *out])
+                                      for n in ((8, 32, 128) if quick else (8, 16, 32, 64, 128, 256))],
+        "grid points (panel-rounded)": [(nx * ny, ["run", "--scene", "panel-rounded", "--points", f"{nx}x{ny}", *BUMP,
+                                                   "--focus-time", "25ms", "--tau-target", "0.9", *out])
+                                        for nx, ny in ((31, 18), (61, 36), (121, 71), (241, 141))],
+        "shot length (panel-rounded)": [(tf, ["run", "--scene", "panel-rounded", *BUMP, "--focus-time", f"{tf}ms",
+                                              "--tau-target", "0.9", *out]) for tf in (10, 25, 50, 100)],
+    }
+    curves = {}
+    for name, points in series.items():
+        rows = []
+        for x, command in points:
+            print(f"{name} = {x}: modalctl {' '.join(command)}", flush=True)
+            rows.append({"x": x, **summary(measured(command))})
+        curves[name] = {"rows": rows, "slopes": slopes(rows)}
+    shutil.rmtree(scratch, ignore_errors=True)
+    return curves
+
+
+def slopes(rows: list[dict]) -> dict:
+    """Each stage's (and the peak memory's) log-log slope against x, over the rows that ran."""
+    ok = [r for r in rows if r["exit"] == 0]
+    found = {}
+    for stage in (*STAGES, "peak memory"):
+        pairs = [(r["x"], r["peak_mb"] if stage == "peak memory" else r["stages_s"].get(stage)) for r in ok]
+        pairs = [(x, y) for x, y in pairs if y is not None and y > 1e-4]
+        if len(pairs) >= 3:
+            x, y = np.log(np.array(pairs, float)).T
+            found[stage] = float(np.polyfit(x, y, 1)[0])
+    return found
+
+
+def report(data: dict, json_path: Path) -> None:
+    """results/plate_speed.md and .png from the measured data."""
+    lines = ["# Plate speed: each stage of a shot's command", "",
+             "`python benchmarks/plate_speed.py`; wall time median of "
+             f"{REPEATS} fresh processes (1 on the tablet), peak resident memory; stages from each run's metrics.json. "
+             f"Baseline: commit {data.get('commands', {}).get('baseline') or '-'} in the same run.", ""]
+    commands = data.get("commands")
+    if commands:
+        t = commands["tablet_model"]
+        lines += [f"Tablet panel `modalctl model fe --band 20kHz` (from the cache's mesh-free start, a fresh solve): "
+                  f"{t['wall_s']:.1f} s, {t['peak_mb']:.0f} MB peak, exit {t['exit']}.", "",
+                  "| case | loop | wall s (baseline) | peak MB (baseline) | folder MB | plan s | play s | scan s | write s "
+                  "| loop update us | tau | margin | modes kept / model |", "|" + "---|" * 13]
+        for key, row in commands["cases"].items():
+            case, loop = key.split("/")
+            now, then = row["now"], row.get("baseline")
+            if now["exit"] != 0:
+                lines.append(f"| {case} | {loop} | exit {now['exit']}: {now['error']} |" + " |" * 10)
+                continue
+            s = now["stages_s"]
+            base = "" if not then else (f" ({then['wall_s']:.1f})" if then["exit"] == 0 else f" (exit {then['exit']})")
+            base_mb = "" if not then or then["exit"] != 0 else f" ({then['peak_mb']:.0f})"
+            lines.append(
+                f"| {case} | {loop} | {now['wall_s']:.1f}{base} | {now['peak_mb']:.0f}{base_mb} | "
+                f"{now['folder_mb'] or 0:.1f} | {_f(s.get('plan'))} | {_f(s.get('play'))} | {_f(s.get('scan'))} | "
+                f"{_f(s.get('write'))} | {_f(now['step_us'], '{:.0f}')} | {_f(now['tau'], '{:.3f}')} | "
+                f"{_f(now['margin_ratio'], '{:.3f}')} | {now['modes_kept']} / {now['model_modes']} |")
+    curves = data.get("curves")
+    if curves:
+        lines += ["", "## The cost curve: fitted log-log slopes (1: linear)", "",
+                  "| grows | " + " | ".join((*STAGES, "peak memory")) + " |", "|" + "---|" * (len(STAGES) + 2)]
+        for name, curve in curves.items():
+            lines.append(f"| {name} | " + " | ".join(_f(curve["slopes"].get(s), "{:.2f}")
+                                                   for s in (*STAGES, "peak memory")) + " |")
+    write_markdown("plate_speed", lines, json_path)
+    _chart(data)
+
+
+def _f(value, form: str = "{:.2f}") -> str:
+    return "-" if value is None else form.format(value)
+
+
+def _chart(data: dict) -> None:
+    from matplotlib.figure import Figure
+
+    curves = data.get("curves") or {}
+    commands = (data.get("commands") or {}).get("cases", {})
+    fig = Figure(figsize=(15, 9))
+    axes = fig.subplots(2, 2).ravel()
+    for ax, (name, curve) in zip(axes, curves.items()):
+        ok = [r for r in curve["rows"] if r["exit"] == 0]
+        x = np.array([r["x"] for r in ok], float)
+        for i, stage in enumerate(STAGES):
+            y = np.array([r["stages_s"].get(stage) or np.nan for r in ok], float)
+            if np.all(~np.isfinite(y) | (y <= 0)):
+                continue
+            slope = curve["slopes"].get(stage)
+            ax.loglog(x, y, "o-", color=f"C{i}", label=f"{stage} (slope {slope:.2f})" if slope is not None else stage)
+        memory = ax.twinx()
+        memory.loglog(x, [r["peak_mb"] for r in ok], "k--", label="peak memory")
+        memory.set_ylabel("peak memory (MB, dashed)")
+        ax.set_xlabel(name)
+        ax.set_ylabel("stage time (s)")
+        ax.legend(fontsize=7, loc="upper left")
+        ax.set_title(f"cost against {name}")
+    ax = axes[3]
+    labels, now, then = [], [], []
+    for key, row in commands.items():
+        if row["now"]["exit"] == 0:
+            labels.append(key.replace("/", "\n"))
+            now.append(row["now"]["wall_s"])
+            b = row.get("baseline")
+            then.append(b["wall_s"] if b and b["exit"] == 0 else np.nan)
+    pos = np.arange(len(labels))
+    ax.bar(pos - 0.2, then, 0.4, color="0.6", label="baseline (before issues 35-36)")
+    ax.bar(pos + 0.2, now, 0.4, color="C0", label="now")
+    ax.set_yscale("log")
+    ax.set_xticks(pos, labels, fontsize=6)
+    ax.set_ylabel("command wall time (s)")
+    ax.set_title("each command, now and before")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    RESULTS.mkdir(exist_ok=True)
+    fig.savefig(RESULTS / "plate_speed.png", dpi=110)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--part", choices=("commands", "curve"), action="append")
+    parser.add_argument("--no-baseline", action="store_true")
+    parser.add_argument("--quick", action="store_true", help="fewer repeats and points (a check of the script)")
+    parser.add_argument("--report-only", action="store_true")
+    args = parser.parse_args()
+    if args.report_only:
+        report(*read_json("plate_speed"))
+        return
+    parts = args.part or ["commands", "curve"]
+    data = {}
+    if "commands" in parts:
+        data["commands"] = run_commands(not args.no_baseline, args.quick)
+    if "curve" in parts:
+        data["curves"] = run_curve(args.quick)
+    report(data, write_json("plate_speed", data))
+
+
+if __name__ == "__main__":
+    main()
