@@ -24,7 +24,8 @@ LEAF = 16  # points in a cover's smallest boxes at most: where the bound is not 
 SPLITS = 3  # halvings from a box to its children (eight children)
 CHUNK = 4096  # samples of the field's bound at once (its memory: the boxes' few rows times this)
 SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |phi_k(x_i)| |eta'_k|
-STRIDE = 32  # lags between the states a response table keeps
+STRIDE = 32  # lags between the states a response table keeps, at least
+TABLE_BYTES = 2**27  # a response table's states, at most (the stride doubles until they fit)
 SERIAL = 65536 * 4  # multiply-adds a product of the cover's stays under: OpenBLAS's threading threshold
 
 
@@ -133,10 +134,10 @@ class Basis:
 
 class _Table:
     """Every mode's states after each lag of one family's prototypes (C rows, for their real and
-    imaginary parts), kept every :data:`STRIDE` lags: ``z(l) = e^r z(l0) + g0 sum_{s<r}
-    e^(r-1-s) P(l0 + s)`` from the last one kept, ``l0 = l - r``, one small product, so that the
-    tables take ``1/STRIDE`` of the memory the whole recursion's would (on 256 modes and 200
-    prototypes, 9 GB). Past the prototypes' support the states decay as ``e^l``.
+    imaginary parts), kept every :data:`STRIDE` lags (or a power of two times more, to keep them
+    within :data:`TABLE_BYTES`): ``z(l) = e^r z(l0) + g0 sum_{s<r} e^(r-1-s) P(l0 + s)`` from the
+    last one kept, ``l0 = l - r``, one small product. The whole recursion's states took 9 GB on 256
+    modes and 193 prototypes. Past the prototypes' support the states decay as ``e^l``.
 
     Parameters
     ----------
@@ -148,18 +149,20 @@ class _Table:
     def __init__(self, e: np.ndarray, g0: np.ndarray, proto: np.ndarray):
         self.e, self.g0 = np.asarray(e, complex), np.asarray(g0, complex)
         proto = np.atleast_2d(np.asarray(proto, complex))
-        blocks = -(-proto.shape[1] // STRIDE)
-        self.end = blocks * STRIDE  # the last state kept: the input is zero from L on
+        size = 32 * self.e.size * proto.shape[0] * proto.shape[1]  # bytes of the states every lag
+        self.stride = stride = STRIDE * 2 ** max(0, int(np.ceil(np.log2(size / STRIDE / TABLE_BYTES))))
+        blocks = -(-proto.shape[1] // stride)
+        self.end = blocks * stride  # the last state kept: the input is zero from L on
         self.inputs = np.zeros((2, self.end, proto.shape[0]))  # (part, lag, C)
         self.inputs[0, :proto.shape[1]] = proto.real.T
         self.inputs[1, :proto.shape[1]] = proto.imag.T
-        self.powers = self.e[:, None] ** np.arange(STRIDE + 1)  # (K, STRIDE + 1)
-        weights = self.powers[:, STRIDE - 1::-1] * self.g0[:, None]  # (K, STRIDE): g0 e^(STRIDE-1-s)
+        self.powers = self.e[:, None] ** np.arange(stride + 1)  # (K, stride + 1)
+        weights = self.powers[:, stride - 1::-1] * self.g0[:, None]  # (K, stride): g0 e^(stride-1-s)
         self.kept = np.zeros((2, blocks + 1, self.e.size, proto.shape[0]), complex)  # (part, block, K, C)
         for b in range(blocks):
             for part in range(2):
-                step = _product(weights, self.inputs[part, b * STRIDE:(b + 1) * STRIDE])
-                self.kept[part, b + 1] = self.powers[:, STRIDE, None] * self.kept[part, b] + step
+                step = _product(weights, self.inputs[part, b * stride:(b + 1) * stride])
+                self.kept[part, b + 1] = self.powers[:, stride, None] * self.kept[part, b] + step
 
     def at(self, lag: np.ndarray) -> list:
         """The states at lags ``lag`` (j,), zero before the first: two arrays (K, C, j)."""
@@ -172,11 +175,11 @@ class _Table:
             for part in range(2):
                 out[part][:, :, after] = self.kept[part, -1][:, :, None] * decay[:, None, :]
         for j in np.flatnonzero((lag >= 0) & (lag < self.end)):
-            block, r = divmod(int(lag[j]), STRIDE)
+            block, r = divmod(int(lag[j]), self.stride)
             for part in range(2):
                 z = self.powers[:, r, None] * self.kept[part, block]
                 if r:
-                    inputs = self.inputs[part, block * STRIDE:block * STRIDE + r]  # (r, C)
+                    inputs = self.inputs[part, block * self.stride:block * self.stride + r]  # (r, C)
                     z = z + self.g0[:, None] * (self.powers[:, r - 1::-1] @ inputs)
                 out[part][:, :, j] = z
         return out
@@ -314,7 +317,8 @@ class Cover:
     """
 
     def __init__(self, shapes: np.ndarray, points: np.ndarray, leaf: int = LEAF):
-        shapes, points = np.asarray(shapes, float), np.asarray(points, float).reshape(np.shape(shapes)[1], -1)
+        shapes, points = np.asarray(shapes, float), np.asarray(points, float)
+        points = points[:, None] if points.ndim == 1 else points
         self.leaf = int(leaf)
         self.reach = np.abs(shapes).max(axis=1) if shapes.size else np.zeros(shapes.shape[0])  # (K,)
         order = []

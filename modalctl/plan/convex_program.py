@@ -412,11 +412,12 @@ class Program:
 def _simulate(model: ModalModel, sample_rate: float, volts: np.ndarray) -> np.ndarray:
     """:meth:`Plant.simulate <modalctl.model.propagate.Plant.simulate>` of ``volts`` (a, N), by
     blocks of samples whose forces (modes x actuators x samples) stay under :data:`SERIAL`
-    multiply-adds: OpenBLAS's threads, above it, spin on a loaded machine (50 ms against 4 ms for
-    the panel's shot on 2 busy cores)."""
+    multiply-adds, or 2048 samples, whichever is more (each block costs a filter call per mode):
+    OpenBLAS's threads, above it, spin on a loaded machine (50 ms against 4 ms for the panel's shot
+    on 2 busy cores)."""
     plant = Plant(model, sample_rate)
     plant.reset()
-    step = max(1, SERIAL // max(1, model.actuator_gains.size))
+    step = max(2048, SERIAL // max(1, model.actuator_gains.size))  # each block is a filter call per mode
     if volts.shape[1] <= step:
         return plant.step(volts)
     return np.hstack([plant.step(volts[:, first:first + step]) for first in range(0, volts.shape[1], step)])
