@@ -33,8 +33,8 @@ import scipy.sparse.linalg
 import scipy.spatial
 
 from .modes import Grid, ModalModel, ModelError
-from .plate_geometry import (MATERIALS, SUPPORTS, Hole, Material, Outline, Support, distance_to_edges,
-                             distance_to_segments, in_segments, rectangle_ring)
+from .plate_geometry import (MATERIALS, SUPPORTS, Hole, Material, Outline, Support, distance_to_edges, in_segments,
+                             near_segments, rectangle_ring)
 from .structures import Piezo
 
 __all__ = ["ELEMENTS", "Material", "MATERIALS", "Support", "SUPPORTS", "Hole", "Outline", "FEPlate", "Level", "Convergence",
@@ -330,7 +330,7 @@ class FEPlate:
 
             def contains(p):
                 inside = in_segments(p, rim)
-                inside[inside] = distance_to_segments(p[inside], rim).min(axis=1) > clear
+                inside[inside] = ~near_segments(p[inside], rim, clear)
                 return inside
         x, y = np.linspace(lo[0], hi[0], nx), np.linspace(lo[1], hi[1], ny)
         xx, yy = np.meshgrid(x, y)
