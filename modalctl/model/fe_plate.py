@@ -51,6 +51,7 @@ CURVATURE_ELEMENTS = 48  # an arc gets at least this many elements per turn (a 1
 SAMPLES_PER_CELL = 6  # grid weights: each lattice cell sampled this many times per direction
 KIRCHHOFF_WAVELENGTHS = 10  # a bending wavelength shorter than this many thicknesses: shear matters (a few %)
 RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimate is a rigid-body mode
+PROBE_PAIRS = 2**23  # sampling: at most this many (point, element) pairs tested at once (a 64 MB array)
 
 #: Plate triangles of scikit-fem: class name, degrees of freedom per vertex and per edge. The
 #: 15-parameter triangle is the default; Morley's (the classic nonconforming one, 6 dofs) is the
@@ -348,9 +349,18 @@ class FEPlate:
         return Grid(points, self.mass_per_area * mass, (nx, ny))
 
     def _sample(self, basis, vectors: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """FE fields (N, k) at points (n, 2) on the plate, shape (k, n)."""
-        probes = basis.probes(np.ascontiguousarray(points.T))
-        return np.asarray((probes @ vectors).T)
+        """FE fields (N, k) at points (n, 2) on the plate, shape (k, n).
+
+        scikit-fem's ``probes`` (a sparse matrix, one row per point) a block of points at a
+        time: its element finder tests every point against every candidate element of the call
+        (and against every element when one point is missed), a dense (points x elements)
+        array: 10 GB for a 1 mm grid on a tablet panel's mesh in one call."""
+        block = int(np.clip(PROBE_PAIRS // basis.mesh.nelements, 64, 2048))
+        out = np.empty((vectors.shape[1], len(points)))
+        for i in range(0, len(points), block):
+            probes = basis.probes(np.ascontiguousarray(points[i:i + block].T))
+            out[:, i:i + block] = (probes.tocsr() @ vectors).T
+        return out
 
     def patch_loads(self, basis) -> np.ndarray:
         """Per patch, the FE vector of ``m * integral over the patch of lap(v)`` (N, a), with m
