@@ -262,7 +262,8 @@ class Program:
         return len(new)
 
     def _new_limit_rows(self, rows: _Rows, volts: np.ndarray) -> int:
-        """Voltage and slew rows at the time-local peaks that break the limits; returns how many."""
+        """Voltage and slew rows at each channel's time-local peaks that break the limits (each
+        channel's own: a channel over the limit under a larger one is held too); returns how many."""
         opts, aim = self.options, self.options.convex.aim
         added = 0
         checks = []
@@ -271,10 +272,7 @@ class Program:
         if opts.slew_limit is not None:
             checks.append(("slew", np.abs(np.diff(volts, axis=1)), opts.slew_limit / self.fs, 1))
         for kind, size, limit, step in checks:
-            top = size.max(axis=0)
-            peaks = _local_peaks(top)
-            for n in peaks[top[peaks] > limit]:
-                channel = int(np.argmax(size[:, n]))
+            for channel, n in [(c, n) for c, each in enumerate(size) for n in _local_peaks(each) if each[n] > limit]:
                 row = self.basis.voltage_rows(channel, np.array([n + step]), self.fs, self.focus_time)[0]
                 fixed = 0.0 if self.offset is None else self.offset[channel, n + step]
                 if step:
@@ -309,13 +307,13 @@ class Program:
         history, status, x, duals = [], "not solved", np.zeros(self.basis.size), None
         played = None
         for round_ in range(1, opts.rounds + 1):
+            if deadline is not None and round_ > 1 and _time.perf_counter() > deadline:
+                status = OUT_OF_TIME  # x: the last round's, checked
+                break
             tic = _time.perf_counter()
             x, status, duals = solve_qp(opts.solver, qp, bound, duals)
             self.seconds["solve"] += _time.perf_counter() - tic
             if status != "optimal":
-                break
-            if deadline is not None and _time.perf_counter() > deadline and round_ > 1:
-                status = OUT_OF_TIME
                 break
             tic = _time.perf_counter()
             volts, velocities = self.play(x)
@@ -356,7 +354,7 @@ class Program:
             volts, velocities = self.play(x)
             known = [None] * len(velocities)
         peaks = [float(np.max(np.abs(self.model.shapes.T @ v[:, self.focus]))) for v in velocities]
-        ratios = [(self.cover.largest(v) if top is None else top) / p if p > 0 else np.inf
+        ratios = [float(self.cover.largest(v) if top is None else top) / p if p > 0 else np.inf
                   for v, p, top in zip(velocities, peaks, known)]  # each plant's over its own focus peak, exact
         self.seconds["total"] = _time.perf_counter() - start + self.seconds["tables"]
         slew = float(np.abs(np.diff(volts, axis=1)).max() * self.fs) if volts.shape[1] > 1 else 0.0
