@@ -51,6 +51,7 @@ CURVATURE_ELEMENTS = 48  # an arc gets at least this many elements per turn (a 1
 SAMPLES_PER_CELL = 6  # grid weights: each lattice cell sampled this many times per direction
 KIRCHHOFF_WAVELENGTHS = 10  # a bending wavelength shorter than this many thicknesses: shear matters (a few %)
 RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimate is a rigid-body mode
+BAND_MARGIN = 1.03  # a band's meshes solve every mode below this much above it: the shape test's 2% window
 PROBE_PAIRS = 2**23  # sampling: at most this many (point, element) pairs tested at once (a 64 MB array)
 
 #: Plate triangles of scikit-fem: class name, degrees of freedom per vertex and per edge. The
@@ -290,23 +291,48 @@ class FEPlate:
         held = np.unique(np.concatenate(held)) if held else np.zeros(0, int)
         return stiffness, mass, held, basis
 
-    def solve(self, mesh, n_modes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, object]:
-        """The ``n_modes`` lowest elastic modes on ``mesh``: frequencies (Hz), mass-normalized
-        FE vectors (N, k), rigid-body vectors (N, r) and the basis."""
+    def solve(self, mesh, n_modes: int | None = None, *, below: float | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, object]:
+        """The ``n_modes`` lowest elastic modes on ``mesh``, or every one below ``below`` (Hz):
+        frequencies (Hz), mass-normalized FE vectors (N, k), rigid-body vectors (N, r) and the
+        basis.
+
+        Shift-invert Lanczos (ARPACK) below the lowest mode, on superLU's factors of
+        ``K - shift M`` in a symmetric minimum-degree ordering without pivoting (the matrix is
+        positive definite): a third of the fill and half the solve time of the default column
+        ordering. Every mode below ``below`` is counted before the Lanczos run by Sylvester's law
+        of inertia (the negative pivots of ``K - w^2 M`` factored the same way), so it asks for
+        as many as there are; it asks again for more while the highest it found lies below."""
+        if (n_modes is None) == (below is None):
+            raise ModelError("fe plate: solve either n_modes or every mode below a frequency")
         stiffness, mass, held, basis = self.assemble(mesh)
         free = basis.complement_dofs(held)
         k, m = stiffness[free][:, free].tocsc(), mass[free][:, free].tocsc()
         rigid = 0 if len(held) else 3  # a plate held nowhere moves as a rigid body: 3 ways
         shift = -(2 * np.pi * self.frequency_of_mode(1)) ** 2 * 0.1  # below zero: K may be singular
-        count = min(n_modes + rigid + 4, free.size - 2)
-        w2, x = scipy.sparse.linalg.eigsh(k, k=count, M=m, sigma=shift, which="LM")
+        factors, _ = _factor(k - shift * m)
+        inverse = scipy.sparse.linalg.LinearOperator(k.shape, matvec=factors.solve, dtype=float)
+        if below is None:
+            count = n_modes + rigid + 4
+        else:
+            top = (2 * np.pi * below) ** 2
+            _, under = _factor(k - top * m)  # the modes below `below`, rigid ones included
+            count = (under if under is not None else int(np.ceil(1.3 * self.modes_below(below))) + rigid) + 4
+        while True:
+            if count > 2 * MODES_MAX:
+                raise ModelError(f"fe plate: over {2 * MODES_MAX} modes below {below:g} Hz; a model holds {MODES_MAX}")
+            count = min(count, free.size - 2)
+            w2, x = scipy.sparse.linalg.eigsh(k, k=count, M=m, sigma=shift, which="LM", OPinv=inverse)
+            if below is None or w2.max() >= top or count == free.size - 2:
+                break
+            count = int(count * 1.5) + 4  # the count fell short (superLU pivoted: Weyl's estimate)
         order = np.argsort(w2)
         w2, x = w2[order], x[:, order]
         elastic = w2 > (2 * np.pi * RIGID_FRACTION * self.frequency_of_mode(1)) ** 2
+        kept = np.flatnonzero(elastic)[:n_modes] if below is None else np.flatnonzero(elastic & (w2 < top))
         full = np.zeros((basis.N, count))
         full[free] = x
-        return (np.sqrt(w2[elastic])[:n_modes] / (2 * np.pi), full[:, elastic][:, :n_modes],
-                full[:, ~elastic], basis)
+        return np.sqrt(w2[kept]) / (2 * np.pi), full[:, kept], full[:, ~elastic], basis
 
     # -- the model ---------------------------------------------------------------------------
 
@@ -414,12 +440,12 @@ class FEPlate:
                 raise ModelError(f"fe plate: converging {wanted} modes to {tolerance:.2%} needs a mesh above "
                                  f"{DOFS_MAX} degrees of freedom (elements of {size * 1e3:.2g} mm): the band is "
                                  f"too high for this plate, or the tolerance too tight")
-            freqs, vectors, rigid, basis = self.solve(mesh, wanted)
-            while band is not None and freqs[-1] < band and len(freqs) == wanted:
-                if wanted >= MODES_MAX:
-                    raise ModelError(f"fe plate: the band {band:g} Hz holds more than {MODES_MAX} modes")
-                wanted = min(MODES_MAX, int(wanted * 1.5) + 4)  # Weyl's estimate fell short
+            if band is None:
                 freqs, vectors, rigid, basis = self.solve(mesh, wanted)
+            else:
+                freqs, vectors, rigid, basis = self.solve(mesh, below=band * BAND_MARGIN)
+                if np.count_nonzero(freqs <= band) > MODES_MAX:
+                    raise ModelError(f"fe plate: the band {band:g} Hz holds more than {MODES_MAX} modes")
             levels.append(Level(size, dofs, freqs, time.perf_counter() - start))
             shapes = np.zeros((len(freqs), grid.n))
             shapes[:, on] = self._sample(basis, vectors, grid.points[on])
@@ -486,6 +512,17 @@ class FEPlate:
                 "sensors": [{"name": f"sensor{i + 1}", "position_m": list(map(float, s))}
                             for i, s in enumerate(sensors)],
                 "convergence": convergence.to_dict()}
+
+
+def _factor(matrix) -> tuple[object, int | None]:
+    """superLU's factors of a symmetric sparse ``matrix`` (symmetric minimum-degree ordering, no
+    pivoting: ``P A P^T = L D L^T`` up to the scaling of ``U``) and its inertia, the count of
+    negative pivots; None when superLU had to pivot (a zero pivot), and the count means nothing."""
+    factors = scipy.sparse.linalg.splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+                                       options={"SymmetricMode": True})
+    if not np.array_equal(factors.perm_r, factors.perm_c):
+        return factors, None
+    return factors, int(np.count_nonzero(factors.U.diagonal() < 0))
 
 
 def _convergence(coarse, fine, keep: int, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
