@@ -76,11 +76,13 @@ class _Rows:
     lower: list = field(default_factory=list)
     upper: list = field(default_factory=list)
     keys: set = field(default_factory=set)
+    order: list = field(default_factory=list)  # the keys, row by row
 
     def add(self, key, row: np.ndarray, lower: float, upper: float) -> None:
         if key in self.keys:
             return
         self.keys.add(key)
+        self.order.append(key)
         self.a.append(row)
         self.lower.append(lower)
         self.upper.append(upper)
@@ -142,6 +144,7 @@ class Program:
         self.limit_cuts = {}  # and every voltage and slew row
         self.limit_offsets = {}
         self.certified = None  # what the last smallest_ratio did and proved
+        self._multipliers = None  # the last optimal round's DAQP multipliers: equalities, and by row key
 
     # -- rows ------------------------------------------------------------------------------------
     def equality(self) -> tuple[np.ndarray, np.ndarray]:
@@ -305,6 +308,9 @@ class Program:
         qp = QP(self.basis.energy(self.fs), np.zeros(self.basis.size), a_eq, b_eq, rows)
         bound = opts.energy_bound * self.focus_energy(qp)
         history, status, x, duals = [], "not solved", np.zeros(self.basis.size), None
+        if self._multipliers is not None:  # the last solve's active set, row by row
+            eq, known = self._multipliers
+            duals = np.r_[eq, [known.get(key, 0.0) for key in rows.order]]
         played = None
         for round_ in range(1, opts.rounds + 1):
             if deadline is not None and round_ > 1 and _time.perf_counter() > deadline:
@@ -315,6 +321,9 @@ class Program:
             self.seconds["solve"] += _time.perf_counter() - tic
             if status != "optimal":
                 break
+            if duals is not None:
+                neq = a_eq.shape[0]
+                self._multipliers = (duals[:neq], dict(zip(rows.order, duals[neq:])))
             tic = _time.perf_counter()
             volts, velocities = self.play(x)
             floors = [opts.aim * self._margin_bound(s, margin) for s in range(len(velocities))]
