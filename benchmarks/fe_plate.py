@@ -1,7 +1,7 @@
 """Finite-element plates: verification, solve time and memory, and focusing on them.
 
     python benchmarks/fe_plate.py                 # all parts (about 10 min)
-    python benchmarks/fe_plate.py --part verify   # one part: verify, speed, focus
+    python benchmarks/fe_plate.py --part verify   # one part: verify, speed, tablet, focus
 
 writes benchmarks/results/fe_plate.{json,md,png} (and fe_plate_focus_*.png).
 
@@ -14,7 +14,12 @@ writes benchmarks/results/fe_plate.{json,md,png} (and fe_plate_focus_*.png).
    refinement stopping by itself): median wall time of 3 solves and peak memory (a fresh process
    per case, its resident set at the end less a bare import's); Morley's triangle converging the
    same 30 modes to the same tolerance, in the same run (the ratio).
-3. ``focus``: on plate-glass-clamped and panel-rounded, the modes a 2-D bump needs against its
+3. ``tablet``: the tablet panel of issue 36 (210 x 150 x 0.7 mm glass, 8 mm corners, clamped, eight
+   14 x 10 mm patches in two rows of four at y = +-55 mm), ``modalctl model fe --band 20kHz`` as a
+   user runs it (pictures and all) in a fresh process, as it starts and with one BLAS thread: wall
+   and CPU time, peak resident memory, dofs, modes; beside the same command measured on the commit
+   before the solve was made to scale.
+4. ``focus``: on plate-glass-clamped and panel-rounded, the modes a 2-D bump needs against its
    width (tau >= 0.95, the thesis's Fig 4.31 for a plate), and a 40 mm bump focused on the HIL
    open and closed loop with every resonance 1% off the model (grid 51 x 36), the field on the
    plate around T_F drawn.
@@ -25,9 +30,14 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing
+import os
 import resource
 import shutil
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import matplotlib
 
@@ -48,6 +58,13 @@ SS_TOLERANCE = 5e-4  # the simply supported rectangle is held to 0.1% against th
 REPEATS = 3
 TAU = 0.95
 WIDTHS_MM = (20, 25, 30, 40, 50, 60)
+TABLET_PATCHES_MM = [((x - 7, x + 7), (y - 5, y + 5)) for y in (55, -55) for x in (-75, -25, 25, 75)]
+#: The tablet's command on 8c95cc3, the commit before the solve was made to scale (issue 36), measured
+#: with /usr/bin/time -v on this 2-core machine shared with other work (load average about 5); run
+#: again later by part_tablet beside other work, it was killed out of memory at 13.5 GB after 280 s.
+TABLET_BEFORE = {"commit": "8c95cc3", "seconds": 246.8, "cpu_seconds": 170.0, "peak_mb": 16100, "dofs": 48951,
+                 "modes": 254}
+TABLET_TARGET = {"seconds": 30, "peak_mb": 2048}
 
 
 def parameters(plate: FEPlate, frequencies, side: float) -> np.ndarray:
@@ -95,6 +112,17 @@ def part_verify() -> dict:
     return out
 
 
+def _peak_kb() -> int:
+    """This process's peak resident memory (kB): its own address space's high-water mark. Not
+    getrusage's ru_maxrss, which Linux carries over an exec from the process that started it (a
+    spawned worker of a parent that once held 2.6 GB reads 2.6 GB before it allocates anything)."""
+    try:
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) for line in status if line.startswith("VmHWM:"))
+    except (OSError, StopIteration):
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
 def _solve_case(args) -> dict:
     """One solve in a fresh process: its time, and its peak resident memory above the process's
     before it (the libraries loaded), kB."""
@@ -103,11 +131,11 @@ def _solve_case(args) -> dict:
 
     modes, element = args
     plate = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, GLASS, {"rim": Support("clamped")}, element=element)
-    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    before = _peak_kb()
     start = time.perf_counter()
     model, conv = plate.modal_model(modes, spacing=1e-3)
     return {"seconds": time.perf_counter() - start,
-            "solve_kb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before, "before_kb": before,
+            "solve_kb": _peak_kb() - before, "before_kb": before,
             "dofs": conv.levels[-1].dofs, "levels": len(conv.levels), "size_mm": conv.levels[-1].size * 1e3,
             "error": float(conv.frequency_error.max()), "f_max": float(model.frequencies[-1])}
 
@@ -130,6 +158,58 @@ def part_speed() -> dict:
     ours = next(r for r in rows if r["modes"] == 30 and r["element"] == "15-parameter")
     peer = next(r for r in rows if r["element"] == "morley")
     return {"rows": rows, "ratio_morley_over_ours_30": peer["seconds"] / ours["seconds"]}
+
+
+def tablet_command(out) -> list[str]:
+    """``modalctl model fe`` on the tablet panel, every mode below 20 kHz, written to ``out``."""
+    patches = [f"--patch={x0}mm,{x1}mm,{y0}mm,{y1}mm" for (x0, x1), (y0, y1) in TABLET_PATCHES_MM]
+    return ["modalctl", "model", "fe", "--outline", "rect:210mm,150mm,r=8mm", "--thickness", "0.7mm", "--material",
+            "glass", "--boundary", "clamped", *patches, "--sensor", "0,0", "--band", "20kHz", "--out", str(out)]
+
+
+#: Runs a command and writes its exit status, CPU time and peak resident memory (os.wait4) to the
+#: file named first. A small process of its own between the benchmark and the command: Linux
+#: carries the starting process's high-water mark over the command's exec into its ru_maxrss.
+_MEASURE = ("import json, os, subprocess, sys; child = subprocess.Popen(sys.argv[2:]); _, status, usage = "
+            "os.wait4(child.pid, 0); open(sys.argv[1], 'w').write(json.dumps({'exit': "
+            "os.waitstatus_to_exitcode(status), 'cpu_seconds': usage.ru_utime + usage.ru_stime, 'peak_kb': "
+            "usage.ru_maxrss}))")
+
+
+def _tablet_run(threads: dict) -> dict:
+    """The tablet's command once, in a fresh process with ``threads`` set in its environment."""
+    with tempfile.TemporaryDirectory() as folder:
+        argv = tablet_command(Path(folder) / "tablet.npz")
+        said, usage = Path(folder) / "summary.json", Path(folder) / "usage.json"
+        start = time.perf_counter()
+        with said.open("w") as out:
+            subprocess.run([sys.executable, "-c", _MEASURE, str(usage), str(Path(sys.executable).parent / argv[0]),
+                            *argv[1:], "--json"], stdout=out, check=True, env={**os.environ, **threads})
+        seconds = time.perf_counter() - start
+        usage = json.loads(usage.read_text())
+        summary = json.loads(said.read_text().strip().splitlines()[-1]) if usage["exit"] == 0 else {}
+    conv = summary.get("convergence", {})
+    return {"command": " ".join(argv).replace(str(Path(folder)), "/tmp"), "environment": threads,
+            "exit": usage["exit"], "seconds": seconds, "cpu_seconds": usage["cpu_seconds"],
+            "peak_mb": usage["peak_kb"] / 1024, "modes": summary.get("modes"),
+            "levels_dofs": [lv["dofs"] for lv in conv.get("levels", [])],
+            "levels_seconds": [lv["seconds"] for lv in conv.get("levels", [])],
+            "error": max(conv.get("frequency_error", [np.nan])), "mac": min(conv.get("shape_mac", [np.nan])),
+            "f_max": (summary.get("frequencies_hz") or [np.nan])[-1]}
+
+
+def part_tablet() -> dict:
+    """The tablet's command in a fresh process: wall time, CPU time and peak resident memory of that
+    process alone (``os.wait4``), and what it solved (its ``--json`` summary); as it starts, then
+    with one BLAS thread (OpenBLAS's threads spin while they wait for a core, and on a machine
+    shared with other work they double the CPU time)."""
+    rows = []
+    for threads in ({}, {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}):
+        rows.append(_tablet_run(threads))
+        print(f"tablet {threads or 'as it starts'}: {rows[-1]['seconds']:.1f} s ({rows[-1]['cpu_seconds']:.1f} s "
+              f"CPU), {rows[-1]['peak_mb']:.0f} MB, {rows[-1]['modes']} modes, dofs {rows[-1]['levels_dofs']}")
+    return {"rows": rows, "before": TABLET_BEFORE, "target": TABLET_TARGET,
+            "load_average_1_5_15_min": list(os.getloadavg())}
 
 
 def part_focus() -> dict:
@@ -205,6 +285,26 @@ def report(data: dict, path=None) -> None:
         lines += ["", f"Morley's triangle takes {s['ratio_morley_over_ours_30']:.1f} times as long for the same 30 "
                       f"modes to the same tolerance (same run). Memory: the solve's peak above the process's "
                       f"before it ({s['rows'][0]['process_mb']:.0f} MB with Python and the libraries).", ""]
+    t = data.get("tablet")
+    if t and "rows" in t:
+        b, first = t["before"], t["rows"][0]
+        cell = lambda x, fmt: "-" if x is None else format(x, fmt)  # noqa: E731
+        lines += ["## The tablet panel (issue 36): every mode below 20 kHz", "",
+                  "210 x 150 x 0.7 mm glass, 8 mm corners, clamped, eight 14 x 10 mm patches, a 1 mm grid; the "
+                  "command as a user runs it, pictures and all, in a fresh process:", "", f"`{first['command']}`", "",
+                  "| | wall time (s) | CPU time (s) | peak memory (MB) | dofs (finest) | modes |", "|---|---|---|---|---|---|"]
+        for r in t["rows"]:
+            name = " ".join(f"{k}={v}" for k, v in r["environment"].items()) or "as it starts"
+            lines.append(f"| this run, {name} | {r['seconds']:.1f} | {r['cpu_seconds']:.1f} | {r['peak_mb']:.0f} | "
+                         f"{r['levels_dofs'][-1] if r['levels_dofs'] else '-'} | {r['modes']} |")
+        lines += [f"| {b['commit']} (before) | {cell(b['seconds'], '.1f')} | {cell(b['cpu_seconds'], '.1f')} | "
+                  f"{cell(b['peak_mb'], '.0f')} | {b['dofs']} | {b['modes']} |",
+                  f"| target | {t['target']['seconds']} | | {t['target']['peak_mb']} | | |", "",
+                  f"Meshes of {', '.join(map(str, first['levels_dofs']))} dofs; highest mode {first['f_max']:.0f} Hz, "
+                  f"estimated error {first['error']:.3%}, subspace MAC >= {first['mac']:.4f}. The machine's load "
+                  f"average at the end, 1/5/15 min: {', '.join(f'{x:.1f}' for x in t['load_average_1_5_15_min'])} "
+                  f"on {os.cpu_count()} cores: wall times here are what a shared machine gives; CPU time is the "
+                  f"steadier measure.", ""]
     f = data.get("focus")
     if f:
         lines += ["## Focusing on finite-element plates (bump at (-20, 5) mm)", "",
@@ -266,7 +366,7 @@ def plot(data: dict) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser()
-    parser.add_argument("--part", choices=("verify", "speed", "focus"), action="append")
+    parser.add_argument("--part", choices=("verify", "speed", "tablet", "focus"), action="append")
     parser.add_argument("--report-only", action="store_true")
     args = parser.parse_args()
     try:
@@ -274,8 +374,8 @@ def main() -> None:
     except (OSError, ValueError):
         data = {}
     if not args.report_only:
-        for part in args.part or ("verify", "speed", "focus"):
-            data[part] = {"verify": part_verify, "speed": part_speed, "focus": part_focus}[part]()
+        for part in args.part or ("verify", "speed", "tablet", "focus"):
+            data[part] = {"verify": part_verify, "speed": part_speed, "tablet": part_tablet, "focus": part_focus}[part]()
             write_json("fe_plate", data)
     report(data)
 
