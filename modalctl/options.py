@@ -90,6 +90,11 @@ class ConvexOptions(_Options):
         of margin programs, the refusal's certificate: seconds on a beam or a panel); False
         refuses at once, for callers that only need to know (the automatic mode set's growing
         attempts).
+    rows_per_round : int or None
+        The margin rows a round adds at most, the worst violations first (None: every one). A
+        first drive far over the margin breaks it at tens of thousands of lobes (29,462 on a
+        254-mode tablet panel, which DAQP took 200 s and 8 GB over); the panel's and the beam's
+        rounds add a few hundred.
     certify_seconds : float or None
         The time the certificate may take (s); None: until it is done. Once past, the bisection
         stops where it is and the refusal says what it proved by then: the smallest ratio a drive
@@ -110,11 +115,14 @@ class ConvexOptions(_Options):
     reference: str | None = None
     energy_bound: float = 1000.0
     certify: bool = True
+    rows_per_round: int | None = 1000
     certify_seconds: float | None = 30.0
 
     def __post_init__(self):
         if self.reference not in (None, "envelope"):
             raise ValueError(f"reference must be None or 'envelope', got {self.reference!r}")
+        if self.rows_per_round is not None and self.rows_per_round < 1:
+            raise ValueError(f"rows_per_round must be None or at least 1, got {self.rows_per_round!r}")
         if self.certify_seconds is not None and not self.certify_seconds >= 0:
             raise ValueError(f"certify_seconds must be None or zero or more, got {self.certify_seconds!r}")
 
