@@ -23,7 +23,8 @@ for the others; the kept modes' displacement zero, each at its velocity peak); t
 every off-target point and sample of the whole model, and the voltage and slew limits at every
 sample, by constraint generation: the exact plant plays the drive, and the time-local peaks that
 break a limit (for the margin, every lobe of the field above ``aim`` of it: on a plate a crest at
-least its neighbours in the plane) join the program until none does. With a robust band the same
+least its neighbours in the plane, the worst ``ConvexOptions.rows_per_round`` a round; for the
+voltage and slew, each channel's own peaks) join the program until none does. With a robust band the same
 margin rows hold on drifted copies of the model, each of which must still reach a share of the
 focus at the target's peak.
 
@@ -58,7 +59,8 @@ The columns and their responses are in :mod:`.convex_basis`, the program in
 :mod:`.convex_program`, the solver adapters in :mod:`.qp`, the refusal's certificate in
 :mod:`.convex_refusal`.
 
-Solver: DAQP (a dual active-set method for dense QPs, warm-started from each round's multipliers),
+Solver: DAQP (a dual active-set method for dense QPs, warm-started from each round's multipliers,
+and each solve of a program, the refusal's bisection, from the last one's, row by row),
 chosen by ``benchmarks/margin_planner.py``; Clarabel and OSQP can be asked for
 (``ConvexOptions.solver``). HiGHS's QP solver was tried and dropped: it stops on the free
 columns ("Non-convex") and takes over ten minutes once they are boxed.
