@@ -82,3 +82,13 @@ def test_growing_stops_at_the_band_the_patches_can_drive_and_says_what_it_reache
     spike = Shape(np.eye(small.grid.n)[np.argmax(small.grid.mass)], np.eye(small.grid.n, dtype=bool)[0])
     with pytest.raises(ReductionError, match="the band its patches and the DAC can drive"):
         model_for(small, spike, PlanOptions(sample_rate=1.5e5))
+
+
+def test_a_model_whose_geometry_does_not_read_back_is_not_grown(small):
+    from dataclasses import replace
+
+    for broken in ({"outline_m": "nonsense"}, {"supports": {"rim": {"kind": "glue"}}}, {"actuators": [{"x": 1}]},
+                   {"thickness_m": float("nan")}):
+        odd = replace(small, meta={**small.meta, **broken})
+        assert plate_of(odd) is None
+        assert model_for(odd, _bump(odd, 0.012), PlanOptions())[1] is None  # what it has, no traceback

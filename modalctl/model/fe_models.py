@@ -80,14 +80,18 @@ def plate_of(model: ModalModel):
     from .plate_geometry import Hole, Material, Outline, Support
     from .structures import PlatePatch
 
-    holes = tuple(Hole(tuple(h["centre_m"]), h["radius_m"], None if h["size_m"] is None else tuple(h["size_m"]),
-                       h["corner_radius_m"]) for h in meta.get("holes", []))
-    outline = Outline(np.asarray(meta["outline_m"], float), meta.get("corner_radius_m", 0.0), holes)
-    element = next((name for name in ELEMENTS if name in meta["model"]), "15-parameter")
-    return FEPlate(outline, meta["thickness_m"], Material(meta["modulus_Pa"], meta["density_kg_m3"], meta["poisson"]),
-                   {name: Support(**support) for name, support in meta["supports"].items()},
-                   tuple(PlatePatch(tuple(a["xlim_m"]), tuple(a["ylim_m"]), a["name"]) for a in meta["actuators"]),
-                   tuple(tuple(s["position_m"]) for s in meta.get("sensors", [])), element=element)
+    try:  # a model file is outside input: a geometry that does not read back makes a model that cannot grow
+        holes = tuple(Hole(tuple(h["centre_m"]), h["radius_m"], None if h["size_m"] is None else tuple(h["size_m"]),
+                           h["corner_radius_m"]) for h in meta.get("holes", []))
+        outline = Outline(np.asarray(meta["outline_m"], float), meta.get("corner_radius_m", 0.0), holes)
+        element = next((name for name in ELEMENTS if name in meta["model"]), "15-parameter")
+        return FEPlate(outline, meta["thickness_m"],
+                       Material(meta["modulus_Pa"], meta["density_kg_m3"], meta["poisson"]),
+                       {name: Support(**support) for name, support in meta["supports"].items()},
+                       tuple(PlatePatch(tuple(a["xlim_m"]), tuple(a["ylim_m"]), a["name"]) for a in meta["actuators"]),
+                       tuple(tuple(s["position_m"]) for s in meta.get("sensors", [])), element=element)
+    except (KeyError, TypeError, ValueError, AttributeError, ModelError):
+        return None
 
 
 def _spacing(model: ModalModel) -> float:
