@@ -399,11 +399,21 @@ class Cover:
             return 0.0
         if not self.root.children:  # a few points
             return float(np.abs(_product(self.values, velocity)).max())
-        rough = np.concatenate([self.root.bounds(velocity[:, i:i + CHUNK], np.abs(velocity[:, i:i + CHUNK]))
-                                .max(axis=0) for i in range(0, velocity.shape[1], CHUNK)])
-        likely = np.argsort(rough)[-8:]
-        found = float(np.abs(_product(self.values, velocity[:, likely])).max())
+        found = self.at_least(velocity)
         return max(found, float(self.top(velocity, found).max()))
+
+    def at_least(self, velocity: np.ndarray, columns: int = 8) -> float:
+        """A value the largest ``|w|`` over the points and columns of ``velocity`` (K, N) reaches:
+        the field on every point at the ``columns`` columns whose bound is largest."""
+        velocity = np.asarray(velocity, float)
+        if self.size == 0 or velocity.shape[1] == 0:
+            return 0.0
+        if not self.root.children:
+            rough = self.reach @ np.abs(velocity)
+        else:
+            rough = np.concatenate([self.root.bounds(velocity[:, i:i + CHUNK], np.abs(velocity[:, i:i + CHUNK]))
+                                    .max(axis=0) for i in range(0, velocity.shape[1], CHUNK)])
+        return float(np.abs(_product(self.values, velocity[:, np.argsort(rough)[-columns:]])).max())
 
     def lobes(self, size: np.ndarray, level: float) -> np.ndarray:
         """The points where ``size`` (n,: a field's absolute value, in the points' order) exceeds

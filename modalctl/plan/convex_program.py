@@ -24,6 +24,7 @@ __all__ = ["Program", "Solution", "OUT_OF_TIME", "PROOFS"]
 
 OUT_OF_TIME = "out of time"  # a solve stopped at its deadline
 PROOFS = ("infeasible", "infeasible or past the energy bound", "past the energy bound")  # the solvers' proofs
+FAR = 3.0  # a drive whose field passes this many times the check's floor is far over the margin
 PEAKS = 64  # time-local peaks whose field is searched for lobes at once (the points-by-peaks array)
 
 
@@ -220,18 +221,19 @@ class Program:
         points' boxes exceeds ``floor``)."""
         return self.cover.top(velocity, floor)
 
-    def _new_margin_rows(self, rows: _Rows, velocities: list, tops: list, margin: float) -> int:
+    def _new_margin_rows(self, rows: _Rows, velocities: list, tops: list, margin: float, floors=None) -> int:
         """Rows ``|w| <= aim * bound`` at every lobe above it, at each time-local peak above it, on
         every plant, the worst first and at most ``ConvexOptions.rows_per_round`` of them (a first
         drive far over the margin has tens of thousands: on a 254-mode panel, 29,462 rows that
         DAQP took 200 s and 8 GB over); returns how many were added (each is also kept in
-        :attr:`cuts`)."""
+        :attr:`cuts`). ``floors``: where each plant's check found the field exactly (default ``aim``
+        of the margin); the rows lie above it."""
         aim = self.options.convex.aim
         found = []  # (|w| over the bound, plant, point, sample)
         for s, (velocity, top) in enumerate(zip(velocities, tops)):
             bound = self._margin_bound(s, margin)
             peaks = _local_peaks(top)
-            over = peaks[top[peaks] > aim * bound]
+            over = peaks[top[peaks] > max(aim * bound, 0.0 if floors is None else floors[s])]
             for first in range(0, over.size, PEAKS):  # exact where |w| may exceed aim * bound, zero elsewhere
                 block = over[first:first + PEAKS]
                 fields = np.abs(self.cover.field(velocity[:, block], aim * bound))
@@ -326,7 +328,7 @@ class Program:
                 self._multipliers = (duals[:neq], dict(zip(rows.order, duals[neq:])))
             tic = _time.perf_counter()
             volts, velocities = self.play(x)
-            floors = [opts.aim * self._margin_bound(s, margin) for s in range(len(velocities))]
+            floors = [self._floor(v, opts.aim * self._margin_bound(s, margin)) for s, v in enumerate(velocities)]
             tops = [self.off_target(v, floor) for v, floor in zip(velocities, floors)]  # exact where rows may be
             played = (x, volts, velocities, [top.max() if top.max() > floor else None
                                              for top, floor in zip(tops, floors)])
@@ -338,9 +340,18 @@ class Program:
             within = self._new_limit_rows(rows, volts) == 0
             if max(ratios) <= margin and within:
                 break
-            self._new_margin_rows(rows, velocities, tops, margin)
+            self._new_margin_rows(rows, velocities, tops, margin, floors)
             self.seconds["rows"] += _time.perf_counter() - tic
         return self._solution(x, status, history, len(rows), start, played)
+
+    def _floor(self, velocity: np.ndarray, floor: float) -> float:
+        """Where the check of ``velocity`` needs the field exactly: above ``floor`` (``aim`` of the
+        margin: every row lies there); but on a drive far over the margin (the field somewhere
+        past :data:`FAR` times the floor), above half of what it reaches there: the rows a round
+        adds are the worst (``rows_per_round``), and the search below that level would take the
+        whole grid at every sample (27 s a round on a 254-mode panel)."""
+        reached = self.cover.at_least(velocity)
+        return 0.5 * reached if reached > FAR * floor else floor
 
     def focus_energy(self, qp: QP) -> float:
         """The least energy of the focus alone on the basis (the scale of ``energy_bound``): with an
