@@ -21,6 +21,7 @@ from modalctl.model.modes import ModalModel
 from modalctl.model.touch import touch_at
 from modalctl.options import LoopOptions
 from modalctl.plugin.manager import pick
+from modalctl.threads import serial_blas
 
 from .controller import LoopPlant
 from .lockin import lockin_bandwidths
@@ -113,7 +114,8 @@ def closed_shot(plan, board: PhasorBoard, parts: LoopParts, *, closed: bool = Tr
                                                  voltage_limit_v=_finite_or_none(parts.limits.voltage),
                                                  slew_limit_v_per_s=parts.limits.slew)
     played = parts if closed else replace(parts, authority=np.zeros_like(parts.authority))
-    return Runtime(board, played, supervisor, recorder, tracker).run(progress=progress)
+    with serial_blas():  # a period's products are small (modalctl.threads)
+        return Runtime(board, played, supervisor, recorder, tracker).run(progress=progress)
 
 
 def _finite_or_none(value: float) -> float | None:

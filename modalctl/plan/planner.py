@@ -27,6 +27,7 @@ from modalctl.model.propagate import Plant
 from modalctl.model.shape import Shape
 from modalctl.options import PlanOptions
 from modalctl.plugin.manager import pick
+from modalctl.threads import serial_blas
 
 from .decompose import Decomposition, decompose
 from .dispatch import DecouplingWarning
@@ -293,7 +294,8 @@ def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptio
         raise PlanError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz)")
     planner = pick("planner", options.planner)
     start = _time.perf_counter()
-    made = planner.plan(dec, focus_time, options, progress)
+    with serial_blas():  # many small products (modalctl.threads)
+        made = planner.plan(dec, focus_time, options, progress)
     seconds = made.report.plan_seconds
     return replace(made, report=replace(made.report, planner=planner.name or type(planner).__name__,
                                         plan_seconds=_time.perf_counter() - start if seconds is None else seconds))
