@@ -74,3 +74,87 @@ def test_bad_fields_and_files_are_refused(tmp_path):
     np.savez(tmp_path / "other.npz", a=np.arange(3))
     with pytest.raises(ModelError, match="cannot read|not a field record"):
         read_field_record(tmp_path / "other.npz")
+
+
+def _simulated_scan(snr_db: float | None = 30.0):
+    """A simulated shot on five modes and the times to scan (SimDevice, its noise ``snr_db`` below its peak)."""
+    from modalctl.hil.scenario import Perturbation
+    from modalctl.hil.sim_device import SimDevice
+
+    model = load_scene("thesis-al-cc", 105).select(np.arange(5))
+    fs, n = 200e3, 3000
+    u = np.zeros((8, n))
+    u[0] = np.sin(model.omega[1] * np.arange(n) / fs)
+    device = SimDevice(model, Perturbation(snr_db=snr_db, seed=4))
+    device.configure(fs)
+    device.activate()
+    device.upload(u)
+    device.trigger()
+    times = np.arange(0, n, 2) / fs
+    return model, device, times
+
+
+def test_a_simulated_vibrometers_noise_is_stored_as_its_key_and_read_back_as_measured(tmp_path):
+    """The scan's noise described by the device (its generator's key, sigma, samples and rows) is
+    taken away before the field is split and added back on reading: the field read back is the
+    device's own scan within half the step, the step the noise-free field's (2^-16 of the peak),
+    and the file as small as a noise-free field's, where the noise as samples takes 5 bits each."""
+    model, device, times = _simulated_scan()
+    field, noise = device.scan(times), device.scan_noise_stream(times)
+    assert noise is not None and noise.shape == field.shape and noise.key[0] == 4
+    described = write_field_record(tmp_path / "key.npz", times, model.grid.points, field, noise=noise,
+                                   basis=model.shapes.T)
+    back = read_field_record(described)
+    assert _kept(back, field)
+    assert back.step == pytest.approx(np.abs(field).max() * RESOLUTION, rel=1e-6)
+    assert back.noise is not None and back.noise.sigma == noise.sigma and back.rank <= 5
+    np.testing.assert_array_equal(back.noise.samples, noise.samples)
+    as_samples = write_field_record(tmp_path / "samples.npz", times, model.grid.points, field, basis=model.shapes.T)
+    kept = read_field_record(as_samples)
+    assert _kept(kept, field) and kept.noise is None and kept.step > 30 * back.step
+    assert described.stat().st_size * 5 < as_samples.stat().st_size
+    assert as_samples.stat().st_size > field.size * 4 / 8  # at least 4 bits a sample of noise
+    some = device.scan(times[::5], [3, 40, 7])  # a scan of some points, its own description
+    back = read_field_record(write_field_record(tmp_path / "some.npz", times[::5], model.grid.points[[3, 40, 7]],
+                                                some, noise=device.scan_noise_stream(times[::5], [3, 40, 7])))
+    assert _kept(back, some)
+
+
+def test_a_noise_free_simulation_and_a_real_vibrometer_describe_no_noise():
+    _, device, times = _simulated_scan(None)
+    assert device.scan_noise_stream(times) is None
+
+    from modalctl.io.device import Device
+
+    class Bench(Device):  # a device that says nothing of its noise: the contract's default
+        configure = upload = trigger = lambda self, *a, **k: None
+
+    assert Bench("bench://").scan_noise_stream(times) is None
+
+
+def test_a_noise_generator_this_modalctl_does_not_have_is_refused(tmp_path):
+    """A record whose noise came from another generator's version cannot give back the field: refused."""
+    import json
+    import zipfile
+
+    model, device, times = _simulated_scan()
+    path = write_field_record(tmp_path / "f.npz", times, model.grid.points, device.scan(times),
+                              noise=device.scan_noise_stream(times))
+    other = tmp_path / "other.npz"
+    with zipfile.ZipFile(path) as source, zipfile.ZipFile(other, "w") as target:
+        for member in source.namelist():
+            data = source.read(member)
+            if member == "header_json.npy":
+                header = json.loads(str(np.load(tmp_path / "f.npz")["header_json"]))
+                header["noise"]["version"] = 99
+                with target.open(member, "w") as out:
+                    np.lib.format.write_array(out, np.array(json.dumps(header)))
+                continue
+            target.writestr(member, data)
+    with pytest.raises(ModelError, match="version 99.*cannot give back"):
+        read_field_record(other)
+    with pytest.raises(ModelError, match="generator"):
+        from dataclasses import replace
+
+        write_field_record(tmp_path / "g.npz", times, model.grid.points, device.scan(times),
+                           noise=replace(device.scan_noise_stream(times), version=99))

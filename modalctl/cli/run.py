@@ -193,7 +193,7 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
                          "grown": None if growth is None else growth.to_dict()}}
-    _write_fields(model, shot, out)
+    _write_fields(model, shot, out, device)
     written = time.perf_counter()
     if not args.no_plots:
         from modalctl.report import write_run_report
@@ -216,12 +216,14 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     return DEVICE if fault else 0
 
 
-def _write_fields(model, shot, out: Path) -> None:
-    """fields.npz: the measured field (a :class:`~modalctl.model.records.FieldRecord`: low rank plus
-    what it leaves, every sample within 2^-16 of the peak), the target, the capture and the modal
-    coefficients."""
+def _write_fields(model, shot, out: Path, device) -> None:
+    """fields.npz: the measured field (a :class:`~modalctl.model.records.FieldRecord`: the model's
+    modes on the grid as its basis plus what they leave, every sample within 2^-16 of the peak, or
+    of an eighth of the noise; a simulated vibrometer's noise stored as its generator's key), the
+    target, the capture and the modal coefficients."""
     import numpy as np
 
+    from modalctl.io.device import scan_indices
     from modalctl.model.records import write_field_record
     from modalctl.outdir import atomic
 
@@ -230,8 +232,12 @@ def _write_fields(model, shot, out: Path) -> None:
                  target_mask=shot.decomposition.shape.target_mask, sample_times=shot.capture.times,
                  voltages=shot.capture.voltages, sensors=shot.capture.sensors, focus_point_velocity=shot.focus_velocity,
                  labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
+    caps = device.capabilities
+    points = None if caps is None else scan_indices(caps, model.grid.points, device.url)  # as the shot scanned
+    noise = device.scan_noise_stream(shot.times, points)
     with atomic(out / "fields.npz") as temporary:
-        write_field_record(temporary, shot.times, model.grid.points, shot.field, extra=extra)
+        write_field_record(temporary, shot.times, model.grid.points, shot.field, extra=extra, noise=noise,
+                           basis=model.shapes.T)
 
 
 def _print_shot(args, m: dict, report) -> None:

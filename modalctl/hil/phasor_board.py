@@ -37,7 +37,7 @@ from modalctl.model.propagate import Plant
 
 from .block import BlockLockIn, BlockPlant
 from .lifted import PeriodMap
-from .vibrometer import scan_field
+from .vibrometer import scan_field, scan_noise_stream
 
 __all__ = ["HILBoard", "BoardSetup"]
 
@@ -277,10 +277,19 @@ class HILBoard(PhasorBoard):
         """Velocity (n_points, nt) of the shot at the samples nearest to ``times`` (s), as a
         scanning vibrometer repeating it would see it (m/s, float32: the modes' velocities there times
         their shapes, :func:`~modalctl.hil.vibrometer.scan_field`); ``points``: grid indices (default all)."""
-        velocity = self.velocity  # the modes' at every DAC sample, played back once
-        idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, velocity.shape[1] - 1)
+        velocity, idx = self.velocity, self._samples(times)  # the modes' at every DAC sample, played back once
         return scan_field(self.plant.model.shapes, velocity[:, idx], idx, points, self.scan_noise,
                           (self.setup.seed, SCAN_STREAM))
+
+    def scan_noise_stream(self, times: np.ndarray, points=None):
+        """The vibrometer's noise in ``scan(times, points)``, described (a
+        :class:`~modalctl.model.noise_stream.NoiseStream`), None without noise."""
+        return scan_noise_stream((self.setup.seed, SCAN_STREAM), self._samples(times), self.plant.model.shapes.shape[1],
+                                 self.scan_noise, points)
+
+    def _samples(self, times: np.ndarray) -> np.ndarray:
+        """The shot's sample indices nearest to ``times`` (s)."""
+        return np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._velocity.shape[1] - 1)
 
     def _play(self, n: int, target: np.ndarray, measure: bool = True) -> np.ndarray | None:
         s, start = self.schedule, self.sample

@@ -10,13 +10,14 @@ from tqdm.auto import tqdm
 
 from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError
 from modalctl.model.modes import ModalModel, ModelError
+from modalctl.model.noise_stream import NoiseStream
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import ParamError
 
 from .finger import FingerPlant
 from .plant import HOLDS, Plant, truncation
 from .scenario import Perturbation, perturb
-from .vibrometer import scan_field
+from .vibrometer import scan_field, scan_noise_stream
 
 __all__ = ["SimDevice"]
 
@@ -170,11 +171,23 @@ class SimDevice(Device):
         """
         if self._board is not None:  # the last shot ran in phasor mode
             return self._board.scan(times, points)
-        if self._modal is None:
-            raise DeviceError(f"{self.url}: no shot to scan")
-        idx = np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._modal.shape[1] - 1)
+        idx = self._samples(times)
         return scan_field(self.truth.shapes[self._kept], self._modal[:, idx], idx, points, self._noise_sigma or 0.0,
                           (self.perturbation.seed, self._shots))
+
+    def scan_noise_stream(self, times: np.ndarray, points=None) -> NoiseStream | None:
+        """The vibrometer's noise in ``scan(times, points)`` (its stream's key, sigma, samples and
+        points), None without noise."""
+        if self._board is not None:
+            return self._board.scan_noise_stream(times, points)
+        return scan_noise_stream((self.perturbation.seed, self._shots), self._samples(times),
+                                 self.truth.shapes.shape[1], self._noise_sigma or 0.0, points)
+
+    def _samples(self, times: np.ndarray) -> np.ndarray:
+        """The last open-loop shot's sample indices nearest to ``times``."""
+        if self._modal is None:
+            raise DeviceError(f"{self.url}: no shot to scan")
+        return np.clip(np.round(np.asarray(times) * self.sample_rate).astype(int), 0, self._modal.shape[1] - 1)
 
     def modal_truth(self) -> tuple[np.ndarray, np.ndarray]:
         """Simulation-only: the simulated modes (positional in the model) and their velocities (k, n)."""

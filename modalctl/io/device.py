@@ -28,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from modalctl.loops.runtime import PhasorBoard
 from modalctl.model.modes import ModalModel
+from modalctl.model.noise_stream import NoiseStream
 from modalctl.model.shape import Shape
 from modalctl.plugin.manager import PluginError, plugin_manager
 
@@ -127,6 +128,12 @@ class Device(ABC):
         """The last shot's velocity (n_points, nt) at ``times`` (s) by the scanning vibrometer (m/s);
         ``points``: indices into ``capabilities.scan_points`` (default all)."""
         raise DeviceError(f"{self.url}: this device cannot scan the field")
+
+    def scan_noise_stream(self, times: np.ndarray, points=None) -> NoiseStream | None:
+        """The noise ``scan(times, points)`` adds to the last shot's field, told by what regenerates
+        it (a simulated vibrometer's), so that a record can store the field without it; None when
+        the device does not know it (the default: a real vibrometer's noise is in its samples)."""
+        return None
 
     def phasor_board(self, level: float, control_rate: float, latency: int = 0) -> PhasorBoard:
         """The board in phasor mode for one closed-loop shot whose field peaks near ``level`` (m/s),

@@ -1,44 +1,68 @@
 """A measured space-time field on file: small, fast to write, read back as measured.
 
-A plate's scan is tens of millions of samples (8591 points x 5240 instants on the panel), but the
+A plate's scan is a hundred million samples (8591 points x 11659 instants on the panel), but the
 field a structure makes lives in a few tens of modes: written as it is (float32, zlib) it took
-160 MB and 4-9 s a run. Here it is stored as what it is, a low-rank part and what that part
-leaves:
+160 MB and 4-9 s a run. Here it is stored as what it is, a low-rank part, what that part leaves,
+and the noise a simulated vibrometer added, told by its key:
 
-    field = basis @ coefficients + step * residual
+    field = basis @ coefficients + step * residual [+ noise]
 
-``basis`` (n, r) and ``coefficients`` (r, nt) are the field's leading singular vectors (a
-randomized range finder, two passes over the field in blocks), ``residual`` (n, nt) is the rest
-rounded to ``step`` and packed in the fewest bits that hold it (8, 16 or 32). Nothing of the
-measurement is dropped but what lies under ``step / 2`` (plus float32's rounding of the sums,
-``2^-20`` of the peak). ``step`` is ``2^-16`` of the field's peak (a 17-bit vibrometer), or, where
-the modes leave more than that (the measurement's noise), an eighth of what they leave (its RMS):
-rounding then adds ``1/768`` to the noise's variance, and never coarser than ``2^-10`` of the peak.
-So a noise-free field's residual rounds to zero and compresses to nothing, and a noisy one keeps
-its noise in about five bits a sample. Files are ``.npz`` (no pickle) with a JSON header naming
-every array and its unit.
+``basis`` (n, r) and ``coefficients`` (r, nt) span the field's range: the caller's basis (the
+model's mode shapes on the grid, orthonormalized: one pass over the field) or a randomized range
+finder's (Halko, Martinsson and Tropp: one more pass), trimmed to the directions the field uses.
+``residual`` (n, nt) is the rest rounded to ``step`` and packed in the fewest bits that hold it
+(8, 16 or 32). ``step`` is ``2^-16`` of the field's peak (a 17-bit vibrometer), or, where the modes
+leave more than that (the measurement's noise), an eighth of what they leave (its RMS): rounding
+then adds ``1/768`` to the noise's variance, and never coarser than ``2^-10`` of the peak.
+
+What the record guarantees, every sample within ``step / 2`` of the field measured (plus float32's
+rounding of the sums, ``2^-20`` of the peak) whatever it holds:
+
+* A noise-free field (a simulation without ``--snr``): the finest step; the residual rounds to
+  zero and compresses to nothing (the panel's 8591 x 11659: 6.4 MB, the basis and coefficients).
+* A simulated vibrometer's noisy field, its noise described (``noise``, a
+  :class:`~modalctl.model.noise_stream.NoiseStream` from :meth:`Device.scan_noise_stream
+  <modalctl.io.device.Device.scan_noise_stream>`): the noise is taken away before the split and
+  regenerated on reading (its generator, version, key and sigma in the header, its samples and
+  points as arrays), so the field is stored as a noise-free one, at the finest step and the same
+  size; the field read back is the scan, within the step. A generator or version this modalctl
+  does not have is refused (a :class:`ModelError`), never silently read without its noise. A
+  description that does not match the samples costs size, not accuracy: the residual keeps
+  what it missed.
+* A real vibrometer's field (no description: its noise is in its samples): white noise has no
+  structure, so the residual keeps it in about five bits a sample (a step of an eighth of its RMS)
+  and zlib gets little of that: about 60-95 MB for the panel's hundred million samples at 40 dB.
+
+Files are ``.npz`` (no pickle) with a JSON header naming every array and its unit; version 1
+files (no noise) read too. Writing runs the passes on two threads of its own with BLAS on one
+(OpenBLAS's threads spin for a core on a busy machine).
 """
 
 from __future__ import annotations
 
 import json
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from modalctl.threads import serial_blas
+
 from .modes import ModelError
+from .noise_stream import GENERATOR, NoiseStream
+from .noise_stream import VERSION as NOISE_VERSION
 
 __all__ = ["FieldRecord", "write_field_record", "read_field_record", "RESOLUTION", "FORMAT"]
 
 FORMAT = "modalctl.FieldRecord"
-VERSION = 1
+VERSION = 2  # 2: the noise a simulated vibrometer added, described (version 1 files read too)
 RESOLUTION = 2.0 ** -16  # the residual's finest step, relative to the field's peak
 NOISE_STEPS = 8  # steps per RMS of what the modes leave: rounding adds 1 / (12 x 8^2) to its variance
 COARSEST = 2.0 ** -10  # the residual's coarsest step, relative to the field's peak
 RANK_MAX = 64  # columns of the range finder: a scene's modes and then some
-_BLOCK = 512  # grid points per block of each pass
+_BLOCK = 256  # grid points per block of each pass (12 MB of the panel's field: L3 holds it)
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,6 +83,8 @@ class FieldRecord:
         Columns of the low-rank part on file.
     extra : dict of str to ndarray
         The other arrays written beside the field (a run's target, voltages, sensors...), as written.
+    noise : NoiseStream or None
+        The noise the file described rather than stored (added back to ``field``).
     """
 
     times: np.ndarray
@@ -67,64 +93,159 @@ class FieldRecord:
     step: float = 0.0
     rank: int = 0
     extra: dict = field(default_factory=dict)
+    noise: NoiseStream | None = None
 
 
-def _low_rank(field: np.ndarray, rank: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray, float]:
-    """An orthonormal basis (n, k) of the field's range, its coefficients (k, nt), k <= ``rank``
-    (Halko, Martinsson and Tropp's range finder), and the RMS of what they leave."""
-    n, nt = field.shape
-    probe = np.random.default_rng(seed).standard_normal((nt, rank)).astype(np.float32)
-    sketch = np.empty((n, rank), np.float32)
-    for start in range(0, n, _BLOCK):
-        sketch[start:start + _BLOCK] = field[start:start + _BLOCK] @ probe
-    basis = np.linalg.qr(sketch)[0]
-    coefficients = np.zeros((rank, nt), np.float32)
-    energy = 0.0
-    for start in range(0, n, _BLOCK):
-        block = field[start:start + _BLOCK]
-        coefficients += basis[start:start + _BLOCK].T @ block
-        energy += float(np.einsum("ij,ij->", block, block, dtype=np.float64))
-    u, s, vt = np.linalg.svd(coefficients, full_matrices=False)
-    keep = s > s[0] * 1e-7 if s.size and s[0] > 0 else np.zeros(s.size, bool)  # float32's own resolution
-    left = max(0.0, energy - float(np.sum(s[keep].astype(np.float64) ** 2)))  # Pythagoras: the basis is orthonormal
-    return (basis @ u[:, keep]).astype(np.float32), (s[keep, None] * vt[keep]).astype(np.float32), \
-        float(np.sqrt(left / field.size))
+def _low_rank(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray | None, rank: int):
+    """The part of ``values`` (n, nt) to store (the field less its known noise: a copy, or ``values``
+    itself), an orthonormal basis (n, k) of its range (``basis``'s, or the range finder's: Halko,
+    Martinsson and Tropp's), its coefficients (k, nt), the RMS of what they leave, and the measured
+    field's peak. Passes over the field: one (the noise, the peak, the energy, the coefficients
+    on a given basis), and one more for the range finder's sketch."""
+    if basis is None:
+        field, peak, energy, _ = _prepared(values, noise)
+        probe = np.random.default_rng(0).standard_normal((field.shape[1], rank)).astype(np.float32)
+        basis = _orthonormal(_sum_of_halves(lambda rows: (field[rows] @ probe, 0.0), len(field), vertical=True)[0])
+        coefficients = _sum_of_halves(lambda rows: (basis[rows].T @ field[rows], 0.0), len(field))[0]
+    else:
+        basis = _orthonormal(np.asarray(basis, np.float32).reshape(len(values), -1))
+        field, peak, energy, coefficients = _prepared(values, noise, basis)
+    coefficients64 = coefficients.astype(np.float64)
+    power, directions = np.linalg.eigh(coefficients64 @ coefficients64.T)  # the coefficients' SVD, from k x k
+    keep = power > power.max(initial=0.0) * 1e-14  # singular values within float32's resolution of the largest
+    left = max(0.0, energy - float(np.sum(power[keep])))  # Pythagoras: the basis is orthonormal
+    directions = directions[:, keep][:, ::-1]  # the strongest first
+    return field, (basis @ directions.astype(np.float32)), (directions.T @ coefficients64).astype(np.float32), \
+        float(np.sqrt(left / max(field.size, 1))), peak
+
+
+def _orthonormal(columns: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (n, k) float32 of the range of ``columns`` (n, m), k <= m: from the
+    m x m Gram matrix in float64 (its eigenvectors, then Cholesky once more to square what they
+    left), directions under 10^-6 of the strongest dropped. (LAPACK's QR of the tall matrix took
+    0.2-1.2 s on the panel's 8591 x 53, by how busy the machine was.)"""
+    tall = columns.astype(np.float64)
+    power, vectors = np.linalg.eigh(tall.T @ tall)
+    keep = power > power.max(initial=0.0) * 1e-12
+    tall = tall @ (vectors[:, keep] / np.sqrt(power[keep]))
+    if tall.shape[1]:
+        tall = np.linalg.solve(np.linalg.cholesky(tall.T @ tall), tall.T).T  # tall R^-1, R^T R its Gram
+    return np.ascontiguousarray(tall, np.float32)
+
+
+def _sum_of_halves(work, n: int, vertical: bool = False):
+    """``work(rows)`` -> (array, number) on the blocks of ``_BLOCK`` points of two halves of the
+    ``n`` points, one thread each (NumPy lets go of the GIL; the caller keeps BLAS on one thread:
+    OpenBLAS's own threads spin waiting for a core on a busy machine); the arrays summed, or
+    stacked (``vertical``), and the numbers summed."""
+    half = -(-n // 2 // _BLOCK) * _BLOCK
+
+    def part(first: int, last: int):
+        arrays, total = [], 0.0
+        for start in range(first, last, _BLOCK):
+            array, number = work(slice(start, min(start + _BLOCK, last)))
+            total += number
+            if array is not None:
+                arrays = arrays + [array] if vertical or not arrays else [arrays[0] + array]
+        return arrays, total
+
+    with ThreadPoolExecutor(2) as pool:
+        parts = list(pool.map(part, (0, half), (min(half, n), n)))
+    arrays = [array for found, _ in parts for array in found]
+    total = sum(number for _, number in parts)
+    return (np.vstack(arrays) if vertical else sum(arrays[1:], arrays[0])) if arrays else None, total
+
+
+def _prepared(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray | None = None):
+    """``values`` less ``noise`` (a new array; ``values`` itself without noise), the peak of
+    ``values``, the energy (sum of squares) of what is left, and its coefficients on ``basis``
+    (None without one): one pass, a block of points at a time, on two threads."""
+    field = values if noise is None else np.empty_like(values)
+    peaks = []
+
+    def block(rows: slice):
+        if noise is not None:
+            field[rows] = values[rows]
+            noise.add_to(field[rows], rows.start, sign=-1)
+        peaks.extend([float(values[rows].max()), -float(values[rows].min())])  # (list.extend holds the GIL)
+        coefficients = np.zeros((0, 0), np.float32) if basis is None else basis[rows].T @ field[rows]
+        return coefficients, float(np.einsum("ij,ij->", field[rows], field[rows], dtype=np.float64))
+
+    coefficients, energy = _sum_of_halves(block, len(values))
+    peak = float(np.max(peaks)) if peaks else 0.0
+    if not np.isfinite(peak):  # max and min propagate NaN
+        raise ModelError("field record: the field holds NaN or infinite samples")
+    return field, peak, energy, coefficients
 
 
 def _residual(field: np.ndarray, basis: np.ndarray, coefficients: np.ndarray, step: float) -> np.ndarray:
-    """What the low-rank part leaves, rounded to ``step``, in the fewest bits that hold it (8, 16, 32)."""
-    out = np.empty(field.shape, np.int32)
-    for start in range(0, field.shape[0], _BLOCK):
-        rows = slice(start, start + _BLOCK)
-        out[rows] = np.rint((field[rows] - basis[rows] @ coefficients) / step)
-    low, high = (int(out.min()), int(out.max())) if out.size else (0, 0)
-    for kind in (np.int8, np.int16):
-        if np.iinfo(kind).min <= low and high <= np.iinfo(kind).max:
-            return out.astype(kind)
+    """What the low-rank part leaves, rounded to ``step``, in the fewest bits that hold it (8, 16,
+    32): made in 8 bits on two threads (zeros that are not written cost nothing), the blocks that
+    need more made again once it is widened."""
+    out, scale = np.zeros(field.shape, np.int8), np.float32(1 / step)
+    wide = []
+
+    def block(rows: slice, out: np.ndarray = out):
+        left = np.matmul(basis[rows], coefficients)
+        np.subtract(field[rows], left, out=left)
+        low, high = float(left.min()), float(left.max())
+        if max(-low, high) < 0.5 * step:  # rounds to zero: a modal field's residual
+            return None, 0.0
+        left *= scale
+        np.rint(left, out=left)
+        kind = next((k for k in (np.int8, np.int16) if np.iinfo(k).min <= low * scale
+                     and high * scale <= np.iinfo(k).max), np.int32)
+        if np.iinfo(kind).max > np.iinfo(out.dtype).max:
+            wide.append((rows, kind))  # (list.append holds the GIL)
+        else:
+            out[rows] = left
+        return None, 0.0
+
+    _sum_of_halves(block, len(field))
+    if wide:
+        out = out.astype(max((kind for _, kind in wide), key=lambda k: np.iinfo(k).max))
+        for rows, _ in wide:
+            block(rows, out)
     return out
 
 
-def write_field_record(path, times, points, values, resolution: float = RESOLUTION, extra: dict | None = None) -> Path:
+def write_field_record(path, times, points, values, resolution: float = RESOLUTION, extra: dict | None = None,
+                       noise: NoiseStream | None = None, basis: np.ndarray | None = None) -> Path:
     """Write the field ``values`` (n, nt) m/s measured at ``times`` (nt,) s on ``points`` (n, d) m to
     ``path`` (``.npz``), every sample kept within half a step (``resolution`` times its peak, or
     an eighth of the RMS of what its modes leave: see the module's notes), and the arrays of
-    ``extra`` as they are (their names prefixed ``extra_`` on file). Returns the path."""
+    ``extra`` as they are (their names prefixed ``extra_`` on file). Returns the path.
+
+    ``noise``: the noise the scan added, as its generator makes it again (a simulated vibrometer's,
+    :meth:`modalctl.io.device.Device.scan_noise_stream`): stored by its description, not its
+    samples. ``basis`` (n, k): shapes the field lives in (the model's modes on the grid), used
+    instead of finding them (one pass over the field instead of two); what they leave is kept
+    too, in the residual."""
     field = np.ascontiguousarray(values, np.float32)
     times, points = np.asarray(times, float), np.asarray(points, float).reshape(len(field), -1)
     if field.ndim != 2 or field.shape[1] != times.size:
         raise ModelError(f"field record: field {field.shape} does not match {times.size} instants")
-    if not np.all(np.isfinite(field)):
-        raise ModelError("field record: the field holds NaN or infinite samples")
-    peak = float(np.max(np.abs(field))) if field.size else 0.0
-    basis, coefficients, left = _low_rank(field, min(RANK_MAX, *field.shape)) if peak > 0 else (
-        np.zeros((field.shape[0], 0), np.float32), np.zeros((0, field.shape[1]), np.float32), 0.0)
-    step = max(peak * resolution, min(left / NOISE_STEPS, peak * COARSEST)) if peak > 0 else 1.0
-    residual = _residual(field, basis, coefficients, step)
+    if basis is not None and np.shape(basis)[0] != field.shape[0]:
+        raise ModelError(f"field record: a basis of {np.shape(basis)[0]} points for a field on {field.shape[0]}")
+    if noise is not None and noise.shape != field.shape:
+        raise ModelError(f"field record: noise {noise.shape} for a field {field.shape}")
+    if noise is not None and (noise.generator, noise.version) != (GENERATOR, NOISE_VERSION):
+        raise ModelError(f"field record: noise from generator {noise.generator!r} version {noise.version}; this "
+                         f"modalctl makes {GENERATOR!r} version {NOISE_VERSION} only")
+    with serial_blas():  # small products but for the passes, which run on two threads of their own
+        stored, basis, coefficients, left, peak = _low_rank(field, noise, basis, min(RANK_MAX, *field.shape))
+        step = max(peak * resolution, min(left / NOISE_STEPS, peak * COARSEST)) if peak > 0 else 1.0
+        residual = _residual(stored, basis, coefficients, step)
     header = {"format": FORMAT, "version": VERSION, "step_m_per_s": step, "resolution": resolution,
-              "field": "basis @ coefficients + step * residual", "units": {
-                  "times": "s", "points": "m", "basis": "1", "coefficients": "m/s", "residual": "step"}}
+              "field": "basis @ coefficients + step * residual" + (" + noise" if noise else ""),
+              "noise": None if noise is None else {
+                  "generator": noise.generator, "version": noise.version, "key": list(noise.key),
+                  "sigma_m_per_s": noise.sigma, "samples": "noise_samples", "rows": "noise_rows"},
+              "units": {"times": "s", "points": "m", "basis": "1", "coefficients": "m/s", "residual": "step",
+                        **({"noise_samples": "sample", "noise_rows": "grid point"} if noise else {})}}
     arrays = {"header_json": np.array(json.dumps(header)), "times": times, "points": points, "basis": basis,
               "coefficients": coefficients, "residual": residual,
+              **({"noise_samples": noise.samples, "noise_rows": noise.rows} if noise else {}),
               **{f"extra_{name}": np.asarray(value) for name, value in (extra or {}).items()}}
     path = Path(path)
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:  # np.load reads it
@@ -135,20 +256,46 @@ def write_field_record(path, times, points, values, resolution: float = RESOLUTI
 
 
 def read_field_record(path) -> FieldRecord:
-    """The field a :func:`write_field_record` file holds, as measured to within its step."""
+    """The field a :func:`write_field_record` file holds, as measured to within its step (its noise
+    regenerated when the file describes it)."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             header = json.loads(str(data["header_json"]))
             if header.get("format") != FORMAT:
                 raise ModelError(f"field record: {str(path)!r} is not a field record ({header.get('format')!r})")
+            if header.get("version") not in (1, VERSION):
+                raise ModelError(f"field record: {str(path)!r} is version {header.get('version')!r}; this "
+                                 f"modalctl reads versions 1 to {VERSION}")
             basis, coefficients, residual = data["basis"], data["coefficients"], data["residual"]
             times, points = data["times"], data["points"]
+            noise = _noise(header.get("noise"), data, path)
             extra = {key[len("extra_"):]: data[key] for key in data.files if key.startswith("extra_")}
     except ModelError:
         raise
-    except (ValueError, OSError, KeyError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+    except (ValueError, OSError, KeyError, TypeError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
         raise ModelError(f"field record: cannot read {str(path)!r} ({exc})") from None
     step = float(header["step_m_per_s"])
-    values = (basis @ coefficients + np.float32(step) * residual).astype(np.float32)
-    return FieldRecord(times, points, values, step, basis.shape[1], extra)
+    values = np.matmul(basis, coefficients, dtype=np.float32)
+    for start in range(0, values.shape[0], _BLOCK):  # a block at a time: no temporary as large as the field
+        rows = slice(start, start + _BLOCK)
+        values[rows] += np.float32(step) * residual[rows]
+    if noise is not None:
+        if noise.shape != values.shape:
+            raise ModelError(f"field record: {str(path)!r}: noise {noise.shape} for a field {values.shape}")
+        noise.add_to(values)
+    return FieldRecord(times, points, values, step, basis.shape[1], extra, noise)
+
+
+def _noise(described, data, path) -> NoiseStream | None:
+    """The noise stream a record's header describes, or None; a generator this modalctl does not
+    have is refused."""
+    if described is None:
+        return None
+    generator, version = described.get("generator"), described.get("version")
+    if (generator, version) != (GENERATOR, NOISE_VERSION):
+        raise ModelError(f"field record: {str(path)!r} stores its noise as generator {generator!r} version "
+                         f"{version!r}; this modalctl regenerates {GENERATOR!r} version {NOISE_VERSION} only, "
+                         f"so it cannot give back the field measured")
+    return NoiseStream(tuple(described["key"]), float(described["sigma_m_per_s"]), data[described["samples"]],
+                       data[described["rows"]])
