@@ -118,10 +118,9 @@ def plot_decomposition(dec: Decomposition, path) -> Path:
 
 
 def plot_modes_needed(labels, series: dict, kept: dict, path=None, title: str = "", *, ax=None):
-    """Max |coefficient| per mode (``labels``, k of them) of several pulse sets, with the kept band of
-    each shaded: ``series`` maps a set's name to its largest relative |coefficient| over its centres,
-    shape (k,), ``kept`` to the positional indices its rule keeps. Saved at ``path``, or drawn on
-    ``ax`` (returned)."""
+    """Max |coefficient| per mode (``labels``, k of them) of several pulse sets, with the kept band of each shaded:
+    ``series`` maps a set's name to its largest relative |coefficient| over its centres, shape (k,), ``kept`` to the
+    positional indices its rule keeps. Saved at ``path``, or drawn on ``ax`` (returned)."""
     fig, ax = _own_or_given(ax, path, (9, 4.5))
     pos = np.arange(len(labels))
     width = 0.8 / len(series)
@@ -170,12 +169,17 @@ def _field_panel(ax, shot, finger=None):
     ax.set_xlabel("t - T_F (ms)")
 
 
+def _largest(field: np.ndarray, rows: np.ndarray, block: int = 256) -> np.ndarray:
+    """max |field[rows]| at each instant (zero without rows), a block of rows at a time (no copy)."""
+    parts = [np.abs(field[rows[start:start + block]]).max(axis=0) for start in range(0, rows.size, block)]
+    return np.max(parts, axis=0) if parts else np.zeros(field.shape[1], field.dtype)
+
+
 def _extremes_panel(ax, shot, shade_window: bool = False):
     """The largest on- and off-target |w| (mm/s) over the shot, the margin's limit, the worst instant."""
     mask, m, tf = shot.decomposition.shape.target_mask, shot.metrics, shot.plan.focus_time
     whole = (shot.times - tf) * 1e3
-    off = np.max(np.abs(shot.field[~mask]), axis=0) if (~mask).any() else np.zeros(whole.size)
-    on = np.max(np.abs(shot.field[mask]), axis=0)
+    on, off = _largest(shot.field, np.flatnonzero(mask)), _largest(shot.field, np.flatnonzero(~mask))
     ax.plot(whole, on * 1e3, "C2", lw=1, label="max |w| in target zone")
     ax.plot(whole, off * 1e3, "C0", lw=1, label="max |w| off target")
     limit = m.margin_criterion * np.max(np.abs(shot.focus_field))
@@ -271,8 +275,7 @@ def _modal_coefficients_panel(ax, shot):
 
 
 def plot_modal_bars(shot, path) -> Path:
-    """Modal coefficients at the focus: reference, reduced model, measured (thesis Fig 4.17), under
-    a beam's field at T_F."""
+    """Each mode's coefficient at T_F, reference, reduced and measured (thesis Fig 4.17), under a beam's field then."""
     fig, (top, bottom) = _subplots(2, 1, figsize=(9, 6.5), gridspec_kw={"height_ratios": [2, 3]})
     if shot.decomposition.model.grid.dim == 1:
         _focus_profile_panel(top, shot)
@@ -286,8 +289,7 @@ def plot_modal_bars(shot, path) -> Path:
 
 
 def plot_voltages(shot, path=None, *, ax=None):
-    """Drive voltage (V) of each active actuator over the shot (ms), T_F dotted; saved at ``path``, or
-    drawn on ``ax`` (returned)."""
+    """Drive voltage (V) of each active actuator over the shot (ms), T_F dotted; saved at ``path`` or on ``ax``."""
     fig, ax = _own_or_given(ax, path, (9, 4))
     cap = shot.capture
     active = np.flatnonzero(np.max(np.abs(cap.voltages), axis=1) > 0)
@@ -511,7 +513,6 @@ def _beam_shapes_panel(ax, model):
         ax.plot(x, 0.4 * s - k, lw=0.8)
         ax.text(x[-1] + 1, -k, f"{model.frequencies[k] / 1e3:.2f} kHz", fontsize=7, va="center")
     ax.set(xlabel="x (mm)", yticks=[], title="identified mode shapes (normalized, Eq 3.13)")
-    return ax
 
 
 def plot_identification(survey, stem) -> list[str]:

@@ -1,5 +1,6 @@
 """Pictures: importing them leaves matplotlib's backend alone, and a one-panel picture composes."""
 
+import json
 import os
 import subprocess
 import sys
@@ -57,3 +58,34 @@ def test_without_axes_a_one_panel_picture_saves_its_own_figure(tmp_path):
     assert path == tmp_path / "v.png" and path.read_bytes()[:4] == b"\x89PNG"
     with pytest.raises(ValueError, match="path .* or ax"):
         report.plot_voltages(shot)
+
+
+def test_the_largest_velocity_at_each_instant_is_read_a_block_of_points_at_a_time():
+    """The space-time picture's envelopes, without a copy of the field: the same as the copy's."""
+    field = np.random.default_rng(1).standard_normal((1000, 37)).astype(np.float32)
+    rows = np.flatnonzero(np.arange(1000) % 3 != 0)
+    assert np.array_equal(report._largest(field, rows), np.abs(field[rows]).max(axis=0))
+    assert np.array_equal(report._largest(field, rows[:0]), np.zeros(37, np.float32))
+
+
+RUN = ["run", "--scene", "thesis-al-cc", "--points", "351", "--shape", "sinc", "--param", "width=18mm",
+       "--param", "center=24mm", "--focus-time", "25ms", "--modes", "9", "--quiet"]
+
+
+def test_a_run_draws_its_pictures_beside_its_fields_and_says_what_stopped_them(capsys, tmp_path, monkeypatch):
+    """Drawn in a child process while the fields are written; a picture that fails fails the run,
+    after the fields (the child's traceback in the error)."""
+    from modalctl.cli import main
+
+    assert main([*RUN, "--out", str(tmp_path / "drawn"), "--json"]) == 0
+    metrics = json.loads(capsys.readouterr().out)
+    assert metrics["stages_s"]["pictures_s"] > 0 and metrics["stages_s"]["pictures_wait_s"] >= 0
+    assert all((tmp_path / "drawn" / f"{name}.png").stat().st_size > 10_000 for name in metrics["pictures"])
+
+    def broken(shot, out):
+        raise ValueError("out of ink")
+
+    monkeypatch.setattr(report, "write_run_report", broken)
+    with pytest.raises(RuntimeError, match="out of ink"):
+        main([*RUN, "--out", str(tmp_path / "broken")])
+    assert (tmp_path / "broken" / "fields.npz").exists() and not list((tmp_path / "broken").glob("*.png"))

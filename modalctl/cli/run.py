@@ -193,15 +193,20 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
                          "grown": None if growth is None else growth.to_dict()}}
-    _write_fields(model, shot, out, device)
+    pictures = None if args.no_plots else _Pictures(shot, out)  # drawn beside the fields' writing
+    try:
+        _write_fields(model, shot, out, device)
+    except BaseException:
+        if pictures is not None:
+            pictures.stop()
+        raise
     written = time.perf_counter()
-    if not args.no_plots:
-        from modalctl.report import write_run_report
-
-        metrics["pictures"] = write_run_report(shot, out)
+    if pictures is not None:
+        metrics["pictures"], drawn = pictures.wait()  # what stopped the drawing raises here
         record(out, [Path(picture).name for picture in metrics["pictures"].values()])
     metrics["stages_s"] = {**(stages or {}), "write_fields_s": written - started,
-                           "pictures_s": time.perf_counter() - written}
+                           **({} if pictures is None else {"pictures_s": drawn,
+                                                           "pictures_wait_s": time.perf_counter() - written})}
     write_json(out / "metrics.json", metrics)
     fault = metrics.get("loop", {}).get("fault")
     if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
@@ -214,6 +219,70 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     _print_loop(metrics, shot, out)
     print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in metrics else ")"))
     return DEVICE if fault else 0
+
+
+class _Pictures:
+    """A run's pictures (:func:`modalctl.report.write_run_report`) drawn in a child process while
+    this one writes the fields: forked, the child shares the shot without copying it, imports
+    matplotlib itself and sends back the pictures' paths. Where there is no fork (not Linux) they
+    are drawn here, at once. :meth:`wait` returns ``({name: path}, seconds)``: the pictures and the
+    seconds they took from the fork, or raises what stopped the child."""
+
+    def __init__(self, shot, out: Path):
+        import gc
+        import os
+        import time
+
+        self.started, self.pid, self.answer = time.perf_counter(), None, None
+        if not (sys.platform.startswith("linux") and hasattr(os, "fork")):
+            self.answer = self._draw(shot, out)
+            return
+        self.read, write = os.pipe()
+        self.pid = os.fork()
+        if self.pid:
+            os.close(write)
+            return
+        try:  # the child: draw, answer, and end without running the parent's exit handlers
+            gc.disable()  # its collections walked the parent's objects too: a tenth of the drawing's time
+            os.close(self.read)
+            with os.fdopen(write, "w") as answer:
+                json.dump(self._draw(shot, out), answer)
+        finally:
+            os._exit(0)
+
+    def _draw(self, shot, out: Path) -> dict:
+        import time
+        import traceback
+
+        try:
+            from modalctl.report import write_run_report
+
+            return {"pictures": write_run_report(shot, out), "seconds": time.perf_counter() - self.started}
+        except BaseException:  # noqa: B036 (told to the parent, which raises it)
+            return {"error": traceback.format_exc()}
+
+    def stop(self) -> None:
+        """The child ended (the fields could not be written: no report)."""
+        import os
+        import signal
+
+        if self.pid is not None:
+            os.kill(self.pid, signal.SIGKILL)
+            os.waitpid(self.pid, 0)
+            os.close(self.read)
+            self.pid = None
+
+    def wait(self) -> tuple[dict, float]:
+        import os
+
+        if self.pid is not None:
+            with os.fdopen(self.read) as answer:
+                text = answer.read()
+            _, status = os.waitpid(self.pid, 0)
+            self.answer = json.loads(text) if text else {"error": f"it ended without an answer (status {status})"}
+        if "error" in self.answer:
+            raise RuntimeError(f"drawing the run's pictures failed: {self.answer['error']}")
+        return self.answer["pictures"], self.answer["seconds"]
 
 
 def _write_fields(model, shot, out: Path, device) -> None:
