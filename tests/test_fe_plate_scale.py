@@ -2,7 +2,8 @@
 plain computations give (issue 36: ``model fe --band 20kHz`` on 49k dofs took 4 min and 16 GB).
 
 - the grid's rim test measures only the points near the rim, and finds the same points;
-- the fields are sampled a block of points at a time, and equal one call of scikit-fem's probes;
+- the fields are sampled a block of points at a time, each point's element found among its
+  nearest ones, and equal one call of scikit-fem's probes;
 - the band's modes are counted by Sylvester's law of inertia before the Lanczos run: the count
   equals a dense eigensolution's, and the modes found equal the lowest ones found without it.
 """
@@ -48,9 +49,11 @@ def test_fields_sampled_in_blocks_equal_one_call_of_the_probes(monkeypatch):
     points = grid.points[grid.mass > 0]
     freqs, vectors, _, basis = plate.solve(mesh, 8)
     whole = (basis.probes(np.ascontiguousarray(points.T)) @ vectors).T
-    monkeypatch.setattr(fe_plate, "PROBE_PAIRS", 1)  # the smallest blocks: 64 points
+    one = plate._sample(basis, vectors, points)
+    monkeypatch.setattr(fe_plate, "PROBE_BLOCK", 64)  # small blocks: the elements found per block
     blocks = plate._sample(basis, vectors, points)
     assert blocks.shape == (8, len(points)) and len(points) > 10 * 64
+    np.testing.assert_allclose(one, blocks, rtol=0, atol=1e-9 * np.abs(whole).max())
     # a point on an edge may be found in either element: the nonconforming field differs there by 1e-11
     np.testing.assert_allclose(blocks, whole, rtol=0, atol=1e-9 * np.abs(whole).max())
 
@@ -78,6 +81,13 @@ def test_every_mode_below_a_frequency_is_the_lowest_modes_up_to_it(support):
     n = len(below[0])
     assert 10 < n < 60 and every[0][n - 1] < 25e3 <= every[0][n]
     np.testing.assert_allclose(below[0], every[0][:n], rtol=1e-9)
+    # the shapes too (the band is solved about its middle, the lowest modes from below them):
+    # each of the band's modes in the span of the lowest modes of its frequency, mass-weighted
+    _, mass, _, _ = plate.assemble(mesh)
+    for i in range(n):
+        near = np.flatnonzero(np.abs(every[0] / below[0][i] - 1) < 1e-6)
+        overlap = every[1][:, near].T @ (mass @ below[1][:, i])
+        assert abs(np.sum(overlap**2) - 1) < 1e-8, i
     mac = (below[1].T @ every[1][:, :n]) ** 2 / np.outer(np.sum(below[1] ** 2, 0), np.sum(every[1][:, :n] ** 2, 0))
     assert np.all(np.max(mac, axis=1) > 0.999)  # mode by mode (no repeated frequency on this panel)
     assert below[2].shape[1] == (3 if support == "free" else 0)

@@ -32,6 +32,8 @@ import numpy as np
 import scipy.sparse.linalg
 import scipy.spatial
 
+from modalctl.threads import serial_blas
+
 from .modes import Grid, ModalModel, ModelError
 from .plate_geometry import (MATERIALS, SUPPORTS, Hole, Material, Outline, Support, distance_to_edges, in_segments,
                              near_segments, rectangle_ring)
@@ -52,7 +54,10 @@ SAMPLES_PER_CELL = 6  # grid weights: each lattice cell sampled this many times 
 KIRCHHOFF_WAVELENGTHS = 10  # a bending wavelength shorter than this many thicknesses: shear matters (a few %)
 RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimate is a rigid-body mode
 BAND_MARGIN = 1.03  # a band's meshes solve every mode below this much above it: the shape test's 2% window
-PROBE_PAIRS = 2**23  # sampling: at most this many (point, element) pairs tested at once (a 64 MB array)
+BAND_SHIFT = 0.45  # a band's Lanczos shift, times its top eigenvalue: the band [0, top] lies within 0.55 top of it
+NCV_FACTOR = 1.5  # Lanczos vectors per mode sought
+PROBE_BLOCK = 16384  # sampling: this many points at a time (the 15-parameter basis: 40 MB per array)
+PROBE_NEIGHBOURS = 8  # a point's element sought among this many nearest element centroids
 
 #: Plate triangles of scikit-fem: class name, degrees of freedom per vertex and per edge. The
 #: 15-parameter triangle is the default; Morley's (the classic nonconforming one, 6 dofs) is the
@@ -297,12 +302,17 @@ class FEPlate:
         frequencies (Hz), mass-normalized FE vectors (N, k), rigid-body vectors (N, r) and the
         basis.
 
-        Shift-invert Lanczos (ARPACK) below the lowest mode, on superLU's factors of
-        ``K - shift M`` in a symmetric minimum-degree ordering without pivoting (the matrix is
-        positive definite): a third of the fill and half the solve time of the default column
-        ordering. Every mode below ``below`` is counted before the Lanczos run by Sylvester's law
-        of inertia (the negative pivots of ``K - w^2 M`` factored the same way), so it asks for
-        as many as there are; it asks again for more while the highest it found lies below."""
+        Shift-invert Lanczos (ARPACK) on superLU's factors of ``K - shift M`` in a symmetric
+        minimum-degree ordering without pivoting: a third of the fill and half the solve time of
+        the default column ordering. Every mode below ``below`` is counted first by Sylvester's law
+        of inertia (the negative pivots of ``K - w^2 M`` factored the same way), so Lanczos asks
+        for as many as there are, about the middle of the band (``BAND_SHIFT``): the band is then
+        the modes nearest the shift, and its edge modes lie far apart once inverted, so a Krylov
+        space of 1.5 times the count holds them (``NCV_FACTOR``; 2 is scipy's default), 20% less
+        work than below the lowest mode. ARPACK's products are many matrix-vector ones, which
+        BLAS threads only slow down (:mod:`modalctl.threads`: 2.7 times as long on 2 loaded cores).
+        When the count is unknown (superLU pivoted) it solves from below the lowest mode, asking
+        again for more while the highest it found lies below ``below``."""
         if (n_modes is None) == (below is None):
             raise ModelError("fe plate: solve either n_modes or every mode below a frequency")
         stiffness, mass, held, basis = self.assemble(mesh)
@@ -310,20 +320,24 @@ class FEPlate:
         k, m = stiffness[free][:, free].tocsc(), mass[free][:, free].tocsc()
         rigid = 0 if len(held) else 3  # a plate held nowhere moves as a rigid body: 3 ways
         shift = -(2 * np.pi * self.frequency_of_mode(1)) ** 2 * 0.1  # below zero: K may be singular
-        factors, _ = _factor(k - shift * m)
-        inverse = scipy.sparse.linalg.LinearOperator(k.shape, matvec=factors.solve, dtype=float)
+        under = None
         if below is None:
             count = n_modes + rigid + 4
         else:
             top = (2 * np.pi * below) ** 2
             _, under = _factor(k - top * m)  # the modes below `below`, rigid ones included
             count = (under if under is not None else int(np.ceil(1.3 * self.modes_below(below))) + rigid) + 4
+            shift = BAND_SHIFT * top if under is not None else shift
+        factors, _ = _factor(k - shift * m)
+        inverse = scipy.sparse.linalg.LinearOperator(k.shape, matvec=factors.solve, dtype=float)
         while True:
             if count > 2 * MODES_MAX:
                 raise ModelError(f"fe plate: over {2 * MODES_MAX} modes below {below:g} Hz; a model holds {MODES_MAX}")
             count = min(count, free.size - 2)
-            w2, x = scipy.sparse.linalg.eigsh(k, k=count, M=m, sigma=shift, which="LM", OPinv=inverse)
-            if below is None or w2.max() >= top or count == free.size - 2:
+            ncv = min(free.size - 1, max(int(NCV_FACTOR * count), count + 20))
+            with serial_blas():
+                w2, x = scipy.sparse.linalg.eigsh(k, k=count, M=m, sigma=shift, which="LM", OPinv=inverse, ncv=ncv)
+            if below is None or under is not None or w2.max() >= top or count == free.size - 2:
                 break
             count = int(count * 1.5) + 4  # the count fell short (superLU pivoted: Weyl's estimate)
         order = np.argsort(w2)
@@ -342,11 +356,7 @@ class FEPlate:
         (the plate sampled ``SAMPLES_PER_CELL``^2 times per cell, each sample to its nearest
         point on the plate); points off the plate weigh nothing. With a ``mesh``, "on the
         plate" is inside its boundary (a rounded corner as the mesh draws it)."""
-        lo, hi = self.outline.vertices.min(axis=0), self.outline.vertices.max(axis=0)
-        nx, ny = (np.ceil((hi - lo) / spacing - 1e-9).astype(int) + 1).tolist()  # 70 mm / 1 mm: 71, not 72
-        if nx * ny > GRID_POINTS_MAX:
-            raise ModelError(f"fe plate: a {spacing * 1e3:g} mm grid over {(hi - lo)[0] * 1e3:g} x {(hi - lo)[1] * 1e3:g} "
-                             f"mm has {nx * ny:,} points; at most {GRID_POINTS_MAX:,} (a coarser spacing)")
+        lo, hi, nx, ny = self._lattice(spacing)
         if self.outline.is_rectangle(self.outline.vertices) and not self.outline.corner_radius and not self.outline.holes:
             return Grid.rectangle((lo[0], hi[0]), (lo[1], hi[1]), nx, ny, self.mass_per_area)
         if mesh is None:
@@ -374,18 +384,22 @@ class FEPlate:
         mass[np.flatnonzero(on)] = np.bincount(nearest, minlength=int(on.sum())) * dx * dy / s**2
         return Grid(points, self.mass_per_area * mass, (nx, ny))
 
-    def _sample(self, basis, vectors: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """FE fields (N, k) at points (n, 2) on the plate, shape (k, n).
+    def _lattice(self, spacing: float) -> tuple[np.ndarray, np.ndarray, int, int]:
+        """The focus grid's corners and points per side; ModelError above ``GRID_POINTS_MAX`` points."""
+        lo, hi = self.outline.vertices.min(axis=0), self.outline.vertices.max(axis=0)
+        nx, ny = (np.ceil((hi - lo) / spacing - 1e-9).astype(int) + 1).tolist()  # 70 mm / 1 mm: 71, not 72
+        if nx * ny > GRID_POINTS_MAX:
+            raise ModelError(f"fe plate: a {spacing * 1e3:g} mm grid over {(hi - lo)[0] * 1e3:g} x {(hi - lo)[1] * 1e3:g} "
+                             f"mm has {nx * ny:,} points; at most {GRID_POINTS_MAX:,} (a coarser spacing)")
+        return lo, hi, nx, ny
 
-        scikit-fem's ``probes`` (a sparse matrix, one row per point) a block of points at a
-        time: its element finder tests every point against every candidate element of the call
-        (and against every element when one point is missed), a dense (points x elements)
-        array: 10 GB for a 1 mm grid on a tablet panel's mesh in one call."""
-        block = int(np.clip(PROBE_PAIRS // basis.mesh.nelements, 64, 2048))
+    def _sample(self, basis, vectors: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """FE fields (N, k) at points (n, 2) on the plate, shape (k, n), through a sparse matrix of
+        a row per point, as scikit-fem's ``probes`` makes, found and evaluated ``PROBE_BLOCK``
+        points at a time (:func:`_probes`)."""
         out = np.empty((vectors.shape[1], len(points)))
-        for i in range(0, len(points), block):
-            probes = basis.probes(np.ascontiguousarray(points[i:i + block].T))
-            out[:, i:i + block] = (probes.tocsr() @ vectors).T
+        for i in range(0, len(points), PROBE_BLOCK):
+            out[:, i:i + PROBE_BLOCK] = (_probes(basis, points[i:i + PROBE_BLOCK]) @ vectors).T
         return out
 
     def patch_loads(self, basis) -> np.ndarray:
@@ -422,7 +436,7 @@ class FEPlate:
         wanted = self._modes_to_solve(n_modes, band, tolerance)
         top = band if band is not None else self.frequency_of_mode(wanted) * 1.2
         size = min(self.wavelength(top) / ELEMENTS_PER_WAVELENGTH, self.outline.diameter / 8)
-        self.grid(spacing)  # its size checked before any mesh is made
+        self._lattice(spacing)  # the grid's size checked before any mesh is made
         if self.dofs_estimate(size) > DOFS_MAX:
             raise ModelError(f"fe plate: {wanted} modes of this plate need elements of {size * 1e3:.2g} mm, about "
                              f"{self.dofs_estimate(size):,.0f} degrees of freedom on the first mesh; at most {DOFS_MAX}")
@@ -523,6 +537,32 @@ def _factor(matrix) -> tuple[object, int | None]:
     if not np.array_equal(factors.perm_r, factors.perm_c):
         return factors, None
     return factors, int(np.count_nonzero(factors.U.diagonal() < 0))
+
+
+def _probes(basis, points: np.ndarray):
+    """scikit-fem's ``basis.probes(points.T)`` (CSR, a row per point): the element under each point
+    is the first of its ``PROBE_NEIGHBOURS`` nearest centroids (a k-d tree) to hold it, tested on
+    those alone (skfem's finder tests every point of a call against every candidate of the call,
+    a (points x candidates) array), any point none holds found by skfem's finder; the element's
+    basis evaluated there."""
+    mesh, mapping, n = basis.mesh, basis.mapping, len(points)
+    near = min(PROBE_NEIGHBOURS, mesh.nelements)
+    _, candidates = scipy.spatial.cKDTree(mesh.p[:, mesh.t].mean(axis=1).T).query(points, near)
+    candidates = candidates.reshape(n, near)
+    local = mapping.invF(np.repeat(points.T, near, axis=1)[:, :, None], tind=candidates.ravel())
+    x, y = local[0, :, 0].reshape(n, near), local[1, :, 0].reshape(n, near)
+    eps = np.finfo(float).eps
+    inside = (x >= -eps) & (y >= -eps) & (1 - x - y >= -2 * eps)  # skfem's test
+    cells = candidates[np.arange(n), inside.argmax(axis=1)]
+    missed = ~inside.any(axis=1)
+    if missed.any():
+        cells[missed] = mesh.element_finder(mapping=mapping)(*points[missed].T)
+    local = mapping.invF(points.T[:, :, None], tind=cells)
+    values = np.array([np.asarray(basis.elem.gbasis(mapping, local, i, tind=cells)[0]).ravel()
+                       for i in range(basis.Nbfun)])
+    rows = np.tile(np.arange(n), basis.Nbfun)
+    return scipy.sparse.coo_matrix((values.ravel(), (rows, basis.element_dofs[:, cells].ravel())),
+                                   shape=(n, basis.N)).tocsr()
 
 
 def _convergence(coarse, fine, keep: int, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
