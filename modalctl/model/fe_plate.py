@@ -29,6 +29,7 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse.linalg
 import scipy.spatial
 
@@ -568,18 +569,22 @@ def _probes(basis, points: np.ndarray):
 def _convergence(coarse, fine, keep: int, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per kept mode of the finer mesh: Richardson's estimate of its frequency error (the
     element converges as h^2: ``(f_h - f_2h) / 3``), and how much of its shape lies in the span
-    of the coarser mesh's modes within 2% of its frequency (mass-weighted on the grid)."""
+    of the coarser mesh's modes within 2% of its frequency (mass-weighted on the grid): the
+    projection ``c^T G^-1 c / (v^T v)`` through the coarse shapes' Gram matrix ``G`` and their
+    products ``c`` with the fine ones, both from two products over the grid (not a QR of the
+    near shapes on the whole grid per mode: 9 s on the tablet panel's 254 modes)."""
     fc, sc = coarse[0], coarse[1]
     ff, sf = fine[0][:keep], fine[1][:keep]
     error = np.full(keep, np.inf)
     mac = np.zeros(keep)
+    weight = np.sqrt(mass)
+    a, b = sc * weight, sf * weight
+    gram, cross, norms = a @ a.T, a @ b.T, np.einsum("ij,ij->i", b, b)
     for k in range(keep):
         if k < len(fc):
             error[k] = abs(ff[k] - fc[k]) / 3 / ff[k]
         near = np.flatnonzero(np.abs(fc / ff[k] - 1) < 0.02)
         if near.size:
-            basis = sc[near] * np.sqrt(mass)
-            q, _ = np.linalg.qr(basis.T)
-            v = sf[k] * np.sqrt(mass)
-            mac[k] = float(np.sum((q.T @ v) ** 2) / (v @ v))
+            c = cross[near, k]
+            mac[k] = float(c @ scipy.linalg.solve(gram[np.ix_(near, near)], c, assume_a="pos") / norms[k])
     return error, mac
