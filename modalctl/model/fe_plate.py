@@ -328,7 +328,8 @@ class FEPlate:
             top = (2 * np.pi * below) ** 2
             _, under = _factor(k - top * m)  # the modes below `below`, rigid ones included
             count = (under if under is not None else int(np.ceil(1.3 * self.modes_below(below))) + rigid) + 4
-            shift = BAND_SHIFT * top if under is not None else shift
+            if under is not None and NCV_FACTOR * count < free.size:  # (else nearly every mode: from below)
+                shift = BAND_SHIFT * top
         factors, _ = _factor(k - shift * m)
         inverse = scipy.sparse.linalg.LinearOperator(k.shape, matvec=factors.solve, dtype=float)
         while True:
