@@ -331,7 +331,9 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
     An automatic mode set (``options.modes == "auto"``) keeps every mode below its highest (in
     frequency) with ``options.fill_gaps``. When the margin fails on it, the next strongest modes are
     added, up to ``options.added_modes``: the margin is part of what a scene needs, and more modes give the
-    planner more freedom to cancel the off-target field (the thesis's second remedy, chapter 5).
+    planner more freedom to cancel the off-target field (the thesis's second remedy, chapter 5). The
+    growing attempts take at most ``ConvexOptions.attempts_seconds`` together; the last one is
+    certified (its refusal says why, within ``ConvexOptions.certify_seconds``).
     """
     auto = options.modes == "auto"
     modes = list(options.modes) if isinstance(options.modes, tuple) else options.modes
@@ -340,11 +342,14 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
         below = model.frequencies <= model.frequencies[dec.modes_used].max()
         dec = _keeping(dec, np.flatnonzero(below), "the gaps filled for the loops")
     grow = auto and options.margin is not None
+    budget = options.convex.attempts_seconds
+    deadline = None if budget is None else _time.perf_counter() + budget
     for added in range(options.added_modes + 1):
         left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
-        last = not grow or left.size == 0 or added == options.added_modes
-        try:  # an attempt followed by another needs no certificate of its refusal
-            attempt = options if last else options.but(convex=options.convex.but(certify=False))
+        remaining = None if deadline is None else max(0.0, deadline - _time.perf_counter())
+        last = not grow or left.size == 0 or added == options.added_modes or remaining == 0.0
+        try:  # an attempt followed by another needs no certificate of its refusal, and has the attempts' time
+            attempt = options if last else options.but(convex=options.convex.but(certify=False, seconds=remaining))
             return dec, plan(dec, focus_time, attempt, progress)
         except PlanError as exc:
             if last or exc.limit != options.margin:
