@@ -31,12 +31,12 @@ __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_mo
            "plot_identification", "plot_fe_plate"]
 
 
-def _save(fig: Figure, path) -> Path:
-    """``fig`` as a PNG at ``path`` (120 dpi, cropped to what is drawn), written atomically."""
+def _save(fig: Figure, path, dpi: int = 120, tight: bool = True) -> Path:
+    """``fig`` as a PNG at ``path`` (120 dpi, cropped to what is drawn unless not ``tight``), written atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic(path) as temporary:  # a link planted under that name is replaced, not followed
-        fig.savefig(temporary, dpi=120, bbox_inches="tight")
+        fig.savefig(temporary, dpi=dpi, bbox_inches="tight" if tight else None)
     return path
 
 
@@ -567,33 +567,34 @@ def _plate_shapes(model, title: str = "identified mode shapes on the measured po
 
 
 def plot_fe_plate(model, convergence, stem) -> list[str]:
-    """A finite-element plate's pictures beside its model file: ``<stem>_shapes.png`` (every mode on
-    the focus grid, the patches and sensors drawn) and ``<stem>_convergence.png`` (each mode's
-    frequency on each mesh against the finest, and the estimated error of the finest)."""
-    stem = Path(stem)
-    fig = _plate_shapes(model, f"mode shapes: {model.meta.get('model', 'finite elements')}")
-    for ax in fig.axes[:model.n_modes]:
-        for patch in model.meta.get("actuators", []):
-            (x0, x1), (y0, y1) = np.array(patch["xlim_m"]) * 1e3, np.array(patch["ylim_m"]) * 1e3
-            ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], "k-", lw=0.5)
-        for sensor in model.meta.get("sensors", []):
-            ax.plot(*(np.array(sensor["position_m"]) * 1e3), "k+", ms=4)
-    paths = [_save(fig, f"{stem}_shapes.png")]
-    fig, axes = _subplots(1, 2, figsize=(11, 4))
-    finest = convergence.levels[-1].frequencies[:model.n_modes]
-    for level in convergence.levels[:-1]:
-        f = level.frequencies[:model.n_modes]
-        axes[0].semilogy(np.arange(1, f.size + 1), np.maximum(np.abs(f / finest[:f.size] - 1), 1e-7) * 100, "o-",
-                         ms=3, label=f"{level.size * 1e3:.2g} mm, {level.dofs} dofs, {level.seconds:.1f} s")
-    last = convergence.levels[-1]
-    axes[0].set(xlabel="mode", ylabel="|f / f(finest) - 1| (%)",
-                title=f"each mesh against the finest ({last.size * 1e3:.2g} mm, {last.dofs} dofs, "
-                      f"{last.seconds:.1f} s)")
-    axes[0].legend(fontsize=7)
-    axes[1].semilogy(np.arange(1, model.n_modes + 1), np.maximum(convergence.frequency_error, 1e-7) * 100, "o-", ms=3)
-    axes[1].axhline(convergence.tolerance * 100, color="r", ls="--", label=f"tolerance {convergence.tolerance:.2%}")
-    axes[1].set(xlabel="mode", ylabel="estimated error of the finest mesh (%)",
-                title="Richardson's estimate (f_h - f_2h) / 3")
-    axes[1].legend(fontsize=7)
-    paths.append(_save(fig, f"{stem}_convergence.png"))
-    return [str(p) for p in paths]
+    """A finite-element plate's pictures beside its model file: ``<stem>_shapes.png``, each mode's shape on a tile drawn
+    pixel for pixel (patches outlined, sensors dotted), and ``<stem>_convergence.png``, each mesh's frequency errors."""
+    from matplotlib import colormaps
+    (nx, ny), k, cols, (x, y) = model.grid.shape, model.n_modes, min(12, model.n_modes), model.grid.points.T
+    ix = np.linspace(0, nx - 1, min(nx, 120)).round().astype(int)  # the grid sampled to 120 pixels across
+    iy = np.linspace(0, ny - 1, max(2, round((ix.size - 1) * np.ptp(y) / np.ptp(x)) + 1)).round().astype(int)
+    s = np.where(model.grid.mass > 0, model.shapes / np.abs(model.shapes).max(1, keepdims=True), np.nan)
+    rgba, x, y = colormaps["RdBu_r"](s.reshape(k, ny, nx)[:, iy][:, :, ix] / 2 + 0.5, bytes=True), x[ix], y[iy * nx]
+    at = lambda axis, metres: np.searchsorted(axis, metres).clip(1, axis.size - 1)  # noqa: E731 (pixels, y up)
+    for (j0, j1), (i0, i1) in ((at(x, p["xlim_m"]), at(y, p["ylim_m"])) for p in model.meta.get("actuators", [])):
+        rgba[:, i0:i1, [j0, j1 - 1]] = rgba[:, [i0, i1 - 1], j0:j1] = (0, 0, 0, 255)
+    for j, i in ((at(x, q["position_m"][0]), at(y, q["position_m"][1])) for q in model.meta.get("sensors", [])):
+        rgba[:, i - 1:i + 2, j - 1:j + 2] = (0, 0, 0, 255)
+    rows, w, h = -(-k // cols), ix.size + max(4, ix.size // 12), iy.size + 16  # pixels of a tile, its gutter, its label
+    fig = Figure(figsize=((cols * w + 0.5) / 100, (rows * h + 30.5) / 100), dpi=100)  # + 0.5: whole pixels
+    for i, (x0, y0) in enumerate(zip(np.arange(k) % cols * w, (rows - 1 - np.arange(k) // cols) * h)):
+        fig.figimage(rgba[i], x0, y0, origin="lower")
+        fig.text(x0, y0 + iy.size + 2, f"{i + 1}: {model.frequencies[i] / 1e3:.3f} kHz", size=7, transform=None)
+    fig.suptitle(f"mode shapes: {model.meta.get('model', 'finite elements')}", y=1 - 4 / (rows * h + 30), va="top")
+    shapes = _save(fig, f"{stem}_shapes.png", dpi=100, tight=False)  # the tiles' pixels as they are
+    fig, (left, right) = _subplots(1, 2, figsize=(11, 4), subplot_kw={"xlabel": "mode", "yscale": "log"})
+    last, mesh = convergence.levels[-1], lambda lv: f"{lv.size * 1e3:.2g} mm, {lv.dofs} dofs, {lv.seconds:.1f} s"
+    for lv, f in ((lv, lv.frequencies[:model.n_modes]) for lv in convergence.levels[:-1]):  # each mode on each mesh
+        left.plot(range(1, f.size + 1), np.abs(f / last.frequencies[:f.size] - 1).clip(1e-7) * 100, "o-", ms=3,
+                  label=mesh(lv))
+    left.set(ylabel="|f / f(finest) - 1| (%)", title=f"each mesh against the finest ({mesh(last)})")
+    right.plot(range(1, model.n_modes + 1), np.maximum(convergence.frequency_error, 1e-7) * 100, "o-", ms=3)
+    right.axhline(convergence.tolerance * 100, color="r", ls="--", label=f"tolerance {convergence.tolerance:.2%}")
+    right.set(ylabel="estimated error of the finest mesh (%)", title="Richardson's estimate (f_h - f_2h) / 3")
+    left.legend(fontsize=7), right.legend(fontsize=7)
+    return [str(shapes), str(_save(fig, f"{stem}_convergence.png"))]

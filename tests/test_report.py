@@ -89,3 +89,32 @@ def test_a_run_draws_its_pictures_beside_its_fields_and_says_what_stopped_them(c
     with pytest.raises(RuntimeError, match="out of ink"):
         main([*RUN, "--out", str(tmp_path / "broken")])
     assert (tmp_path / "broken" / "fields.npz").exists() and not list((tmp_path / "broken").glob("*.png"))
+
+
+def test_an_fe_plate_draws_each_mode_on_a_tile_of_its_own_pixels_with_its_patches_and_sensors(tmp_path):
+    """Issue 36: the FE plate's shapes as tiles of one image (not an Axes per mode: 254 modes took 12 s), the
+    grid's pixels as they are, the shape's sign right side up, patches outlined and sensors dotted in black."""
+    from PIL import Image
+
+    from modalctl.model.fe_plate import Convergence, Level
+    from modalctl.model.modes import Grid, ModalModel
+
+    grid = Grid.rectangle((-0.1, 0.1), (-0.05, 0.05), 81, 41, 1.0)
+    x, y = grid.points.T
+    shapes = np.array([np.cos(np.pi * x / 0.2) * np.cos(np.pi * y / 0.1), np.sin(np.pi * y / 0.1) + 0 * x])
+    shapes /= np.sqrt(shapes ** 2 @ grid.mass)[:, None]
+    meta = {"actuators": [{"xlim_m": [-0.0812, -0.0612], "ylim_m": [0.0188, 0.0388]}],  # pixels 8-15 across, 28-35 up
+            "sensors": [{"position_m": [0.0488, -0.0012]}]}  # pixel 60 across, 20 up
+    model = ModalModel(grid, [300.0, 700.0], [0.01, 0.01], shapes, meta=meta)
+    levels = [Level(0.004, 900, np.array([301.0, 703.0]), 1.0), Level(0.002, 3500, np.array([300.0, 700.0]), 3.0)]
+    convergence = Convergence(levels, np.array([1e-4, 2e-4]), np.ones(2), 5e-3, True)
+    paths = report.plot_fe_plate(model, convergence, tmp_path / "plate")
+    assert paths == [str(tmp_path / "plate_shapes.png"), str(tmp_path / "plate_convergence.png")]
+    image = np.asarray(Image.open(paths[0]).convert("RGB")).astype(int)
+    assert image.shape == (30 + 41 + 16, 2 * (81 + 6), 3)  # title, then a row of two tiles of 81 x 41 pixels
+    tile = lambda k, i, j: image[30 + 16 + 40 - i, k * 87 + j]  # noqa: E731 (tile k's pixel i up, j across)
+    red, blue = lambda rgb: rgb[0] > rgb[2] + 50, lambda rgb: rgb[2] > rgb[0] + 50  # noqa: E731
+    assert red(tile(0, 20, 40)) and not red(tile(0, 20, 0)) and red(tile(1, 30, 20)) and blue(tile(1, 10, 20))
+    assert (tile(0, 31, 8) == 0).all() and (tile(1, 35, 12) == 0).all() and not (tile(1, 31, 12) == 0).all()  # outlined
+    assert (tile(0, 20, 60) == 0).all() and (tile(1, 21, 61) == 0).all() and not (tile(0, 20, 63) == 0).all()  # dotted
+    assert Image.open(paths[1]).size[0] > 1000
