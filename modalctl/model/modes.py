@@ -281,13 +281,14 @@ class ModalModel:
 
     # ----------------------------------------------------------------- files
     def save(self, path) -> Path:
-        """Write the model to one ``.npz`` file: arrays plus a JSON metadata entry (no pickle)."""
+        """Write the model to one ``.npz`` file: arrays plus a JSON metadata entry (no pickle), stored, not
+        deflated: float64 shapes deflate by some 6 % only, for 1.5 s of the tablet panel's 254 modes (0.2 s stored)."""
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
         header = {"format": "modalctl.ModalModel", "version": FORMAT_VERSION, "meta": self.meta,
                   "grid_shape": list(self.grid.shape) if self.grid.shape else None}
-        np.savez_compressed(
+        np.savez(
             path, meta_json=np.array(json.dumps(header)), points=self.grid.points, mass=self.grid.mass,
             frequencies=self.frequencies, damping=self.damping, shapes=self.shapes,
             actuator_gains=self.actuator_gains, sensor_gains=self.sensor_gains, labels=self.labels,
