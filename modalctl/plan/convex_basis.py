@@ -26,7 +26,6 @@ CHUNK = 4096  # samples of the field's bound at once (its memory: the boxes' few
 SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |phi_k(x_i)| |eta'_k|
 STRIDE = 32  # lags between the states a response table keeps, at least
 TABLE_BYTES = 2**27  # a response table's states, at most (the stride doubles until they fit)
-SERIAL = 65536 * 4  # multiply-adds a product of the cover's stays under: OpenBLAS's threading threshold
 
 
 @dataclass(frozen=True, eq=False)
@@ -446,16 +445,10 @@ class Cover:
 
 
 def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b``, by blocks of ``b``'s columns of at most :data:`SERIAL` multiply-adds each. The
-    cover's products are many and small: OpenBLAS's threads, which it starts above that size, spin
-    on them (a 24 x 22 by 22 x 4096 product 40 times slower on a loaded 2-core machine)."""
-    step = max(1, SERIAL // max(1, a.shape[0] * a.shape[1]))
-    if b.shape[1] <= step:
-        return a @ b
-    out = np.empty((a.shape[0], b.shape[1]), np.result_type(a, b))
-    for first in range(0, b.shape[1], step):
-        np.matmul(a, b[:, first:first + step], out=out[:, first:first + step])
-    return out
+    """``a @ b``: the cover's products are many and small, run with BLAS on one thread (the planner
+    runs in :func:`modalctl.threads.serial_blas`; OpenBLAS's threads spun on them, a 24 x 22 by
+    22 x 4096 product 40 times slower on a loaded 2-core machine)."""
+    return a @ b
 
 
 def _neighbours(points: np.ndarray) -> np.ndarray:

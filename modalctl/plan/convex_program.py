@@ -16,7 +16,7 @@ from modalctl.model.modes import ModalModel
 from modalctl.model.propagate import Plant
 from modalctl.options import PlanOptions
 
-from .convex_basis import SERIAL, Basis, Cover, Responses, _product
+from .convex_basis import Basis, Cover, Responses, _product
 from .dispatch import dispatch
 from .qp import QP, solve_qp
 
@@ -428,17 +428,13 @@ class Program:
 
 
 def _simulate(model: ModalModel, sample_rate: float, volts: np.ndarray) -> np.ndarray:
-    """:meth:`Plant.simulate <modalctl.model.propagate.Plant.simulate>` of ``volts`` (a, N), by
-    blocks of samples whose forces (modes x actuators x samples) stay under :data:`SERIAL`
-    multiply-adds, or 2048 samples, whichever is more (each block costs a filter call per mode):
-    OpenBLAS's threads, above it, spin on a loaded machine (50 ms against 4 ms for the panel's shot
-    on 2 busy cores)."""
+    """:meth:`Plant.simulate <modalctl.model.propagate.Plant.simulate>` of ``volts`` (a, N) from
+    rest, in one step: a filter call per mode over the whole shot. (It went by blocks of 2048
+    samples, 15 filter calls per mode on the panel, to keep OpenBLAS's threads from spinning on
+    the forces' product; the planner now runs with BLAS on one thread, :mod:`modalctl.threads`.)"""
     plant = Plant(model, sample_rate)
     plant.reset()
-    step = max(2048, SERIAL // max(1, model.actuator_gains.size))  # each block is a filter call per mode
-    if volts.shape[1] <= step:
-        return plant.step(volts)
-    return np.hstack([plant.step(volts[:, first:first + step]) for first in range(0, volts.shape[1], step)])
+    return plant.step(volts)
 
 
 def _drifts(band: float) -> list:
