@@ -96,7 +96,7 @@ def test_an_fe_plate_draws_each_mode_on_a_tile_of_its_own_pixels_with_its_patche
     grid's pixels as they are, the shape's sign right side up, patches outlined and sensors dotted in black."""
     from PIL import Image
 
-    from modalctl.model.fe_plate import Convergence, Level
+    from modalctl.model.fe_convergence import Convergence, Level
     from modalctl.model.modes import Grid, ModalModel
 
     grid = Grid.rectangle((-0.1, 0.1), (-0.05, 0.05), 81, 41, 1.0)

@@ -24,17 +24,19 @@ density ``m`` (per volt) along the patch's rim, whose generalized force on a mod
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse.linalg
 import scipy.spatial
 
+from modalctl.forked import beside
 from modalctl.threads import serial_blas
 
+from .fe_convergence import Convergence, Level, compare_levels
 from .modes import Grid, ModalModel, ModelError
 from .plate_geometry import (MATERIALS, SUPPORTS, Hole, Material, Outline, Support, distance_to_edges, in_segments,
                              near_segments, rectangle_ring)
@@ -64,35 +66,6 @@ PROBE_NEIGHBOURS = 8  # a point's element sought among this many nearest element
 #: 15-parameter triangle is the default; Morley's (the classic nonconforming one, 6 dofs) is the
 #: peer it is measured against (benchmarks/fe_plate.py).
 ELEMENTS = {"15-parameter": ("ElementTri15ParamPlate", 3, 2), "morley": ("ElementTriMorley", 1, 1)}
-
-
-@dataclass(frozen=True)
-class Level:
-    """One mesh of the refinement: its size (m, largest element edge), degrees of freedom,
-    frequencies (Hz) and the seconds it took (meshing, assembly and eigensolution)."""
-
-    size: float
-    dofs: int
-    frequencies: np.ndarray
-    seconds: float
-
-
-@dataclass(frozen=True)
-class Convergence:
-    """How the mesh converged: every level, then per kept mode the finer mesh's estimated
-    frequency error (relative) and shape subspace MAC against the coarser mesh."""
-
-    levels: list[Level]
-    frequency_error: np.ndarray
-    shape_mac: np.ndarray
-    tolerance: float
-    converged: bool
-
-    def to_dict(self) -> dict:
-        return {"levels": [{"size_m": float(lv.size), "dofs": int(lv.dofs), "seconds": float(lv.seconds),
-                            "frequencies_hz": lv.frequencies.tolist()} for lv in self.levels],
-                "frequency_error": self.frequency_error.tolist(), "shape_mac": self.shape_mac.tolist(),
-                "tolerance": self.tolerance, "converged": self.converged}
 
 
 @dataclass(frozen=True)
@@ -442,38 +415,30 @@ class FEPlate:
         if self.dofs_estimate(size) > DOFS_MAX:
             raise ModelError(f"fe plate: {wanted} modes of this plate need elements of {size * 1e3:.2g} mm, about "
                              f"{self.dofs_estimate(size):,.0f} degrees of freedom on the first mesh; at most {DOFS_MAX}")
-        levels, history, mesh = [], [], None
+        mesh = self.mesh(size)  # refining splits triangles: the rim stays the first mesh's
+        grid = self.grid(spacing, mesh)
+        level = functools.partial(self._level, wanted=wanted, band=band, grid=grid, tolerance=tolerance)
+        on = grid.mass > 0
+
+        def coarse():  # what the comparison needs of it: its level, frequencies and shapes on the grid
+            done, solved = level(mesh, size)
+            return done, solved[:2] + (None, None, None)
+
+        first = beside(coarse)  # the coarse mesh in a child while the fine one is solved here
+        levels, history = [], []
         while True:
-            start = time.perf_counter()
-            if mesh is None:  # refining splits triangles: the rim stays the first mesh's
-                mesh = self.mesh(size)
-                grid = self.grid(spacing, mesh)
-                on = grid.mass > 0
-            else:
-                mesh = mesh.refined()
-            dofs = mesh.nvertices * ELEMENTS[self.element][1] + mesh.nfacets * ELEMENTS[self.element][2]
-            if dofs > DOFS_MAX:
-                raise ModelError(f"fe plate: converging {wanted} modes to {tolerance:.2%} needs a mesh above "
-                                 f"{DOFS_MAX} degrees of freedom (elements of {size * 1e3:.2g} mm): the band is "
-                                 f"too high for this plate, or the tolerance too tight")
-            if band is None:
-                freqs, vectors, rigid, basis = self.solve(mesh, wanted)
-            else:
-                freqs, vectors, rigid, basis = self.solve(mesh, below=band * BAND_MARGIN)
-                if np.count_nonzero(freqs <= band) > MODES_MAX:
-                    raise ModelError(f"fe plate: the band {band:g} Hz holds more than {MODES_MAX} modes")
-            levels.append(Level(size, dofs, freqs, time.perf_counter() - start))
-            shapes = np.zeros((len(freqs), grid.n))
-            shapes[:, on] = self._sample(basis, vectors, grid.points[on])
-            history.append((freqs, shapes, vectors, rigid, basis))
-            if progress is not None:
-                progress(levels[-1])
+            mesh, size = mesh.refined(), size / 2
+            done = level(mesh, size)
+            for each, solved in ([] if first is None else [first.result()]) + [done]:
+                levels.append(each)
+                history.append(solved)
+                if progress is not None:
+                    progress(each)
+            first, freqs = None, history[-1][0]
             keep = len(freqs) if band is None else max(1, int(np.count_nonzero(freqs <= band)))
-            if len(history) >= 2:
-                error, mac = _convergence(history[-2], history[-1], keep, grid.mass)
-                if error.max() <= tolerance and mac.min() >= SHAPE_TOLERANCE:
-                    break
-            size /= 2
+            error, mac = compare_levels(history[-2], history[-1], keep, grid.mass)
+            if error.max() <= tolerance and mac.min() >= SHAPE_TOLERANCE:
+                break
         freqs, shapes, vectors, rigid, basis = history[-1]
         keep = slice(0, keep)
         shortest = self.wavelength(freqs[keep][-1])
@@ -494,6 +459,26 @@ class FEPlate:
                            sensor_gains=self._sample(basis, vectors, sensors)[keep] if len(sensors) else None,
                            rigid_shapes=rigid_shapes if rigid.shape[1] else None, meta=info)
         return model, convergence
+
+    def _level(self, mesh, size: float, *, wanted: int, band: float | None, grid: Grid, tolerance: float):
+        """One mesh's modes: its :class:`Level` and ``(freqs, shapes on the grid, FE vectors,
+        rigid vectors, basis)``."""
+        start = time.perf_counter()
+        dofs = mesh.nvertices * ELEMENTS[self.element][1] + mesh.nfacets * ELEMENTS[self.element][2]
+        if dofs > DOFS_MAX:
+            raise ModelError(f"fe plate: converging {wanted} modes to {tolerance:.2%} needs a mesh above "
+                             f"{DOFS_MAX} degrees of freedom (elements of {size * 1e3:.2g} mm): the band is "
+                             f"too high for this plate, or the tolerance too tight")
+        if band is None:
+            freqs, vectors, rigid, basis = self.solve(mesh, wanted)
+        else:
+            freqs, vectors, rigid, basis = self.solve(mesh, below=band * BAND_MARGIN)
+            if np.count_nonzero(freqs <= band) > MODES_MAX:
+                raise ModelError(f"fe plate: the band {band:g} Hz holds more than {MODES_MAX} modes")
+        on = grid.mass > 0
+        shapes = np.zeros((len(freqs), grid.n))
+        shapes[:, on] = self._sample(basis, vectors, grid.points[on])
+        return Level(size, dofs, freqs, time.perf_counter() - start), (freqs, shapes, vectors, rigid, basis)
 
     def _modes_to_solve(self, n_modes: int | None, band: float | None, tolerance: float) -> int:
         """How many modes the first mesh solves for: ``n_modes``, or Weyl's count below ``band``
@@ -565,27 +550,3 @@ def _probes(basis, points: np.ndarray):
     rows = np.tile(np.arange(n), basis.Nbfun)
     return scipy.sparse.coo_matrix((values.ravel(), (rows, basis.element_dofs[:, cells].ravel())),
                                    shape=(n, basis.N)).tocsr()
-
-
-def _convergence(coarse, fine, keep: int, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per kept mode of the finer mesh: Richardson's estimate of its frequency error (the
-    element converges as h^2: ``(f_h - f_2h) / 3``), and how much of its shape lies in the span
-    of the coarser mesh's modes within 2% of its frequency (mass-weighted on the grid): the
-    projection ``c^T G^-1 c / (v^T v)`` through the coarse shapes' Gram matrix ``G`` and their
-    products ``c`` with the fine ones, both from two products over the grid (not a QR of the
-    near shapes on the whole grid per mode: 9 s on the tablet panel's 254 modes)."""
-    fc, sc = coarse[0], coarse[1]
-    ff, sf = fine[0][:keep], fine[1][:keep]
-    error = np.full(keep, np.inf)
-    mac = np.zeros(keep)
-    weight = np.sqrt(mass)
-    a, b = sc * weight, sf * weight
-    gram, cross, norms = a @ a.T, a @ b.T, np.einsum("ij,ij->i", b, b)
-    for k in range(keep):
-        if k < len(fc):
-            error[k] = abs(ff[k] - fc[k]) / 3 / ff[k]
-        near = np.flatnonzero(np.abs(fc / ff[k] - 1) < 0.02)
-        if near.size:
-            c = cross[near, k]
-            mac[k] = float(c @ scipy.linalg.solve(gram[np.ix_(near, near)], c, assume_a="pos") / norms[k])
-    return error, mac
