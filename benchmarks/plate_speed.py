@@ -86,13 +86,16 @@ def measured(command: list[str], python: str = PYTHON, env: dict | None = None, 
                                env={**os.environ, **(env or {})}, cwd=tempfile.gettempdir())
     timer = threading.Timer(timeout, process.kill)  # a command past its budget is a result, not a hang
     timer.start()
+    tree = _TreeMemory(process.pid)  # with the children it forks (the FE's coarse mesh, the pictures)
     _, status, usage = os.wait4(process.pid, 0)
+    tree.stop()
     timer.cancel()
     wall = time.perf_counter() - start
     errors.seek(0)
     stderr = errors.read().decode(errors="replace") if wall < timeout else f"killed after {timeout:g} s"
     errors.close()
-    row = {"exit": os.waitstatus_to_exitcode(status), "wall_s": wall, "peak_mb": usage.ru_maxrss / 1024}
+    row = {"exit": os.waitstatus_to_exitcode(status), "wall_s": wall,
+           "peak_mb": max(usage.ru_maxrss / 1024, tree.peak_mb)}
     if row["exit"] != 0:
         row["error"] = stderr.strip().splitlines()[-1] if stderr.strip() else "?"
     metrics = out / "metrics.json" if out else None
@@ -100,6 +103,45 @@ def measured(command: list[str], python: str = PYTHON, env: dict | None = None, 
         row["metrics"] = json.loads(metrics.read_text())
         row["folder_mb"] = sum(p.stat().st_size for p in out.iterdir()) / 1e6
     return row
+
+
+class _TreeMemory(threading.Thread):
+    """The largest resident memory (MB) a process and its descendants held together, sampled every
+    20 ms from /proc (ru_maxrss counts the process alone, not the children it forks)."""
+
+    def __init__(self, pid: int):
+        super().__init__(daemon=True)
+        self.pid, self.peak_mb, self._done = pid, 0.0, threading.Event()
+        self.start()
+
+    def run(self) -> None:
+        page_mb = os.sysconf("SC_PAGE_SIZE") / 2**20
+        while not self._done.wait(0.02):
+            self.peak_mb = max(self.peak_mb, sum(_resident_pages(p) for p in _tree(self.pid)) * page_mb)
+
+    def stop(self) -> None:
+        self._done.set()
+        self.join()
+
+
+def _tree(pid: int) -> list[int]:
+    found, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        found.append(p)
+        try:
+            for task in Path(f"/proc/{p}/task").iterdir():
+                todo += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            pass
+    return found
+
+
+def _resident_pages(pid: int) -> int:
+    try:
+        return int(Path(f"/proc/{pid}/statm").read_text().split()[1])
+    except (OSError, IndexError, ValueError):
+        return 0
 
 
 def stages(row: dict) -> dict:
