@@ -186,6 +186,9 @@ class Runtime:
         # one contiguous row per period: the loop reads them period by period
         self._reference, self._authority = (np.ascontiguousarray(np.asarray(x).T)
                                             for x in (schedule.reference, parts.authority))
+        # what each mode's reading holds of the others' answers (the reference less the mode's own),
+        # a row per period: the controllers and trackers that observe get the mode's own answer
+        self._others = np.ascontiguousarray((np.asarray(schedule.reference) - np.asarray(schedule.own)).T)
         self._gains = np.abs(schedule.weights)
         self.recorder, self.tracker = recorder, tracker
         self.held = hold_gain(schedule.carriers, schedule.control_rate * schedule.decimation, HOLD)
@@ -247,10 +250,10 @@ class Runtime:
             self._record(None, 1.0, time.perf_counter() - tic)
             self.period += 1
             return self.state
-        reference = self._reference[n]
-        error = reference - measured + self.leak * self.command
+        reference, leaked = self._reference[n], self.leak * self.command
+        error = reference - measured + leaked
         if self.tracker is not None or self.controller.observes:
-            own = measured - (reference - self.schedule.own[:, n]) - self.leak * self.command  # the mode's own answer
+            own = measured - self._others[n] - leaked  # the mode's own answer
             if self.tracker is not None:
                 drive = (self.schedule.drive[:, n] + self.command) * self.held
                 self.tracker.update(own[:, None], drive[:, None])

@@ -156,6 +156,7 @@ class TouchEstimator:
             self.candidates, cells = np.array([int(at)]), [np.array([int(at)])]
         self.q = shapes[:, self.candidates].T ** 2 / 2  # (p, k)
         self._q2 = self.q ** 2
+        self._qq = np.stack([self.q, self._q2])  # (2, p, k): num and den of every candidate in one product
         # the points each candidate stands for, one cell after another (candidate i's: members
         # starts[i]:starts[i + 1]), and every point's pattern, when the cells hold more than their candidate
         self._members = np.concatenate(cells)
@@ -199,7 +200,7 @@ class TouchEstimator:
         # the last column's |e|^2: the weighted count of periods
         self._sums = np.zeros((m, 2, 2, k + 1))
         self._table = self._sums.reshape(-1, k + 1)  # the same, a row per memory and product
-        self._losses = [(self._sums[j, 0, 1, :k], self._sums[j, 1, 1, :k]) for j in range(m)]  # Re(h* e), |h|^2
+        self._losses = [self._sums[j, :, 1, :k] for j in range(m)]  # Re(h* e), |h|^2: (2, k) views
         self._periods = 0
         x = self._inputs = np.ones((4, k + 1), complex)  # two slots of (z, U): the last period's and this one's
         self._slots = [(x[0, :k], x[1, :k]), (x[2, :k], x[3, :k])]
@@ -304,15 +305,15 @@ class TouchEstimator:
         the scene leaves still, whose noise would otherwise move the place, and with it the damping,
         period by period."""
         k = self.a.size
-        rr, s = self._losses[j]
-        num, den = self.q @ rr, self._q2 @ s  # (p,)
+        losses = self._losses[j]
+        num, den = np.matmul(self._qq, losses[:, :, None])[:, :, 0]  # q @ rr, q^2 @ s (p,): one product
         if last is None and not den.max() > 0:
             return None
         explained = _explained(num, den)
         best = int(explained.argmax())
         top = float(explained[best])
         if top > 0:
-            index, top = self._refine(best, rr, s, top)
+            index, top = self._refine(best, losses, top)
         else:  # no plausible touch anywhere: the candidate the modes' motion reaches most
             index = int(self.candidates[den.argmax()])
         if last is not None:
@@ -326,13 +327,13 @@ class TouchEstimator:
         self._place = index, q, weights
         return self._place
 
-    def _refine(self, row: int, rr: np.ndarray, s: np.ndarray, explained: float) -> tuple[int, float]:
+    def _refine(self, row: int, losses: np.ndarray, explained: float) -> tuple[int, float]:
         """The point that explains the most among those candidate ``row`` stands for, and what it
-        explains (``explained``: what the candidate does)."""
+        explains (``explained``: what the candidate does); ``losses``: memory's (Re(h* e), |h|^2), (2, k)."""
         first, end = self._starts[row], self._starts[row + 1]
         if end - first > 1:
             q = self._patterns[self._members[first:end]] if self._cells is None else self._cells[first:end]
-            there = _explained(q @ rr, (q * q) @ s)
+            there = _explained(q @ losses[0], (q * q) @ losses[1])
             best = int(there.argmax())
             if there[best] > explained:
                 return int(self._members[first + best]), float(there[best])
