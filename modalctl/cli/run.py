@@ -222,67 +222,46 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
 
 
 class _Pictures:
-    """A run's pictures (:func:`modalctl.report.write_run_report`) drawn in a child process while
-    this one writes the fields: forked, the child shares the shot without copying it, imports
-    matplotlib itself and sends back the pictures' paths. Where there is no fork (not Linux) they
-    are drawn here, at once. :meth:`wait` returns ``({name: path}, seconds)``: the pictures and the
-    seconds they took from the fork, or raises what stopped the child."""
+    """A run's pictures (:func:`modalctl.report.write_run_report`) drawn in a forked child while
+    this process writes the fields (:func:`modalctl.forked.beside`): the child shares the shot
+    without a copy and imports matplotlib itself. :meth:`wait` returns ``({name: path},
+    seconds)``: the pictures and the seconds they took from the fork, or raises what stopped them,
+    with the child's traceback."""
 
     def __init__(self, shot, out: Path):
-        import gc
-        import os
         import time
 
-        self.started, self.pid, self.answer = time.perf_counter(), None, None
-        if not (sys.platform.startswith("linux") and hasattr(os, "fork")):
-            self.answer = self._draw(shot, out)
-            return
-        self.read, write = os.pipe()
-        self.pid = os.fork()
-        if self.pid:
-            os.close(write)
-            return
-        try:  # the child: draw, answer, and end without running the parent's exit handlers
-            gc.disable()  # its collections walked the parent's objects too: a tenth of the drawing's time
-            os.close(self.read)
-            with os.fdopen(write, "w") as answer:
-                json.dump(self._draw(shot, out), answer)
-        finally:
-            os._exit(0)
+        from modalctl.forked import beside
 
-    def _draw(self, shot, out: Path) -> dict:
-        import time
-        import traceback
-
-        try:
-            from modalctl.report import write_run_report
-
-            return {"pictures": write_run_report(shot, out), "seconds": time.perf_counter() - self.started}
-        except BaseException:  # noqa: B036 (told to the parent, which raises it)
-            return {"error": traceback.format_exc()}
+        self.started = time.perf_counter()
+        self.work = beside(lambda: _draw(shot, out, self.started))
 
     def stop(self) -> None:
         """The child ended (the fields could not be written: no report)."""
-        import os
-        import signal
-
-        if self.pid is not None:
-            os.kill(self.pid, signal.SIGKILL)
-            os.waitpid(self.pid, 0)
-            os.close(self.read)
-            self.pid = None
+        self.work.stop()
 
     def wait(self) -> tuple[dict, float]:
-        import os
+        answer = self.work.result()
+        if "error" in answer:
+            raise RuntimeError(f"drawing the run's pictures failed: {answer['error']}")
+        return answer["pictures"], answer["seconds"]
 
-        if self.pid is not None:
-            with os.fdopen(self.read) as answer:
-                text = answer.read()
-            _, status = os.waitpid(self.pid, 0)
-            self.answer = json.loads(text) if text else {"error": f"it ended without an answer (status {status})"}
-        if "error" in self.answer:
-            raise RuntimeError(f"drawing the run's pictures failed: {self.answer['error']}")
-        return self.answer["pictures"], self.answer["seconds"]
+
+def _draw(shot, out: Path, started: float) -> dict:
+    """The pictures and the seconds since ``started``, or the traceback of what stopped them."""
+    import gc
+    import time
+    import traceback
+
+    gc.disable()  # in a forked child its collections walked the parent's objects: a tenth of the drawing
+    try:
+        from modalctl.report import write_run_report
+
+        return {"pictures": write_run_report(shot, out), "seconds": time.perf_counter() - started}
+    except Exception:  # noqa: BLE001 (told to the parent, which raises it)
+        return {"error": traceback.format_exc()}
+    finally:
+        gc.enable()
 
 
 def _write_fields(model, shot, out: Path, device) -> None:
