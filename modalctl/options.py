@@ -100,13 +100,11 @@ class ConvexOptions(_Options):
         stops where it is and the refusal says what it proved by then: the smallest ratio a drive
         was found to hold, the largest margin refused, whether the least-energy drive was found.
     attempts_seconds : float or None
-        The time the automatic mode set's growing attempts may take together (s); None: every
-        one to its end. Once past, the attempt under way stops at its next round and the next
-        attempt is the last (certified): a refusal by the voltage limit took 285 s of five
+        The time the automatic mode set's growing attempts may take together (s); None: as
+        many as ``PlanOptions.added_modes``. Checked between attempts (one under way ends: a
+        plan the first attempt finds does not depend on the machine's speed); once past, the
+        next attempt is the last (certified). A refusal by the voltage limit took 285 s of five
         uncertified attempts on the panel.
-    seconds : float or None
-        The time one margin program may take (s); None: its rounds. Past it the program stops
-        at its next round, refused (``plan_shot`` sets it for its growing attempts).
     """
 
     early: float = 3e-3
@@ -126,14 +124,13 @@ class ConvexOptions(_Options):
     rows_per_round: int | None = 1000
     certify_seconds: float | None = 30.0
     attempts_seconds: float | None = 20.0
-    seconds: float | None = None
 
     def __post_init__(self):
         if self.reference not in (None, "envelope"):
             raise ValueError(f"reference must be None or 'envelope', got {self.reference!r}")
         if self.rows_per_round is not None and self.rows_per_round < 1:
             raise ValueError(f"rows_per_round must be None or at least 1, got {self.rows_per_round!r}")
-        for name in ("certify_seconds", "attempts_seconds", "seconds"):
+        for name in ("certify_seconds", "attempts_seconds"):
             value = getattr(self, name)
             if value is not None and not value >= 0:
                 raise ValueError(f"{name} must be None or zero or more, got {value!r}")

@@ -332,8 +332,9 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
     frequency) with ``options.fill_gaps``. When the margin fails on it, the next strongest modes are
     added, up to ``options.added_modes``: the margin is part of what a scene needs, and more modes give the
     planner more freedom to cancel the off-target field (the thesis's second remedy, chapter 5). The
-    growing attempts take at most ``ConvexOptions.attempts_seconds`` together; the last one is
-    certified (its refusal says why, within ``ConvexOptions.certify_seconds``).
+    growing attempts stop once they have taken ``ConvexOptions.attempts_seconds`` (checked between
+    attempts: an attempt that would hold the margin always ends); the next is the last, certified
+    (its refusal says why, within ``ConvexOptions.certify_seconds``).
     """
     auto = options.modes == "auto"
     modes = list(options.modes) if isinstance(options.modes, tuple) else options.modes
@@ -346,10 +347,10 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
     deadline = None if budget is None else _time.perf_counter() + budget
     for added in range(options.added_modes + 1):
         left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
-        remaining = None if deadline is None else max(0.0, deadline - _time.perf_counter())
-        last = not grow or left.size == 0 or added == options.added_modes or remaining == 0.0
-        try:  # an attempt followed by another needs no certificate of its refusal, and has the attempts' time
-            attempt = options if last else options.but(convex=options.convex.but(certify=False, seconds=remaining))
+        spent = deadline is not None and _time.perf_counter() > deadline  # checked between attempts only:
+        last = not grow or left.size == 0 or added == options.added_modes or spent  # a plan never depends on it
+        try:  # an attempt followed by another needs no certificate of its refusal
+            attempt = options if last else options.but(convex=options.convex.but(certify=False))
             return dec, plan(dec, focus_time, attempt, progress)
         except PlanError as exc:
             if last or exc.limit != options.margin:
