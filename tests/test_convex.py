@@ -249,3 +249,19 @@ def test_the_growing_attempts_stop_at_their_time_budget(case, monkeypatch):
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="attempts_seconds"):
             PlanOptions().convex.but(attempts_seconds=bad)
+
+
+def test_a_least_energy_program_that_fails_is_a_refusal_not_a_traceback(case, monkeypatch):
+    """Without a margin there is nothing to bisect: a failed least-energy program (the tablet
+    panel keeping 8 of its 254 modes, every other one held still at T_F: DAQP's overdetermined
+    start) is said as a refusal with its status, proven or not."""
+    model, shape, _ = case
+    dec = decompose(model, shape, modes=(0, 1))
+    original = Program.solve
+    for status, proven in (("more equalities than the basis's columns can meet", False), ("infeasible", True)):
+        monkeypatch.setattr(Program, "solve", lambda self, *a, status=status, **k: replace(original(self, *a, **k),
+                                                                                         status=status))
+        with pytest.raises(PlanError, match="no drive on this basis reaches the focus") as refused:
+            plan(dec, TF, convex(margin=None))
+        assert refused.value.certificate["status"] == ("infeasible" if proven else "not certified")
+        assert refused.value.certificate["margin"] is None

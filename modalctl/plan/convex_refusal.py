@@ -27,6 +27,16 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
     the solver's proof (infeasible, or past the energy bound), whatever the bisection found.
     """
     margin, lobes, solver = options.margin, program.focus_lobes, options.convex.solver
+    limits = ", ".join(f"{name} {value:g} {unit}" for name, value, unit in
+                       (("voltage", options.voltage_limit, "V"), ("slew", options.slew_limit, "V/s"))
+                       if value is not None) or "no voltage limit"
+    if margin is None:  # the least-energy program itself: nothing to bisect
+        proven = failed.status in PROOFS
+        return PlanError(f"no drive on this basis reaches the focus within {limits} ({failed.status}"
+                         f"{'' if proven else ', unproven'}): lengthen the focus time, raise the limits or keep "
+                         f"other modes", None, None, {"solver": solver, "margin_program": failed.status,
+                                                      "margin": None, "focus_lobes": lobes, "limits": limits,
+                                                      "status": "infeasible" if proven else "not certified"})
     if not options.convex.certify:
         return PlanError(f"the {margin:g} margin program was refused ({failed.status}; not certified)", None,
                          margin, {"solver": solver, "margin_program": failed.status, "margin": margin,
@@ -34,9 +44,6 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
     budget = options.convex.certify_seconds
     best, refused = program.smallest_ratio(max(margin, lobes), progress=progress, seconds=budget)
     done = program.certified or {"complete": True}
-    limits = ", ".join(f"{name} {value:g} {unit}" for name, value, unit in
-                       (("voltage", options.voltage_limit, "V"), ("slew", options.slew_limit, "V/s"))
-                       if value is not None) or "no voltage limit"
     reached = None if best is None else max([best.ratio, *best.robust_ratios])
     leak = options.convex.leak
     at_focus = ("the modes left out still at T_F (ConvexOptions.leak lets them move)" if leak is None else

@@ -89,7 +89,8 @@ def _daqp(qp: QP, a, lower, upper, energy_bound, duals):
                                   np.where(np.isfinite(lower), lower, -1e30), sense,
                                   fval_bound=min(energy_bound, 1e30), dual_start=start)
     words = {1: "optimal", 2: "optimal",
-             -1: "infeasible" if not np.isfinite(energy_bound) else "infeasible or past the energy bound"}
+             -1: "infeasible" if not np.isfinite(energy_bound) else "infeasible or past the energy bound",
+             -6: "more equalities than the basis's columns can meet (DAQP: overdetermined)"}
     return np.asarray(x), words.get(flag, f"daqp exit flag {flag}"), np.asarray(info["lam"])
 
 
