@@ -201,12 +201,14 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
             pictures.stop()
         raise
     written = time.perf_counter()
+    drawn = None
     if pictures is not None:
-        metrics["pictures"], drawn = pictures.wait()  # what stopped the drawing raises here
-        record(out, [Path(picture).name for picture in metrics["pictures"].values()])
+        drawn = _pictures_drawn(pictures, metrics, out)
+        record(out, [Path(picture).name for picture in metrics.get("pictures", {}).values()]
+               + (["pictures-error.txt"] if "pictures_error" in metrics else []))
     metrics["stages_s"] = {**(stages or {}), "write_fields_s": written - started,
-                           **({} if pictures is None else {"pictures_s": drawn,
-                                                           "pictures_wait_s": time.perf_counter() - written})}
+                           **({} if drawn is None else {"pictures_s": drawn,
+                                                        "pictures_wait_s": time.perf_counter() - written})}
     write_json(out / "metrics.json", metrics)
     fault = metrics.get("loop", {}).get("fault")
     if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
@@ -219,6 +221,26 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     _print_loop(metrics, shot, out)
     print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in metrics else ")"))
     return DEVICE if fault else 0
+
+
+def _pictures_drawn(pictures: _Pictures, metrics: dict, out: Path) -> float | None:
+    """The pictures into ``metrics["pictures"]`` and the seconds they took; a drawing that failed
+    (the shot, its metrics and its fields are not lost for it) is said on stderr, its traceback in
+    ``DIR/pictures-error.txt`` and its last line in ``metrics["pictures_error"]``: None."""
+    try:
+        metrics["pictures"], seconds = pictures.wait()
+        return seconds
+    except RuntimeError as failed:
+        from modalctl.outdir import atomic
+
+        text = str(failed)
+        with atomic(out / "pictures-error.txt") as path:  # never through a link planted in the folder
+            path.write_text(text + "\n")
+        last = [line for line in text.splitlines() if line.strip()][-1]
+        metrics["pictures_error"] = last
+        print(f"modalctl run: warning: the pictures could not be drawn ({last}); the shot's metrics and "
+              f"fields are written; the traceback is in {out}/pictures-error.txt", file=sys.stderr)
+        return None
 
 
 class _Pictures:
