@@ -241,11 +241,13 @@ def test_the_growing_attempts_stop_at_their_time_budget(case, monkeypatch):
     with pytest.raises(PlanError) as refused:
         planner.plan_shot(model, shape, TF, options.but(convex=options.convex.but(attempts_seconds=0.0)))
     assert len(seen) == 1 and seen[0].certify  # the last attempt: certified
-    assert refused.value.certificate["status"] == "infeasible"
+    assert refused.value.certificate["status"] == "infeasible" and refused.value.certificate["attempts"] == 1
+    assert "stopped growing after 1 attempts, at its 0 s budget" in str(refused.value)
     seen.clear()
-    with pytest.raises(PlanError):
+    with pytest.raises(PlanError) as refused:
         planner.plan_shot(model, shape, TF, options.but(convex=options.convex.but(attempts_seconds=600.0)))
     assert len(seen) == 3 and not seen[0].certify and not seen[1].certify and seen[-1].certify
+    assert "budget" not in str(refused.value)  # the count, not the time, ended it
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="attempts_seconds"):
             PlanOptions().convex.but(attempts_seconds=bad)

@@ -333,8 +333,9 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
     added, up to ``options.added_modes``: the margin is part of what a scene needs, and more modes give the
     planner more freedom to cancel the off-target field (the thesis's second remedy, chapter 5). The
     growing attempts stop once they have taken ``ConvexOptions.attempts_seconds`` (checked between
-    attempts: an attempt that would hold the margin always ends); the next is the last, certified
-    (its refusal says why, within ``ConvexOptions.certify_seconds``).
+    attempts: one under way always ends, so a plan its first attempt finds never depends on the
+    machine's speed; how many are made may); the next is the last, certified (its refusal says
+    why, within ``ConvexOptions.certify_seconds``, and that the budget stopped the growing).
     """
     auto = options.modes == "auto"
     modes = list(options.modes) if isinstance(options.modes, tuple) else options.modes
@@ -347,17 +348,28 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
     deadline = None if budget is None else _time.perf_counter() + budget
     for added in range(options.added_modes + 1):
         left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
-        spent = deadline is not None and _time.perf_counter() > deadline  # checked between attempts only:
-        last = not grow or left.size == 0 or added == options.added_modes or spent  # a plan never depends on it
+        spent = deadline is not None and _time.perf_counter() >= deadline  # checked between attempts only:
+        last = not grow or left.size == 0 or added == options.added_modes or spent  # one under way always ends
         try:  # an attempt followed by another needs no certificate of its refusal
             attempt = options if last else options.but(convex=options.convex.but(certify=False))
             return dec, plan(dec, focus_time, attempt, progress)
         except PlanError as exc:
+            if last and spent and added < options.added_modes and left.size:
+                raise _stopped_by_budget(exc, added + 1, budget) from None
             if last or exc.limit != options.margin:
                 raise
             chosen = np.append(dec.modes_used, left[np.argmax(np.abs(dec.coefficients[left]))])
             dec = _keeping(dec, chosen, f"plus modes for the {options.margin:g} margin")
     raise AssertionError("unreachable: the last attempt returns or raises")
+
+
+def _stopped_by_budget(exc: PlanError, attempts: int, budget: float) -> PlanError:
+    """``exc``, saying that the attempts' time budget, not their count, made it the last: on a faster
+    machine another mode set might have been tried."""
+    said = (f"the automatic mode set stopped growing after {attempts} attempts, at its {budget:g} s budget "
+            f"(ConvexOptions.attempts_seconds)")
+    certificate = {**(exc.certificate or {}), "attempts": attempts, "attempts_stopped_by": "attempts_seconds"}
+    return PlanError(f"{exc}; {said}", exc.needed, exc.limit, certificate)
 
 
 def _keeping(dec: Decomposition, modes: np.ndarray, why: str) -> Decomposition:
