@@ -108,7 +108,8 @@ def measured(command: list[str], python: str = PYTHON, env: dict | None = None, 
 class _TreeMemory(threading.Thread):
     """The largest memory (MB) a process and its descendants held together, their proportional set
     sizes sampled every 20 ms from /proc (ru_maxrss counts the process alone, not the children it
-    forks)."""
+    forks). A run's peak is the larger of this and the process's own ru_maxrss (a peak between two
+    samples). Reading smaps_rollup costs the sampler a few per cent of one core."""
 
     def __init__(self, pid: int):
         super().__init__(daemon=True)
