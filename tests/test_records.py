@@ -132,25 +132,29 @@ def test_a_noise_free_simulation_and_a_real_vibrometer_describe_no_noise():
     assert Bench("bench://").scan_noise_stream(times) is None
 
 
-def test_a_noise_generator_this_modalctl_does_not_have_is_refused(tmp_path):
-    """A record whose noise came from another generator's version cannot give back the field: refused."""
+def _with_header(path, other, change) -> None:
+    """Copy the record ``path`` to ``other`` with ``change(header)`` applied to its header."""
     import json
     import zipfile
 
+    header = json.loads(str(np.load(path)["header_json"]))
+    header = change(header) or header
+    with zipfile.ZipFile(path) as source, zipfile.ZipFile(other, "w") as target:
+        for member in source.namelist():
+            if member == "header_json.npy":
+                with target.open(member, "w") as out:
+                    np.lib.format.write_array(out, np.array(json.dumps(header)))
+            else:
+                target.writestr(member, source.read(member))
+
+
+def test_a_noise_generator_this_modalctl_does_not_have_is_refused(tmp_path):
+    """A record whose noise came from another generator's version cannot give back the field: refused."""
     model, device, times = _simulated_scan()
     path = write_field_record(tmp_path / "f.npz", times, model.grid.points, device.scan(times),
                               noise=device.scan_noise_stream(times))
     other = tmp_path / "other.npz"
-    with zipfile.ZipFile(path) as source, zipfile.ZipFile(other, "w") as target:
-        for member in source.namelist():
-            data = source.read(member)
-            if member == "header_json.npy":
-                header = json.loads(str(np.load(tmp_path / "f.npz")["header_json"]))
-                header["noise"]["version"] = 99
-                with target.open(member, "w") as out:
-                    np.lib.format.write_array(out, np.array(json.dumps(header)))
-                continue
-            target.writestr(member, data)
+    _with_header(path, other, lambda header: header["noise"].update(version=99))
     with pytest.raises(ModelError, match="version 99.*cannot give back"):
         read_field_record(other)
     with pytest.raises(ModelError, match="generator"):
@@ -158,3 +162,49 @@ def test_a_noise_generator_this_modalctl_does_not_have_is_refused(tmp_path):
 
         write_field_record(tmp_path / "g.npz", times, model.grid.points, device.scan(times),
                            noise=replace(device.scan_noise_stream(times), version=99))
+
+
+def test_a_header_out_of_shape_is_a_model_error(tmp_path):
+    """A noise entry that is not a description, a header that is not an object, a step missing, a
+    residual of another shape: each a ModelError, never an AttributeError or KeyError."""
+    model, device, times = _simulated_scan()
+    path = write_field_record(tmp_path / "f.npz", times, model.grid.points, device.scan(times),
+                              noise=device.scan_noise_stream(times))
+    changes = {"noise": lambda header: header.update(noise="key 4"),
+               "noise list": lambda header: header.update(noise=[4, 1e-3]),
+               "noise key": lambda header: header["noise"].update(key=4),
+               "step": lambda header: header.pop("step_m_per_s"),
+               "list": lambda header: [header]}
+    for name, change in changes.items():
+        _with_header(path, tmp_path / f"{name}.npz", change)
+        with pytest.raises(ModelError, match="noise|cannot read|not a field record"):
+            read_field_record(tmp_path / f"{name}.npz")
+
+
+def test_a_field_with_modes_the_basis_lacks_is_kept_at_the_finest_step(plate, tmp_path):
+    """The model's basis lacking a mode the structure has (another truth scene, a real structure):
+    what the basis leaves is that mode, not noise, so the range finder adds it and the field is
+    stored as a noise-free one: the finest step, read back within it, the file small."""
+    t, field = _modal_field(plate, seed=5)
+    lacking = plate.select(np.delete(np.arange(plate.n_modes), 2))  # the third mode missing
+    path = write_field_record(tmp_path / "f.npz", t, plate.grid.points, field, basis=lacking.shapes.T)
+    back = read_field_record(path)
+    peak = np.abs(field).max()
+    assert back.step == pytest.approx(peak * RESOLUTION)
+    assert _kept(back, field)
+    assert back.rank <= plate.n_modes
+    assert path.stat().st_size * 10 < field.nbytes, path.stat().st_size
+    missing = write_field_record(tmp_path / "g.npz", t, plate.grid.points, field,  # a basis of two fewer modes
+                                 basis=plate.select(np.arange(2, plate.n_modes)).shapes.T)
+    assert read_field_record(missing).step == pytest.approx(peak * RESOLUTION)
+
+
+@pytest.mark.parametrize("shape", [(5, 0), (0, 7), (0, 0)])
+def test_an_empty_field_writes_and_reads(shape, tmp_path):
+    n, nt = shape
+    for basis in (None, np.ones((n, 3))):
+        path = write_field_record(tmp_path / "f.npz", np.arange(nt) * 1e-5, np.zeros((n, 2)),
+                                  np.zeros(shape, np.float32), basis=basis)
+        back = read_field_record(path)
+        assert back.field.shape == shape and back.points.shape == (n, 2) and back.times.shape == (nt,)
+        assert back.step > 0 and back.rank == 0

@@ -7,19 +7,33 @@ and the noise a simulated vibrometer added, told by its key:
 
     field = basis @ coefficients + step * residual [+ noise]
 
-``basis`` (n, r) and ``coefficients`` (r, nt) span the field's range: the caller's basis (the
-model's mode shapes on the grid, orthonormalized: one pass over the field) or a randomized range
-finder's (Halko, Martinsson and Tropp: one more pass), trimmed to the directions the field uses.
+``basis`` (n, r) and ``coefficients`` (r, nt) span the field's range, trimmed to the directions
+the field uses: the caller's basis (the model's mode shapes on the grid, orthonormalized: one pass
+over the field) and, where what it leaves would make the step coarser than the finest (an RMS over
+eight finest steps), a randomized range finder's directions of what it leaves (Halko, Martinsson
+and Tropp: a round of 64 in two more passes, at most 4 rounds). A direction is kept where it
+carries more than four times what white noise of what the round leaves could (the square of that
+noise's largest singular value, sigma (sqrt(n) + sqrt(nt))): modes the basis lacks (a structure
+the model does not hold, as every real one), not noise. Without a basis the first round is the
+range finder on the whole field. The threshold is where the step would leave the finest: below it
+the step is the finest anyway (what is left, if anything, kept in the residual), and the one
+pass's measure of what is left (the field's energy less its coefficients', float32 sums) is not
+much finer.
 ``residual`` (n, nt) is the rest rounded to ``step`` and packed in the fewest bits that hold it
-(8, 16 or 32). ``step`` is ``2^-16`` of the field's peak (a 17-bit vibrometer), or, where the modes
-leave more than that (the measurement's noise), an eighth of what they leave (its RMS): rounding
-then adds ``1/768`` to the noise's variance, and never coarser than ``2^-10`` of the peak.
+(8, 16 or 32). ``step`` is ``2^-16`` of the field's peak (a 17-bit vibrometer), or, where the basis
+and the range finder leave more than eight of those (the measurement's noise: no direction of it
+carries more than white noise does), an eighth of what they leave (its RMS): rounding then adds
+``1/768`` to the noise's variance, and never coarser than ``2^-10`` of the peak.
 
 What the record guarantees, every sample within ``step / 2`` of the field measured (plus float32's
 rounding of the sums, ``2^-20`` of the peak) whatever it holds:
 
 * A noise-free field (a simulation without ``--snr``): the finest step; the residual rounds to
-  zero and compresses to nothing (the panel's 8591 x 11659: 6.4 MB, the basis and coefficients).
+  zero and compresses to nothing (the panel's 8591 x 11659: 6.4 MB, the basis and coefficients),
+  whether the basis holds every mode (truth = model: one pass) or not (another scene's truth: a
+  round of the range finder finds the rest). Only a field beyond what 4 rounds of 64 find (more
+  modes than that, or so many weak ones that each carries less than white noise of their energy
+  would) is stored as a noisy one, at a step from what is left.
 * A simulated vibrometer's noisy field, its noise described (``noise``, a
   :class:`~modalctl.model.noise_stream.NoiseStream` from :meth:`Device.scan_noise_stream
   <modalctl.io.device.Device.scan_noise_stream>`): the noise is taken away before the split and
@@ -32,6 +46,9 @@ rounding of the sums, ``2^-20`` of the peak) whatever it holds:
 * A real vibrometer's field (no description: its noise is in its samples): white noise has no
   structure, so the residual keeps it in about five bits a sample (a step of an eighth of its RMS)
   and zlib gets little of that: about 60-95 MB for the panel's hundred million samples at 40 dB.
+  The modes its basis lacks are found as in a noise-free field (a round, and one more that finds
+  only noise): they do not coarsen the step.
+* An empty field (no points or no instants) writes and reads, its step 1.
 
 Files are ``.npz`` (no pickle) with a JSON header naming every array and its unit; version 1
 files (no noise) read too. Writing runs the passes on two threads of its own with BLAS on one
@@ -62,6 +79,7 @@ RESOLUTION = 2.0 ** -16  # the residual's finest step, relative to the field's p
 NOISE_STEPS = 8  # steps per RMS of what the modes leave: rounding adds 1 / (12 x 8^2) to its variance
 COARSEST = 2.0 ** -10  # the residual's coarsest step, relative to the field's peak
 RANK_MAX = 64  # columns of the range finder: a scene's modes and then some
+ROUNDS = 4  # of the range finder on what the basis leaves: up to 4 x 64 directions the basis lacks
 _BLOCK = 256  # grid points per block of each pass (12 MB of the panel's field: L3 holds it)
 
 
@@ -96,27 +114,73 @@ class FieldRecord:
     noise: NoiseStream | None = None
 
 
-def _low_rank(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray | None, rank: int):
+def _low_rank(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray | None, resolution: float):
     """The part of ``values`` (n, nt) to store (the field less its known noise: a copy, or ``values``
-    itself), an orthonormal basis (n, k) of its range (``basis``'s, or the range finder's: Halko,
-    Martinsson and Tropp's), its coefficients (k, nt), the RMS of what they leave, and the measured
-    field's peak. Passes over the field: one (the noise, the peak, the energy, the coefficients
-    on a given basis), and one more for the range finder's sketch."""
-    if basis is None:
-        field, peak, energy, _ = _prepared(values, noise)
-        probe = np.random.default_rng(0).standard_normal((field.shape[1], rank)).astype(np.float32)
-        basis = _orthonormal(_sum_of_halves(lambda rows: (field[rows] @ probe, 0.0), len(field), vertical=True)[0])
-        coefficients = _sum_of_halves(lambda rows: (basis[rows].T @ field[rows], 0.0), len(field))[0]
-    else:
-        basis = _orthonormal(np.asarray(basis, np.float32).reshape(len(values), -1))
-        field, peak, energy, coefficients = _prepared(values, noise, basis)
+    itself), an orthonormal basis (n, k) of its range, its coefficients (k, nt), the RMS of what
+    they leave, and the measured field's peak.
+
+    The basis is ``basis``'s (one pass over the field: the noise, the peak, the energy, the
+    coefficients) and, while what it leaves would make the step coarser than the finest (an RMS
+    over ``NOISE_STEPS`` finest steps), the range finder's (Halko, Martinsson and Tropp's) of what
+    is left: a round of two passes, at most ``ROUNDS``, keeping the directions that carry more than
+    white noise of what is left could (:func:`_beyond`). Without ``basis`` the first round is the
+    range finder on the whole field. What is left then is noise, or modes beyond the rounds."""
+    n, nt = values.shape
+    given = np.zeros((n, 0), np.float32) if basis is None else _orthonormal(_columns(basis, n, np.float32))
+    field, peak, energy, coefficients = _prepared(values, noise, given)
+    coefficients = np.zeros((given.shape[1], nt), np.float32) if coefficients is None else coefficients
+    left = max(0.0, energy - float(np.sum(np.square(coefficients, dtype=np.float64))))  # Pythagoras
+    finest = field.size * (NOISE_STEPS * peak * resolution) ** 2  # what leaves the step its finest
+    rng = np.random.default_rng(0)
+    for _ in range(ROUNDS):
+        if left <= finest or given.shape[1] >= min(n, nt):
+            break
+        found, more, power = _beyond(field, given, coefficients, (left, energy), rng)
+        if not found.shape[1]:  # what is left is noise, as far as the range finder can tell
+            break
+        given, coefficients, left = np.hstack([given, found]), np.vstack([coefficients, more]), max(0.0, left - power)
     coefficients64 = coefficients.astype(np.float64)
     power, directions = np.linalg.eigh(coefficients64 @ coefficients64.T)  # the coefficients' SVD, from k x k
     keep = power > power.max(initial=0.0) * 1e-14  # singular values within float32's resolution of the largest
     left = max(0.0, energy - float(np.sum(power[keep])))  # Pythagoras: the basis is orthonormal
     directions = directions[:, keep][:, ::-1]  # the strongest first
-    return field, (basis @ directions.astype(np.float32)), (directions.T @ coefficients64).astype(np.float32), \
+    return field, (given @ directions.astype(np.float32)), (directions.T @ coefficients64).astype(np.float32), \
         float(np.sqrt(left / max(field.size, 1))), peak
+
+
+def _beyond(field: np.ndarray, basis: np.ndarray, coefficients: np.ndarray, energies: tuple, rng):
+    """A round of the range finder on what ``basis @ coefficients`` leaves of ``field`` (``energies``:
+    its energy, and the field's): directions (n, m) orthonormal and orthogonal to ``basis``, their
+    coefficients (m, nt) and the energy they carry, keeping only those that carry more than four
+    times what the strongest direction of white noise of the energy the round leaves could (its
+    largest singular value, sigma (sqrt(n) + sqrt(nt)), twice over: structure, not noise) and more
+    than 10^-12 of the field's energy (float32's rounding of it, not structure). Two passes: the
+    sketch, the coefficients."""
+    n, nt = field.shape
+    probe = rng.standard_normal((nt, min(RANK_MAX, n, nt))).astype(np.float32)
+
+    def sketch(rows: slice):
+        rest = field[rows] if not basis.shape[1] else field[rows] - basis[rows] @ coefficients
+        return rest @ probe, 0.0
+
+    sketched = _sum_of_halves(sketch, n, vertical=True)[0].astype(np.float64)
+    basis64 = basis.astype(np.float64)
+    for _ in range(2):  # twice: what the first projection's rounding left of the basis taken away too
+        sketched -= basis64 @ (basis64.T @ sketched)
+    found = _orthonormal(sketched)
+    more = _sum_of_halves(lambda rows: (found[rows].T @ field[rows], 0.0), n)[0].astype(np.float64)
+    power, directions = np.linalg.eigh(more @ more.T)
+    left, energy = energies
+    rest = max(0.0, left - float(np.sum(power)))  # what the round leaves: noise, or modes beyond it
+    keep = power > max(4 * rest / field.size * (np.sqrt(n) + np.sqrt(nt)) ** 2, 1e-12 * energy)
+    directions = directions[:, keep]
+    return found @ directions.astype(np.float32), (directions.T @ more).astype(np.float32), float(np.sum(power[keep]))
+
+
+def _columns(array, n: int, dtype) -> np.ndarray:
+    """``array`` as ``n`` rows (a column when it is one-dimensional): a 2-D array as it is, even empty."""
+    array = np.asarray(array, dtype)
+    return array if array.ndim == 2 else array.reshape(n, -1)
 
 
 def _orthonormal(columns: np.ndarray) -> np.ndarray:
@@ -156,10 +220,10 @@ def _sum_of_halves(work, n: int, vertical: bool = False):
     return (np.vstack(arrays) if vertical else sum(arrays[1:], arrays[0])) if arrays else None, total
 
 
-def _prepared(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray | None = None):
+def _prepared(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray):
     """``values`` less ``noise`` (a new array; ``values`` itself without noise), the peak of
     ``values``, the energy (sum of squares) of what is left, and its coefficients on ``basis``
-    (None without one): one pass, a block of points at a time, on two threads."""
+    (None without points): one pass, a block of points at a time, on two threads."""
     field = values if noise is None else np.empty_like(values)
     peaks = []
 
@@ -167,9 +231,8 @@ def _prepared(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray |
         if noise is not None:
             field[rows] = values[rows]
             noise.add_to(field[rows], rows.start, sign=-1)
-        peaks.extend([float(values[rows].max()), -float(values[rows].min())])  # (list.extend holds the GIL)
-        coefficients = np.zeros((0, 0), np.float32) if basis is None else basis[rows].T @ field[rows]
-        return coefficients, float(np.einsum("ij,ij->", field[rows], field[rows], dtype=np.float64))
+        peaks.extend([float(values[rows].max(initial=0)), -float(values[rows].min(initial=0))])  # (holds the GIL)
+        return basis[rows].T @ field[rows], float(np.einsum("ij,ij->", field[rows], field[rows], dtype=np.float64))
 
     coefficients, energy = _sum_of_halves(block, len(values))
     peak = float(np.max(peaks)) if peaks else 0.0
@@ -213,16 +276,17 @@ def write_field_record(path, times, points, values, resolution: float = RESOLUTI
                        noise: NoiseStream | None = None, basis: np.ndarray | None = None) -> Path:
     """Write the field ``values`` (n, nt) m/s measured at ``times`` (nt,) s on ``points`` (n, d) m to
     ``path`` (``.npz``), every sample kept within half a step (``resolution`` times its peak, or
-    an eighth of the RMS of what its modes leave: see the module's notes), and the arrays of
+    an eighth of the RMS of the noise its modes leave: see the module's notes), and the arrays of
     ``extra`` as they are (their names prefixed ``extra_`` on file). Returns the path.
 
     ``noise``: the noise the scan added, as its generator makes it again (a simulated vibrometer's,
     :meth:`modalctl.io.device.Device.scan_noise_stream`): stored by its description, not its
     samples. ``basis`` (n, k): shapes the field lives in (the model's modes on the grid), used
-    instead of finding them (one pass over the field instead of two); what they leave is kept
-    too, in the residual."""
+    instead of finding them (one pass over the field instead of three); where what they leave
+    would coarsen the step, the range finder finds what they lack (two passes a round), and what
+    is left after that is kept too, in the residual."""
     field = np.ascontiguousarray(values, np.float32)
-    times, points = np.asarray(times, float), np.asarray(points, float).reshape(len(field), -1)
+    times, points = np.asarray(times, float), _columns(points, len(field), float)
     if field.ndim != 2 or field.shape[1] != times.size:
         raise ModelError(f"field record: field {field.shape} does not match {times.size} instants")
     if basis is not None and np.shape(basis)[0] != field.shape[0]:
@@ -233,9 +297,9 @@ def write_field_record(path, times, points, values, resolution: float = RESOLUTI
         raise ModelError(f"field record: noise from generator {noise.generator!r} version {noise.version}; this "
                          f"modalctl makes {GENERATOR!r} version {NOISE_VERSION} only")
     with serial_blas():  # small products but for the passes, which run on two threads of their own
-        stored, basis, coefficients, left, peak = _low_rank(field, noise, basis, min(RANK_MAX, *field.shape))
+        stored, basis, coefficients, left, peak = _low_rank(field, noise, basis, resolution)
         step = max(peak * resolution, min(left / NOISE_STEPS, peak * COARSEST)) if peak > 0 else 1.0
-        residual = _residual(stored, basis, coefficients, step)
+        residual = _residual(stored, basis, coefficients, step) if field.size else np.zeros(field.shape, np.int8)
     header = {"format": FORMAT, "version": VERSION, "step_m_per_s": step, "resolution": resolution,
               "field": "basis @ coefficients + step * residual" + (" + noise" if noise else ""),
               "noise": None if noise is None else {
@@ -262,8 +326,9 @@ def read_field_record(path) -> FieldRecord:
     try:
         with np.load(path, allow_pickle=False) as data:
             header = json.loads(str(data["header_json"]))
-            if header.get("format") != FORMAT:
-                raise ModelError(f"field record: {str(path)!r} is not a field record ({header.get('format')!r})")
+            if not isinstance(header, dict) or header.get("format") != FORMAT:
+                raise ModelError(f"field record: {str(path)!r} is not a field record "
+                                 f"({header.get('format') if isinstance(header, dict) else type(header).__name__!r})")
             if header.get("version") not in (1, VERSION):
                 raise ModelError(f"field record: {str(path)!r} is version {header.get('version')!r}; this "
                                  f"modalctl reads versions 1 to {VERSION}")
@@ -271,19 +336,22 @@ def read_field_record(path) -> FieldRecord:
             times, points = data["times"], data["points"]
             noise = _noise(header.get("noise"), data, path)
             extra = {key[len("extra_"):]: data[key] for key in data.files if key.startswith("extra_")}
+        step = float(header["step_m_per_s"])
+        values = np.matmul(basis, coefficients, dtype=np.float32)
+        if residual.shape != values.shape:
+            raise ModelError(f"field record: {str(path)!r}: residual {residual.shape} for a field {values.shape}")
+        for start in range(0, values.shape[0], _BLOCK):  # a block at a time: no temporary as large as the field
+            rows = slice(start, start + _BLOCK)
+            values[rows] += np.float32(step) * residual[rows]
+        if noise is not None:
+            if noise.shape != values.shape:
+                raise ModelError(f"field record: {str(path)!r}: noise {noise.shape} for a field {values.shape}")
+            noise.add_to(values)
     except ModelError:
         raise
-    except (ValueError, OSError, KeyError, TypeError, EOFError, zipfile.BadZipFile, json.JSONDecodeError) as exc:
+    except (ValueError, OSError, KeyError, TypeError, AttributeError, EOFError, zipfile.BadZipFile,
+            json.JSONDecodeError) as exc:
         raise ModelError(f"field record: cannot read {str(path)!r} ({exc})") from None
-    step = float(header["step_m_per_s"])
-    values = np.matmul(basis, coefficients, dtype=np.float32)
-    for start in range(0, values.shape[0], _BLOCK):  # a block at a time: no temporary as large as the field
-        rows = slice(start, start + _BLOCK)
-        values[rows] += np.float32(step) * residual[rows]
-    if noise is not None:
-        if noise.shape != values.shape:
-            raise ModelError(f"field record: {str(path)!r}: noise {noise.shape} for a field {values.shape}")
-        noise.add_to(values)
     return FieldRecord(times, points, values, step, basis.shape[1], extra, noise)
 
 
@@ -292,6 +360,9 @@ def _noise(described, data, path) -> NoiseStream | None:
     have is refused."""
     if described is None:
         return None
+    if not isinstance(described, dict):
+        raise ModelError(f"field record: {str(path)!r} describes its noise as {described!r}, not as its generator, "
+                         f"version, key and sigma")
     generator, version = described.get("generator"), described.get("version")
     if (generator, version) != (GENERATOR, NOISE_VERSION):
         raise ModelError(f"field record: {str(path)!r} stores its noise as generator {generator!r} version "
