@@ -8,9 +8,13 @@ solution (frequencies, shapes, the patches' pin-force gains and the sensors).
 
 from __future__ import annotations
 
+import os
+import time
+
 import numpy as np
 import pytest
 
+from modalctl import forked
 from modalctl.model import fe_plate
 from modalctl.model.fe_plate import MATERIALS, FEPlate, Hole, Material, Outline, Support
 from modalctl.model.modes import ModelError
@@ -120,6 +124,33 @@ def test_a_band_too_high_for_the_mesh_budget_is_refused(monkeypatch):
     with pytest.raises(ModelError, match="degrees of freedom"):
         plate.modal_model(band=40e3)
 
+
+
+@pytest.mark.parametrize("failure", [ModelError("the fine mesh is refused"), KeyboardInterrupt()])
+def test_the_coarse_mesh_s_child_is_stopped_when_the_fine_mesh_fails(monkeypatch, failure):
+    """The fine mesh refused (DOFS_MAX, MODES_MAX, ARPACK) or Ctrl-C in this process while the
+    child solves the coarse one: the child is killed, not left solving to a closed pipe."""
+    here, children = os.getpid(), []
+
+    def level(self, mesh, size, **_):
+        if os.getpid() != here:
+            time.sleep(60)  # the coarse mesh: still solving when the fine one fails
+        raise failure
+
+    def spy(job):
+        work = forked.beside(job)
+        children.append(work._process.pid)
+        return work
+
+    monkeypatch.setattr(FEPlate, "_level", level)
+    monkeypatch.setattr(fe_plate, "beside", spy)
+    plate = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"])
+    start = time.monotonic()
+    with pytest.raises(type(failure)):
+        plate.modal_model(2, spacing=2e-3)
+    assert time.monotonic() - start < 30 and len(children) == 1
+    with pytest.raises(FileNotFoundError):  # killed and reaped
+        open(f"/proc/{children[0]}/stat").close()
 
 def fe_command(tmp_path, *extra) -> list[str]:
     return ["model", "fe", "--thickness", "1mm", "--modes", "4", "--spacing", "4mm", "--no-plots",

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.linalg
+import scipy.sparse
 
 from modalctl.model import fe_plate
 from modalctl.model.fe_plate import MATERIALS, FEPlate, Hole, Outline, Support
@@ -91,3 +92,43 @@ def test_every_mode_below_a_frequency_is_the_lowest_modes_up_to_it(support):
     mac = (below[1].T @ every[1][:, :n]) ** 2 / np.outer(np.sum(below[1] ** 2, 0), np.sum(every[1][:, :n] ** 2, 0))
     assert np.all(np.max(mac, axis=1) > 0.999)  # mode by mode (no repeated frequency on this panel)
     assert below[2].shape[1] == (3 if support == "free" else 0)
+
+
+def test_the_band_solved_about_its_middle_is_checked_and_sound_on_a_clamped_plate(monkeypatch):
+    """The mid-band factors are indefinite and unpivoted: the band's modes are checked by their
+    residuals, which on a sound factor are round-off, so no second solve."""
+    plate = FEPlate(Outline.rectangle(0.06, 0.04), 1e-3, GLASS, {"rim": Support("clamped")})
+    mesh = plate.mesh(6e-3)
+    residual, factor, seen, factored = fe_plate._residual, fe_plate._factor, [], []
+    monkeypatch.setattr(fe_plate, "_residual", lambda *pairs: seen.append(residual(*pairs)) or seen[-1])
+    monkeypatch.setattr(fe_plate, "_factor", lambda matrix: factored.append(matrix) or factor(matrix))
+    monkeypatch.setattr(fe_plate, "ROUNDOFF", 0.0)  # every residual counted, round-off too
+    freqs = plate.solve(mesh, below=25e3)[0]
+    assert len(freqs) > 5 and len(seen) == 1 and 0 < seen[0] < 1e-8, seen
+    assert len(factored) == 2  # the inertia's and the mid-band shift's: no solve from below
+
+
+def test_unsound_mid_band_factors_are_solved_again_from_below_the_lowest_mode(monkeypatch):
+    """Factors of a matrix 0.1% off (as a tiny pivot's growth leaves them) give modes whose
+    residuals fail the check: the band is solved again from below, as the modes counted from
+    below give it."""
+    plate = FEPlate(Outline.rectangle(0.06, 0.04), 1e-3, GLASS, {"rim": Support("clamped")})
+    mesh = plate.mesh(6e-3)
+    sound = plate.solve(mesh, below=25e3)[0]
+    safe = plate.solve(mesh, len(sound))[0]  # the lowest modes: solved from below them
+    residual, factor, seen, factored = fe_plate._residual, fe_plate._factor, [], []
+    rng = np.random.default_rng(5)
+
+    def unsound(matrix):
+        factored.append(matrix)
+        if len(factored) == 2:  # the mid-band shift's (the first counts the modes)
+            matrix = matrix + scipy.sparse.diags(1e-3 * np.abs(matrix.diagonal()) * rng.uniform(-1, 1, matrix.shape[0]))
+        return factor(matrix)
+
+    monkeypatch.setattr(fe_plate, "_residual", lambda *pairs: seen.append(residual(*pairs)) or seen[-1])
+    monkeypatch.setattr(fe_plate, "_factor", unsound)
+    freqs, vectors, rigid, _ = plate.solve(mesh, below=25e3)
+    assert len(seen) == 1 and seen[0] > 100 * fe_plate.RESIDUAL_TOLERANCE and len(factored) == 3, seen
+    np.testing.assert_allclose(freqs, safe, rtol=1e-9)
+    np.testing.assert_allclose(freqs, sound, rtol=1e-9)
+    assert vectors.shape[1] == len(sound) and rigid.shape[1] == 0
