@@ -127,7 +127,7 @@ def plan_convex(dec: Decomposition, focus_time: float, options: PlanOptions = Pl
     base = _reference(dec, focus_time, options)
     program = Program(model, modes, targets, dec.shape.target_mask, focus_time, options,
                       None if base is None else base.voltages())
-    solution = program.solve()
+    solution = program.solve(progress=progress)
     info = {"planner": "convex", "margin_asked": margin, "voltage_limit": options.voltage_limit,
             "slew_limit": options.slew_limit, "robust_drift": options.robust_drift, "after_s": options.after,
             "reference": options.convex.reference, "program": _summary(program, solution)}

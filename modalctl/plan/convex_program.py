@@ -306,11 +306,12 @@ class Program:
         return added
 
     # -- the solve ---------------------------------------------------------------------------------
-    def solve(self, margin: float | None = None, deadline: float | None = None) -> Solution:
+    def solve(self, margin: float | None = None, deadline: float | None = None, progress: bool = False) -> Solution:
         """The least-energy drive under ``margin`` (default: the options'; inf: none) and the
         limits, by constraint generation from every row an earlier solve found. Returns the last
         iterate and how far it got; past ``deadline`` (``time.perf_counter``'s), it stops at the
-        next round with the status :data:`OUT_OF_TIME`."""
+        next round with the status :data:`OUT_OF_TIME`. ``progress``: a bar over the rounds with
+        the ratio each reached and the rows so far (a tablet panel's plan takes a minute)."""
         opts = self.options.convex
         margin = self.margin if margin is None else float(margin)
         start = _time.perf_counter()
@@ -329,6 +330,7 @@ class Program:
             duals = np.r_[eq, [known.get(key, 0.0) for key in rows.order]]
         played = None
         checks = _Checks(len(self.plants))
+        bar = tqdm(total=opts.rounds, desc="margin program", unit="round", disable=not progress, leave=False)
         try:
             for round_ in range(1, opts.rounds + 1):
                 if deadline is not None and round_ > 1 and _time.perf_counter() > deadline:
@@ -352,6 +354,9 @@ class Program:
                 self.seconds["check"] += _time.perf_counter() - tic
                 history.append({"round": round_, "ratio": ratios[0], "peak_voltage": float(np.abs(volts).max()),
                                 "rows": len(rows)})
+                bar.set_postfix_str(f"ratio {max(ratios):.3f} for {margin:g}, {len(rows)} rows, "
+                                    f"{_time.perf_counter() - start:.0f} s")
+                bar.update()
                 tic = _time.perf_counter()
                 within = self._new_limit_rows(rows, volts) == 0
                 if max(ratios) <= margin and within:
@@ -360,6 +365,7 @@ class Program:
                 self.seconds["rows"] += _time.perf_counter() - tic
         finally:
             checks.close()
+            bar.close()
         return self._solution(x, status, history, len(rows), start, played)
 
     def _floor(self, velocity: np.ndarray, floor: float) -> float:
