@@ -110,3 +110,12 @@ def test_registered_plugins_are_reached_by_name_through_the_manager_handed_to_ru
 def test_every_name_the_front_door_exports_exists():
     missing = [name for name in mc.__all__ if not hasattr(mc, name)]
     assert not missing
+
+
+def test_python_dash_m_modalctl_is_the_command_line():
+    """``python -m modalctl`` runs the same commands as the script (profilers start it that way)."""
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "modalctl", "scenes"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and "panel-rounded" in done.stdout
