@@ -57,21 +57,27 @@ class PIControl(Controller):
         proportional = self.kp * error
         trial = self.integral + self._ki_period * error
         command = proportional + trial
-        if (np.abs(command) <= limit).all():  # the usual case: seven array operations
+        size = np.abs(command)
+        if (size <= limit).all():  # the usual case: seven array operations
             self.integral = trial
             return command
         active = limit > 0
         if not active.all():  # a loop without authority rests: no command, its integral emptied
-            error, proportional, trial = error * active, proportional * active, trial * active
+            proportional, trial = proportional * active, trial * active
             command = proportional + trial
-            if (np.abs(command) <= limit).all():
+            size = np.abs(command)
+            if (size <= limit).all():
                 self.integral = trial
                 return command
-        over = np.abs(command) > limit
-        held = over & (np.real(np.conj(command) * error) > 0)  # anti-windup: hold while pushing further
-        self.integral = trial = np.where(held, self.integral, trial)
-        command = proportional + trial
-        return command * np.minimum(1.0, limit / np.maximum(np.abs(command), 1e-300))  # each within its limit
+        # a resting loop is never over its zero limit (its command is zero): its error, which the
+        # law would have zeroed, cannot hold it, and is used as it is
+        held = (size > limit) & (np.real(np.conj(command) * error) > 0)  # anti-windup: hold while pushing further
+        if held.any():  # else the integral moves on and the command stays: three operations saved
+            trial = np.where(held, self.integral, trial)
+            command = proportional + trial
+            size = np.abs(command)
+        self.integral = trial
+        return command * np.minimum(1.0, limit / np.maximum(size, 1e-300))  # each within its limit
 
     def _update_scalar(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         """:meth:`update`'s law, one mode at a time in plain Python."""
