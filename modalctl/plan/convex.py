@@ -74,7 +74,6 @@ from dataclasses import replace
 import numpy as np
 
 from modalctl.options import PlanOptions
-from modalctl.threads import serial_blas
 
 from .convex_basis import Basis, Responses
 from .convex_program import Program, Solution
@@ -101,9 +100,8 @@ class ConvexPlanner(Planner):
         if not focus_time > 0:
             return False
         modes = np.asarray(dec.modes_used, int)
-        with serial_blas():  # as plan(): many small products (modalctl.threads)
-            program = Program(dec.model, modes, dec.coefficients[modes], dec.shape.target_mask, focus_time, options)
-            return program.solve().holds(program.margin, options)
+        program = Program(dec.model, modes, dec.coefficients[modes], dec.shape.target_mask, focus_time, options)
+        return program.solve().holds(program.margin, options)
 
 
 

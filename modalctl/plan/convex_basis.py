@@ -160,7 +160,7 @@ class _Table:
         self.kept = np.zeros((2, blocks + 1, self.e.size, proto.shape[0]), complex)  # (part, block, K, C)
         for b in range(blocks):
             for part in range(2):
-                step = _product(weights, self.inputs[part, b * stride:(b + 1) * stride])
+                step = weights @ self.inputs[part, b * stride:(b + 1) * stride]
                 self.kept[part, b + 1] = self.powers[:, stride, None] * self.kept[part, b] + step
 
     def at(self, lag: np.ndarray) -> list:
@@ -214,37 +214,29 @@ class Responses:
         self.tables = []
         for family in basis.bumps:
             proto = family.prototypes(basis.omega, sample_rate)
-            self.tables.append((family, family.phases(basis.omega, sample_rate, focus_time), self._table(g0, proto)))
+            self.tables.append((family, family.phases(basis.omega, sample_rate, focus_time), _Table(self.e, g0, proto)))
         self.hat_table = None
         if basis.hats is not None:
-            self.hat_table = self._table(g0, hat(basis.hats.half)[None, :].astype(complex))
-
-    def _table(self, g0, proto: np.ndarray) -> _Table:
-        return _Table(self.e, g0, proto)
-
-    def _at(self, table: _Table, lag: np.ndarray):
-        """The states at lags ``lag`` (j,) from each copy's first sample; zero before it. Two
-        arrays (K, C, j)."""
-        return table.at(lag)
+            self.hat_table = _Table(self.e, g0, hat(basis.hats.half)[None, :].astype(complex))
 
     def states(self, n: int) -> np.ndarray:
         """Every mode's state at sample ``n`` per unit of each column, shape (K, columns) complex."""
         blocks = []
         for family, phase, table in self.tables:
-            z_re, z_im = self._at(table, n - family.offsets)  # (K, m, j)
+            z_re, z_im = table.at(n - family.offsets)  # (K, m, j)
             # a column (a, b) drives Re{(a + j b) phase P}: a -> Re(phase) Re P - Im(phase) Im P, b -> -(...)
             za = (phase.real * z_re - phase.imag * z_im) * self.mode_gain[:, :, None]
             zb = -(phase.real * z_im + phase.imag * z_re) * self.mode_gain[:, :, None]
             blocks.append(np.stack([za, zb], axis=-1).reshape(self.e.size, -1))
         if self.hat_table is not None:
-            z_re, _ = self._at(self.hat_table, n - self.basis.hats.offsets)  # (K, 1, j)
+            z_re, _ = self.hat_table.at(n - self.basis.hats.offsets)  # (K, 1, j)
             blocks.append((self.gains[:, :, None] * z_re[:, 0][:, None, :]).reshape(self.e.size, -1))
         return np.hstack(blocks) * self.basis.scale
 
     def driven(self, volts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Every mode's velocity and displacement at samples 0..N under ``volts`` (a, N) from rest,
         by the same recursion: two arrays (K, N + 1)."""
-        force = np.hstack([_product(self.gains, volts), np.zeros((self.gains.shape[0], 1))])
+        force = np.hstack([self.gains @ volts, np.zeros((self.gains.shape[0], 1))])
         z = np.stack([lfilter([0, g], [1, -e], f) for g, e, f in zip(self.g0, self.e, force)])
         return 2 * (self.r[:, None] * z).real, 2 * (self.q[:, None] * z).real
 
@@ -295,12 +287,12 @@ class _Box:
         """Each child's bound on ``|w|`` over its points at each column of ``velocity`` (K, s)
         (``speed``: its absolute value), shape (c, s)."""
         c = len(self.children)
-        y = _product(self.fit, velocity).reshape(-1, c, velocity.shape[1])
+        y = (self.fit @ velocity).reshape(-1, c, velocity.shape[1])
         a, slope = y[0], y[1:]  # (c, s), (d, c, s)
         low, high = slope * self.low.T[:, :, None], slope * self.high.T[:, :, None]
         most = a + np.maximum(low, high).sum(axis=0)
         least = a + np.minimum(low, high).sum(axis=0)
-        return np.maximum(most, -least) + _product(self.residual, speed)
+        return np.maximum(most, -least) + self.residual @ speed
 
 
 class Cover:
@@ -369,7 +361,7 @@ class Cover:
         cols, field)`` on the smallest boxes reached, ``pruned(cols, bound)`` with the largest bound
         of the children it stops at (-inf where none)."""
         if not box.children:
-            leaf(box, cols, _product(self.values[box.start:box.stop], velocity))
+            leaf(box, cols, self.values[box.start:box.stop] @ velocity)
             return
         bounds = box.bounds(velocity, speed) + slack
         overs = bounds > floor
@@ -417,7 +409,7 @@ class Cover:
         if self.size == 0 or velocity.shape[1] == 0:
             return 0.0
         if not self.root.children:  # a few points
-            return float(np.abs(_product(self.values, velocity)).max())
+            return float(np.abs(self.values @ velocity).max())
         found = self.at_least(velocity)
         return max(found, float(self.top(velocity, found).max()))
 
@@ -432,7 +424,7 @@ class Cover:
         else:
             rough = np.concatenate([self.root.bounds(velocity[:, i:i + CHUNK], np.abs(velocity[:, i:i + CHUNK]))
                                     .max(axis=0) for i in range(0, velocity.shape[1], CHUNK)])
-        return float(np.abs(_product(self.values, velocity[:, np.argsort(rough)[-columns:]])).max())
+        return float(np.abs(self.values @ velocity[:, np.argsort(rough)[-columns:]]).max())
 
     def lobes(self, size: np.ndarray, level: float) -> np.ndarray:
         """The points where ``size`` (n,: a field's absolute value, in the points' order) exceeds
@@ -462,13 +454,6 @@ class Cover:
         result = np.empty_like(out)
         result[self.order] = out
         return result
-
-
-def _product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b``: the cover's products are many and small, run with BLAS on one thread (the planner
-    runs in :func:`modalctl.threads.serial_blas`; OpenBLAS's threads spun on them, a 24 x 22 by
-    22 x 4096 product 40 times slower on a loaded 2-core machine)."""
-    return a @ b
 
 
 def _neighbours(points: np.ndarray) -> np.ndarray:
@@ -508,7 +493,7 @@ def _affine(shapes: np.ndarray, points: np.ndarray):
     offset = points - centre
     reach = np.where(np.ptp(points, axis=0) > 0, 0.5 * np.ptp(points, axis=0), 1.0)
     design = np.hstack([np.ones((points.shape[0], 1)), offset / reach])  # within [-1, 1]: well conditioned
-    fit = np.linalg.lstsq(design.T @ design, _product(design.T, shapes.T), rcond=None)[0]  # (1 + d, K)
-    residual = np.abs(shapes.T - _product(design, fit)).max(axis=0)  # whatever the fit, this makes it a bound
+    fit = np.linalg.lstsq(design.T @ design, design.T @ shapes.T, rcond=None)[0]  # (1 + d, K)
+    residual = np.abs(shapes.T - design @ fit).max(axis=0)  # whatever the fit, this makes it a bound
     fit[1:] /= reach[:, None]
     return fit, residual, offset.min(axis=0), offset.max(axis=0)

@@ -18,7 +18,7 @@ from modalctl.model.modes import ModalModel
 from modalctl.model.propagate import Plant
 from modalctl.options import PlanOptions
 
-from .convex_basis import Basis, Cover, Responses, _product
+from .convex_basis import Basis, Cover, Responses
 from .dispatch import dispatch
 from .qp import QP, solve_qp
 
@@ -208,7 +208,7 @@ class Program:
     def play(self, x: np.ndarray) -> tuple[np.ndarray, list]:
         """The drive's voltages (a, N) and every plant's modal velocities (K, N) on it."""
         volts = self.voltages(x)
-        return volts, [_simulate(m, self.fs, volts) for m in self.plants]
+        return volts, [Plant(m, self.fs).simulate(volts) for m in self.plants]
 
     def voltages(self, x: np.ndarray) -> np.ndarray:
         """The drive's voltages (a, N)."""
@@ -217,7 +217,7 @@ class Program:
     def _check_plant(self, s: int, volts: np.ndarray, margin: float) -> tuple:
         """Plant ``s`` on ``volts``: its modal velocities (K, N), the level above which its field is
         found exactly, and its largest off-target ``|w|`` at every sample (N,)."""
-        velocity = _simulate(self.plants[s], self.fs, volts)
+        velocity = Plant(self.plants[s], self.fs).simulate(volts)
         floor = self._floor(velocity, self.options.convex.aim * self._margin_bound(s, margin))
         return velocity, floor, self.off_target(velocity, floor)  # exact where rows may be
 
@@ -226,7 +226,7 @@ class Program:
         adds to its offset."""
         drive = self.basis.drive(x, self.focus_time, self.fs)
         t = np.arange(self.samples) / self.fs + 0.5 / self.fs
-        return _product(self.basis.weights, drive.forces(t)) + drive.channels(t, self.basis.weights.shape[0])
+        return self.basis.weights @ drive.forces(t) + drive.channels(t, self.basis.weights.shape[0])
 
     def off_target(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
         """The largest off-target |w| at every sample, shape (N,), exactly wherever it exceeds
@@ -467,16 +467,6 @@ class _Checks:
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown()
-
-
-def _simulate(model: ModalModel, sample_rate: float, volts: np.ndarray) -> np.ndarray:
-    """:meth:`Plant.simulate <modalctl.model.propagate.Plant.simulate>` of ``volts`` (a, N) from
-    rest, in one step: a filter call per mode over the whole shot. (It went by blocks of 2048
-    samples, 15 filter calls per mode on the panel, to keep OpenBLAS's threads from spinning on
-    the forces' product; the planner now runs with BLAS on one thread, :mod:`modalctl.threads`.)"""
-    plant = Plant(model, sample_rate)
-    plant.reset()
-    return plant.step(volts)
 
 
 def _drifts(band: float) -> list:

@@ -310,15 +310,16 @@ def min_focus_time(dec: Decomposition, options: PlanOptions, lower: float = 1e-3
     Returns the focus time (s) and its plan; raises :class:`PlanError` when even ``upper`` fails.
     """
     planner = pick("planner", options.planner)
-    if not planner.feasible(dec, upper, options):
-        raise PlanError(f"no focus time up to {upper * 1e3:g} ms meets the limits")
-    lo, hi = lower, upper
-    while hi - lo > rel_tol * hi:
-        mid = 0.5 * (lo + hi)
-        if planner.feasible(dec, mid, options):
-            hi = mid
-        else:
-            lo = mid
+    with serial_blas():  # as plan(): many small products (modalctl.threads)
+        if not planner.feasible(dec, upper, options):
+            raise PlanError(f"no focus time up to {upper * 1e3:g} ms meets the limits")
+        lo, hi = lower, upper
+        while hi - lo > rel_tol * hi:
+            mid = 0.5 * (lo + hi)
+            if planner.feasible(dec, mid, options):
+                hi = mid
+            else:
+                lo = mid
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DecouplingWarning)
         return hi, plan(dec, hi, options)
@@ -348,13 +349,14 @@ def plan_shot(model: ModalModel, shape: Shape, focus_time: float, options: PlanO
     deadline = None if budget is None else _time.perf_counter() + budget
     for added in range(options.added_modes + 1):
         left = np.setdiff1d(np.arange(dec.model.n_modes), dec.modes_used)
-        spent = deadline is not None and _time.perf_counter() >= deadline  # checked between attempts only:
-        last = not grow or left.size == 0 or added == options.added_modes or spent  # one under way always ends
+        more = grow and left.size > 0 and added < options.added_modes  # another attempt may follow this one
+        by_budget = more and deadline is not None and _time.perf_counter() >= deadline  # checked between attempts:
+        last = not more or by_budget  # one under way always ends
         try:  # an attempt followed by another needs no certificate of its refusal
             attempt = options if last else options.but(convex=options.convex.but(certify=False))
             return dec, plan(dec, focus_time, attempt, progress)
         except PlanError as exc:
-            if last and spent and added < options.added_modes and left.size:
+            if by_budget:
                 raise _stopped_by_budget(exc, added + 1, budget) from None
             if last or exc.limit != options.margin:
                 raise
