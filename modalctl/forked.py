@@ -37,8 +37,8 @@ class Beside:
 
     def __init__(self, job: Callable):
         self._process, self._read, self._answer = None, None, None
-        if not sys.platform.startswith("linux"):
-            self._answer = _answer(job)
+        if not sys.platform.startswith("linux") or multiprocessing.current_process().daemon:
+            self._answer = _answer(job)  # no fork here, or a daemonic worker (a Pool's), which may have no child
             return
         context = multiprocessing.get_context("fork")
         read, write = context.Pipe(duplex=False)

@@ -142,3 +142,16 @@ def test_a_child_whose_parent_died_before_it_was_tied_to_it_ends():
     child.start()
     child.join()
     assert child.exitcode == 1
+
+
+def _pid_of_the_job(_):
+    return beside(os.getpid).result() == os.getpid()
+
+
+def test_in_a_pool_s_daemonic_worker_the_job_runs_there():
+    """A multiprocessing Pool's workers are daemonic and may not have children (benchmarks/fe_plate.py
+    solves its plates in one): the job runs in the worker itself."""
+    import multiprocessing
+
+    with multiprocessing.get_context("fork").Pool(1) as pool:
+        assert pool.map(_pid_of_the_job, [0]) == [True]
