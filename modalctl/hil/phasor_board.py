@@ -278,8 +278,11 @@ class HILBoard(PhasorBoard):
         scanning vibrometer repeating it would see it (m/s, float32: the modes' velocities there times
         their shapes, :func:`~modalctl.hil.vibrometer.scan_field`); ``points``: grid indices (default all)."""
         velocity, idx = self.velocity, self._samples(times)  # the modes' at every DAC sample, played back once
-        return scan_field(self.plant.model.shapes, velocity[:, idx], idx, points, self.scan_noise,
-                          (self.setup.seed, SCAN_STREAM))
+        field = scan_field(self.plant.model.shapes, velocity[:, idx], idx, points)
+        noise = self.scan_noise_stream(times, points)  # one description of the noise, added and recorded
+        if noise is not None:
+            noise.add_to(field)
+        return field
 
     def scan_noise_stream(self, times: np.ndarray, points=None):
         """The vibrometer's noise in ``scan(times, points)``, described (a

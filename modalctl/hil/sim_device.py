@@ -172,8 +172,11 @@ class SimDevice(Device):
         if self._board is not None:  # the last shot ran in phasor mode
             return self._board.scan(times, points)
         idx = self._samples(times)
-        return scan_field(self.truth.shapes[self._kept], self._modal[:, idx], idx, points, self._noise_sigma or 0.0,
-                          (self.perturbation.seed, self._shots))
+        field = scan_field(self.truth.shapes[self._kept], self._modal[:, idx], idx, points)
+        noise = self.scan_noise_stream(times, points)  # one description of the noise, added and recorded
+        if noise is not None:
+            noise.add_to(field)
+        return field
 
     def scan_noise_stream(self, times: np.ndarray, points=None) -> NoiseStream | None:
         """The vibrometer's noise in ``scan(times, points)`` (its stream's key, sigma, samples and
