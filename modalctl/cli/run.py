@@ -184,8 +184,10 @@ def _halted(out: Path, device, fault: Exception) -> None:
 def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     """metrics.json, fields.npz and the pictures of a run; the summary on stdout. ``stages``: the
     seconds the command spent before the shot (its model, its growth), written with the writing's."""
+    import functools
     import time
 
+    from modalctl.forked import beside
     from modalctl.outdir import record
 
     started = time.perf_counter()
@@ -193,7 +195,7 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
                          "grown": None if growth is None else growth.to_dict()}}
-    pictures = None if args.no_plots else _Pictures(shot, out)  # drawn beside the fields' writing
+    pictures = None if args.no_plots else beside(functools.partial(_draw, shot, out, time.perf_counter()))
     try:
         _write_fields(model, shot, out, device)
     except BaseException:
@@ -223,54 +225,34 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     return DEVICE if fault else 0
 
 
-def _pictures_drawn(pictures: _Pictures, metrics: dict, out: Path) -> float | None:
-    """The pictures into ``metrics["pictures"]`` and the seconds they took; a drawing that failed
-    (the shot, its metrics and its fields are not lost for it) is said on stderr, its traceback in
+def _pictures_drawn(pictures, metrics: dict, out: Path) -> float | None:
+    """The pictures a :func:`modalctl.forked.beside` child of :func:`_draw` made, into
+    ``metrics["pictures"]``, and the seconds they took; a drawing that failed (the shot, its
+    metrics and its fields are not lost for it) is said on stderr, its traceback in
     ``DIR/pictures-error.txt`` and its last line in ``metrics["pictures_error"]``: None."""
     try:
-        metrics["pictures"], seconds = pictures.wait()
-        return seconds
-    except RuntimeError as failed:
-        from modalctl.outdir import atomic
+        answer = pictures.result()
+    except RuntimeError as ended:  # the child ended without an answer
+        answer = {"error": str(ended)}
+    if "error" not in answer:
+        metrics["pictures"] = answer["pictures"]
+        return answer["seconds"]
+    from modalctl.outdir import atomic
 
-        text = str(failed)
-        with atomic(out / "pictures-error.txt") as path:  # never through a link planted in the folder
-            path.write_text(text + "\n")
-        last = [line for line in text.splitlines() if line.strip()][-1]
-        metrics["pictures_error"] = last
-        print(f"modalctl run: warning: the pictures could not be drawn ({last}); the shot's metrics and "
-              f"fields are written; the traceback is in {out}/pictures-error.txt", file=sys.stderr)
-        return None
-
-
-class _Pictures:
-    """A run's pictures (:func:`modalctl.report.write_run_report`) drawn in a forked child while
-    this process writes the fields (:func:`modalctl.forked.beside`): the child shares the shot
-    without a copy and imports matplotlib itself. :meth:`wait` returns ``({name: path},
-    seconds)``: the pictures and the seconds they took from the fork, or raises what stopped them,
-    with the child's traceback."""
-
-    def __init__(self, shot, out: Path):
-        import time
-
-        from modalctl.forked import beside
-
-        self.started = time.perf_counter()
-        self.work = beside(lambda: _draw(shot, out, self.started))
-
-    def stop(self) -> None:
-        """The child ended (the fields could not be written: no report)."""
-        self.work.stop()
-
-    def wait(self) -> tuple[dict, float]:
-        answer = self.work.result()
-        if "error" in answer:
-            raise RuntimeError(f"drawing the run's pictures failed: {answer['error']}")
-        return answer["pictures"], answer["seconds"]
+    text = f"drawing the run's pictures failed: {answer['error']}"
+    with atomic(out / "pictures-error.txt") as path:  # never through a link planted in the folder
+        path.write_text(text + "\n")
+    last = [line for line in text.splitlines() if line.strip()][-1]
+    metrics["pictures_error"] = last
+    print(f"modalctl run: warning: the pictures could not be drawn ({last}); the shot's metrics and "
+          f"fields are written; the traceback is in {out}/pictures-error.txt", file=sys.stderr)
+    return None
 
 
 def _draw(shot, out: Path, started: float) -> dict:
-    """The pictures and the seconds since ``started``, or the traceback of what stopped them."""
+    """The pictures (:func:`modalctl.report.write_run_report`) and the seconds since ``started``, or
+    the traceback of what stopped them: drawn in a forked child while the run writes its fields (it
+    shares the shot without a copy and imports matplotlib itself)."""
     import gc
     import time
     import traceback
