@@ -161,12 +161,12 @@ class TouchEstimator:
         # starts[i]:starts[i + 1]), and every point's pattern, when the cells hold more than their candidate
         self._members = np.concatenate(cells)
         self._starts = np.concatenate([[0], np.cumsum([c.size for c in cells])])
-        self._patterns = self._cells = self._cells2 = None
+        self._patterns = self._cells = None
         if self._members.size > self.candidates.size:
             self._patterns = shapes.T ** 2 / 2  # (n, k)
-            if self._members.size * f.size <= CELL_STORE:  # the cells' patterns in a row: no gathering
-                self._cells = self._patterns[self._members]
-                self._cells2 = self._cells * self._cells  # and squared: not recomputed each search (~2 us)
+            if self._members.size * f.size <= CELL_STORE:  # the cells' patterns in a row, and squared:
+                cells = self._patterns[self._members]  # no gathering, one product a search
+                self._cells = np.stack([cells, cells * cells])  # (2, members, k)
         self.readable = np.ones(f.size, bool) if readable is None else np.asarray(readable, bool)
         self.memories = np.sort(np.atleast_1d(np.asarray(memories, float)))
         if not (self.memories.size and np.all(np.isfinite(self.memories)) and self.memories[0] > 0):
@@ -335,10 +335,10 @@ class TouchEstimator:
         if end - first > 1:
             if self._cells is None:
                 q = self._patterns[self._members[first:end]]
-                q2 = q * q
+                qq = np.stack([q, q * q])
             else:
-                q, q2 = self._cells[first:end], self._cells2[first:end]
-            there = _explained(q @ losses[0], q2 @ losses[1])
+                qq = self._cells[:, first:end]
+            there = _explained(*np.matmul(qq, losses[:, :, None])[:, :, 0])
             best = int(there.argmax())
             if there[best] > explained:
                 return int(self._members[first + best]), float(there[best])
