@@ -14,6 +14,8 @@ from .common import open_device
 NAME, HELP = "identify", "identify a structure's modes from FRFs measured through a device"
 SURVEY = SurveyOptions()  # the defaults the options below show and use
 SCAN_POINTS_MIN = 5  # scan points a mode shape needs
+SWEEP = {"f_low": 100.0, "f_high": 100e3, "resolution": 4.0, "amplitude": 15.0, "step": 1e-3}  # defaults of the sweep
+SURVEY_ONLY = ("resolution", "amplitude", "step", "primary", "averages")  # options a file's FRFs have no use for
 
 
 def add_parser(sub):
@@ -27,26 +29,29 @@ def add_arguments(p) -> None:
     p.add_argument("--scene", help="sim://: the structure simulated (and its mass per length by default)")
     p.add_argument("--frf", help="identify from measured FRFs in a universal file (datasets 58 and 15) instead")
     p.set_defaults(transports=add_transport_options(p), snr=40.0)  # a vibrometer of 40 dB, unless said
-    p.add_argument("--f-low", type=quantity_type("Hz", "f-low", low=0, low_open=False), default=100.0,
-                   help="sweep start (100Hz)")
-    p.add_argument("--f-high", type=quantity_type("Hz", "f-high", low=0), default=100e3, help="sweep end (100kHz)")
-    p.add_argument("--resolution", type=quantity_type("Hz", "resolution", low=0), default=4.0,
-                   help="FRF resolution = 1 / T_sweep (4Hz)")
-    p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=0), default=15.0,
-                   help="sweep peak voltage (15V)")
-    p.add_argument("--step", type=quantity_type("m", "step", low=0), default=1e-3,
-                   help="spatial step of the scan, in each direction on a plate (1mm)")
+    p.add_argument("--f-low", type=quantity_type("Hz", "f-low", low=0, low_open=False),
+                   help=f"sweep start ({SWEEP['f_low']:g}Hz); with --frf the band's start (the file's)")
+    p.add_argument("--f-high", type=quantity_type("Hz", "f-high", low=0),
+                   help=f"sweep end ({SWEEP['f_high'] / 1e3:g}kHz); with --frf the band's end (the file's)")
+    p.add_argument("--resolution", type=quantity_type("Hz", "resolution", low=0),
+                   help=f"FRF resolution = 1 / T_sweep ({SWEEP['resolution']:g}Hz)")
+    p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=0),
+                   help=f"sweep peak voltage ({SWEEP['amplitude']:g}V)")
+    p.add_argument("--step", type=quantity_type("m", "step", low=0),
+                   help=f"spatial step of the scan, in each direction on a plate ({SWEEP['step'] * 1e3:g}mm)")
     p.add_argument("--mass-per-length", type=quantity_type("kg/m", "mass-per-length", low=0),
                    help="of a beam (kg/m); default from the scene")
     p.add_argument("--mass-per-area", type=quantity_type("kg/m^2", "mass-per-area", low=0),
                    help="of a plate (kg/m^2); default from the scene")
     p.add_argument("--method", default=SURVEY.method,
                    help=f"identifier plugin: auto, sdof, mdof or peaks (see 'modalctl plugins'; {SURVEY.method})")
-    p.add_argument("--primary", type=number_type(int, "primary", low=0, low_open=False), default=SURVEY.primary,
+    p.add_argument("--primary", type=number_type(int, "primary", low=0, low_open=False),
                    help=f"actuator swept over the whole grid ({SURVEY.primary})")
     p.add_argument("--averages", type=number_type(int, "averages", low=1, high=1000, low_open=False),
-                   default=SURVEY.averages, help=f"shots per point ({SURVEY.averages})")
-    p.add_argument("--no-orthogonalize", action="store_true", help="skip Gram-Schmidt")
+                   help=f"shots per point ({SURVEY.averages})")
+    p.add_argument("--no-orthogonalize", action="store_true",
+                   help="skip Gram-Schmidt (it is applied only where the grid's weights integrate the modes)")
+    p.add_argument("--left-out", action="store_true", help="list every mode left out, peaks of the noise too")
     p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--json", action="store_true")
@@ -73,11 +78,49 @@ def _density(args, meta: dict, dim: int) -> float:
         raise ParamError(f"identify: give {flag} ({unit}): it scales the shapes and gains") from None
 
 
+def _refuse_survey_options(args) -> None:
+    """With ``--frf``, the options only a sweep through a device uses are refused, each named."""
+    from modalctl.model.shape import ParamError
+
+    given = [f"--{name}" for name in SURVEY_ONLY if getattr(args, name) is not None]
+    if args.transport != "sim://":
+        given.append("--transport")
+    given += args.transports.misplaced(args, "")  # every transport's options: no device is opened
+    if given:
+        named = given[0] if len(given) == 1 else f"{', '.join(given[:-1])} and {given[-1]}"
+        raise ParamError(f"identify: {named} {'does' if len(given) == 1 else 'do'} not apply to --frf (FRFs read "
+                         f"from a file, no sweep through a device); leave {'it' if len(given) == 1 else 'them'} out")
+
+
+def _from_file(args, meta: dict):
+    """The survey of the FRFs in ``--frf``, within ``--f-low``/``--f-high``: (survey, point indices)."""
+    import numpy as np
+
+    from modalctl.identify.survey import identify_frf
+    from modalctl.identify.uff import read_uff58_references
+    from modalctl.model.shape import ParamError
+
+    _refuse_survey_options(args)
+    frfs = read_uff58_references(args.frf)
+    f = frfs[0].frequencies
+    low = f[0] if args.f_low is None else args.f_low
+    high = f[-1] if args.f_high is None else args.f_high
+    inside = np.count_nonzero((f >= low) & (f <= high))
+    if inside < 8:
+        raise ParamError(f"identify: --f-low {low:g} Hz to --f-high {high:g} Hz holds {inside} of the file's lines "
+                         f"({f[0]:g} to {f[-1]:g} Hz every {f[1] - f[0]:.4g} Hz); at least 8 are needed")
+    if args.f_low is not None or args.f_high is not None:
+        frfs = [frf.band(low, high) for frf in frfs]
+    density = _density(args, meta, frfs[0].points.shape[1])
+    survey = identify_frf(frfs if len(frfs) > 1 else frfs[0], density, args.method, not args.no_orthogonalize)
+    if args.f_low is not None or args.f_high is not None:
+        survey.notes.insert(0, f"band {low:g} to {high:g} Hz of the file's {f[0]:g} to {f[-1]:g} Hz")
+    return survey, np.arange(survey.model.grid.n)
+
+
 def run(args) -> int:
     import numpy as np
 
-    from modalctl.identify.frf import read_uff58
-    from modalctl.identify.survey import identify_frf
     from modalctl.model.modes import ModelError
     from modalctl.model.scenes import load_scene
 
@@ -85,21 +128,19 @@ def run(args) -> int:
     if args.frf is None and args.transport.startswith("sim") and scene is None:
         raise ModelError("identify: the simulator needs --scene (the structure to simulate)")
     meta = scene.meta if scene is not None else {}
-    if args.frf:
-        frf = read_uff58(args.frf)
-        survey = identify_frf(frf, _density(args, meta, frf.points.shape[1]), args.method, not args.no_orthogonalize)
-        points = np.arange(survey.model.grid.n)
-    else:
-        survey, points = _survey(args, scene, meta)
+    survey, points = _from_file(args, meta) if args.frf else _survey(args, scene, meta)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     path = survey.model.save(out)
-    off = lambda c: float(np.max(np.abs(c - np.eye(len(c)))))  # noqa: E731
+    off = lambda c: float(np.max(np.abs(c - np.eye(len(c))))) if len(c) else 0.0  # noqa: E731
+    poles = survey.poles
+    left = [dict(row, f_hz=row["f_hz"]) for row in poles.summary() if not row["resolved"]]
     summary = {"model_file": str(path), "modes": survey.model.n_modes, "method": args.method,
                "frequencies_hz": survey.model.frequencies.tolist(), "damping": survey.model.damping.tolist(),
-               "poles": survey.poles.summary(), "notes": survey.notes, "seconds": survey.seconds,
-               "points": int(points.size), "crosstalk_max_before": off(survey.crosstalk_before),
-               "crosstalk_max_after": off(survey.crosstalk_after)}
+               "unit": survey.frfs["full"][0].unit, "poles": poles.summary(), "left_out": left,
+               "notes": survey.notes, "seconds": survey.seconds, "points": int(points.size),
+               "orthogonalized": survey.orthogonalized, "shape_mac_after_orthogonalization": survey.shape_mac.tolist(),
+               "crosstalk_max_before": off(survey.crosstalk_before), "crosstalk_max_after": off(survey.crosstalk_after)}
     if not args.no_plots:
         from modalctl.report import plot_identification
 
@@ -119,31 +160,40 @@ def _survey(args, scene, meta: dict):
     from modalctl.identify.survey import beam_wavelength, identify_device, scan_subset
     from modalctl.model.shape import ParamError
 
-    sweep = Sweep.design(args.f_low, args.f_high, args.resolution, args.amplitude)
-    options = SurveyOptions(method=args.method, primary=args.primary, averages=args.averages,
+    given = {name: getattr(args, name) for name in ("f_low", "f_high", *SURVEY_ONLY)}
+    opt = {name: SWEEP.get(name, getattr(SURVEY, name, None)) if value is None else value
+           for name, value in given.items()}
+    sweep = Sweep.design(opt["f_low"], opt["f_high"], opt["resolution"], opt["amplitude"])
+    options = SurveyOptions(method=args.method, primary=opt["primary"], averages=opt["averages"],
                             orthogonalize=not args.no_orthogonalize)
     with open_device(args, scene) as device:
         caps = device.configure(sweep.sample_rate)
         scan = np.asarray(caps.scan_points, float).reshape(len(caps.scan_points), -1)
         density = _density(args, meta, scan.shape[1])
-        points = scan_subset(scan, args.step)
+        points = scan_subset(scan, opt["step"])
         if points.size < SCAN_POINTS_MIN ** scan.shape[1]:  # said now, not after the whole survey
-            raise ParamError(f"identify: --step {args.step * 1e3:g} mm leaves {points.size} scan point(s) on "
+            raise ParamError(f"identify: --step {opt['step'] * 1e3:g} mm leaves {points.size} scan point(s) on "
                              f"{' x '.join(f'{e * 1e3:.0f}' for e in np.ptp(scan, axis=0))} mm; at least "
                              f"{SCAN_POINTS_MIN} per direction draw a mode shape")
-        survey = identify_device(device, sweep, points, density, options, beam_wavelength(meta, args.f_high),
+        survey = identify_device(device, sweep, points, density, options, beam_wavelength(meta, opt["f_high"]),
                                  progress=not args.quiet)
     return survey, points
 
 
 def _print(args, survey, summary: dict, points, path: Path) -> None:
     print(f"identified {summary['modes']} modes on {points.size} points with {args.method} "
-          f"({survey.seconds['frf'] + survey.seconds['modal']:.2f} s compute)")
-    print(f"{'mode':>5s} {'f (Hz)':>10s} {'zeta':>9s}")
+          f"({survey.seconds['frf'] + survey.seconds['modal']:.2f} s compute; FRFs in {summary['unit']})")
+    mac = survey.shape_mac if survey.orthogonalized else None
+    print(f"{'mode':>5s} {'f (Hz)':>10s} {'zeta':>9s}" + (f" {'MAC GS':>7s}" if mac is not None else ""))
     for i, (f, z) in enumerate(zip(survey.model.frequencies, survey.model.damping)):
-        print(f"{i + 1:5d} {f:10.1f} {z:9.5f}")
-    for note in survey.notes:
+        print(f"{i + 1:5d} {f:10.1f} {z:9.5f}" + (f" {mac[i]:7.4f}" if mac is not None else ""))
+    notes = [n for n in survey.notes if " left out" not in n and "peak(s) of the noise" not in n]
+    lines = survey.poles.left_out(None, noise=True) if args.left_out else survey.poles.left_out()
+    for note in [*notes, *lines]:
         print("note: " + note)
-    print(f"cross-talk: max {summary['crosstalk_max_before']:.3f} before Gram-Schmidt, "
-          f"{summary['crosstalk_max_after']:.1e} after")
+    if survey.orthogonalized:
+        print(f"cross-talk: max {summary['crosstalk_max_before']:.3f} before Gram-Schmidt, "
+              f"{summary['crosstalk_max_after']:.1e} after; MAC of each shape after to before in 'MAC GS'")
+    else:
+        print(f"cross-talk: max {summary['crosstalk_max_before']:.3f} (no Gram-Schmidt)")
     print(f"model: {path}" + (f"; pictures: {', '.join(summary['pictures'])}" if "pictures" in summary else ""))

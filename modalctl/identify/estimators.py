@@ -25,15 +25,16 @@ from modalctl.model.modes import Grid, ModalModel, ModelError
 from modalctl.model.projection import mass_normalize
 
 from .frf import FRF, mobility
+from .noise import NOISE_EXCESS, SIGNIFICANCE, NoiseFigures, noise_figures, noise_weights, within_noise
 
 __all__ = ["Identifier", "Modes", "BandFit", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "one_pole_stands",
            "half_width", "neighbours", "constants_of", "to_model", "actuator_gains", "UNRESOLVED_ERROR",
-           "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows",
+           "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "noise_figures", "NoiseFigures", "noise_weights",
+           "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows",
            "frequency_fixed", "FREQUENCY_TOLERANCE", "CONFIDENCE", "UNCERTAIN"]
 
 UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole below which a mode is resolved whatever the noise...
-NOISE_EXCESS = 3.0  # ...or, above it, when the residual is within this many times the measurement noise...
-SIGNIFICANCE = 25.0  # ...and the mode's energy this many times what a fit to noise alone gives...
+# ...or when the residual is the noise (NOISE_EXCESS, SIGNIFICANCE in .noise, where the noise is known)...
 FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band explains no more (one_pole_stands)
 SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
 BINS_PER_COLUMN = 3  # a band fit gets at least this many bins per unknown of each point (else it is widened)
@@ -103,14 +104,18 @@ class Modes:
         return (self.frequencies[i], self.damping[i], self.constants[i], self.misfit[i], bool(self.resolved[i]),
                 self.reasons[i])
 
-    def left_out(self, most: int = 10) -> list[str]:
-        """One line per mode left out, with why; peaks of the noise counted in one line, at most
-        ``most`` lines of the others."""
-        lines = [f"{f:.1f} Hz left out: {why}" for f, why, r in zip(self.frequencies, self.reasons, self.resolved)
-                 if not r and why != NOISE]
-        noise = sum(why == NOISE for why in self.reasons)
-        more = [f"and {len(lines) - most} more left out"] if len(lines) > most else []
-        return lines[:most] + more + ([f"{noise} peak(s) of the noise ignored"] if noise else [])
+    def left_out(self, most: int | None = 10, noise: bool = False) -> list[str]:
+        """One line per mode left out, with why, those nearest to being kept (lowest misfit)
+        first; peaks of the noise counted in one line (listed too with ``noise``), at most
+        ``most`` lines of the others (all with None)."""
+        out = [i for i in np.argsort(self.misfit, kind="stable") if not self.resolved[i]]
+        lines = [f"{self.frequencies[i]:.1f} Hz left out: {self.reasons[i]}" for i in out
+                 if noise or self.reasons[i] != NOISE]
+        count = sum(self.reasons[i] == NOISE for i in out)
+        shown = lines if most is None else lines[:most]
+        more = [f"and {len(lines) - len(shown)} more left out (every one: --left-out, or the JSON)"] \
+            if len(shown) < len(lines) else []
+        return shown + more + ([f"{count} peak(s) of the noise ignored"] if count and not noise else [])
 
     def summary(self) -> list[dict]:
         """One row per mode, for tables and JSON."""
@@ -224,36 +229,37 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     raw, resid = resid, resid * np.sqrt(len(b) / (len(b) - columns))
     misfit = float(np.sqrt(np.mean(np.abs(resid) ** 2) / np.mean(np.abs(mode_part) ** 2)))
     noise = frf.noise(keep)
-    resolved = misfit <= UNRESOLVED_ERROR or (noise is not None and within_noise(resid, mode_part, noise, general))
-    if not resolved and misfit <= FAIR_ERROR:
-        resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw)
+    seen = None if noise is None else noise_figures(resid, mode_part, noise, general)
+    resolved = misfit <= UNRESOLVED_ERROR or (seen is not None and seen.within)
+    split = []
+    if not resolved and misfit <= fair_limit(frf, seen):
+        resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw, split)
     if not resolved:
-        return BandFit(constants, misfit, misfit_reason(misfit, noise is not None))
+        near = min(others, key=lambda p: abs(p[0] - f), default=None)
+        near = None if near is None else (near[0], abs(near[0] - f) / max(zeta * f, np.finfo(float).tiny))
+        why = misfit_reason(misfit, noise is not None, seen, near, half_width)
+        if split:
+            why = why[:-1] + (f"; two poles, {min(split)[0]:.2f} and {max(split)[0]:.2f} Hz, leave less than half its "
+                              f"residual: close modes?)")
+        return BandFit(constants, misfit, why)
     judged = frequency_check and noise is not None and misfit > UNRESOLVED_ERROR
     if judged and not frequency_fixed(freqs, h, noise_weights(noise), f, zeta, others, general):
         return BandFit(constants, misfit, UNCERTAIN)
     return BandFit(constants, misfit)
 
 
-def noise_weights(noise: np.ndarray) -> np.ndarray:
-    """Per point, one over its noise variance over the band (``noise`` (n_points, nb) standard
-    deviations): one shot's scatter is itself noisy; a silent point gets no infinity."""
-    variance = np.mean(noise**2, axis=1)
-    return 1 / np.maximum(variance, 1e-6 * np.mean(variance) + np.finfo(float).tiny)
+def fair_limit(frf: FRF, seen: NoiseFigures | None) -> float:
+    """The misfit up to which one pole stands when no second pole explains more (the graded rule).
 
-
-def within_noise(resid: np.ndarray, mode_part, noise: np.ndarray, general: bool = False) -> bool:
-    """Whether a band's residual is the measurement's noise (within ``NOISE_EXCESS`` times it)
-    and the mode stands out of it: the energy of its part (``mode_part``, an array or its RMS)
-    at least ``SIGNIFICANCE`` times what fitting it to noise alone would give (one noise
-    variance per coefficient it has at each point). Each point counts by its own variance over
-    the band (``noise`` (n_points, nb), ``resid`` (nb, n_points)): a quiet point is not drowned
-    by a loud one."""
-    weight = noise_weights(noise)
-    excess = np.sqrt(np.mean(np.abs(resid) ** 2 * weight))
-    energy = np.sum(np.broadcast_to(np.abs(mode_part) ** 2, resid.shape) * weight)  # an RMS counts at every value
-    coefficients = resid.shape[1] * (2 if general else 1)
-    return bool(excess <= NOISE_EXCESS and energy >= SIGNIFICANCE * coefficients)
+    ``FAIR_ERROR`` where the noise is unknown or measured. Where it is only estimated from the
+    scatter between lines (``frf.noise_source``), that estimate misses the noise that grows
+    with the response at a sharp peak (a hammer's, a window's): the limit is then the noise's
+    own, ``NOISE_PEAK`` (the mode larger than what it leaves), for a mode standing
+    ``SIGNIFICANCE`` times above the noise; a peak of the noise does not.
+    """
+    if seen is not None and frf.noise_source and seen.significance >= SIGNIFICANCE:
+        return NOISE_PEAK
+    return FAIR_ERROR
 
 
 def frequency_fixed(freqs: np.ndarray, h: np.ndarray, weight: np.ndarray, f: float, zeta: float,
@@ -291,13 +297,15 @@ def frequency_fixed(freqs: np.ndarray, h: np.ndarray, weight: np.ndarray, f: flo
     return True
 
 
-def one_pole_stands(frf: FRF, f: float, zeta: float, half_width: float, others, resid: np.ndarray) -> bool:
+def one_pole_stands(frf: FRF, f: float, zeta: float, half_width: float, others, resid: np.ndarray,
+                    split: list | None = None) -> bool:
     """Whether one pole is the best account of a band it explains only fairly: the graded rule
     in place of a cliff on the misfit.
 
     A second pole is started where the residual ``resid`` (nb, n_points) of the first peaks and
     both are fitted (:func:`fit_band`); one pole stands unless the two divide the residual by
-    ``SPLIT_GAIN`` with the second inside the band.
+    ``SPLIT_GAIN`` with the second inside the band. When they do, the two poles ``(f, zeta)``
+    are appended to ``split`` (a list, if given).
     """
     if not 0 < zeta < 0.5:  # no physical pole to start from
         return False
@@ -312,7 +320,10 @@ def one_pole_stands(frf: FRF, f: float, zeta: float, half_width: float, others, 
     h = frf.values[:, keep].T
     b = pole_basis(freqs, poles, f)
     coef, *_ = np.linalg.lstsq(b, h, rcond=None)
-    return bool(np.linalg.norm(h - b @ coef) * SPLIT_GAIN > np.linalg.norm(resid))
+    stands = bool(np.linalg.norm(h - b @ coef) * SPLIT_GAIN > np.linalg.norm(resid))
+    if not stands and split is not None:
+        split.extend(tuple(map(float, p)) for p in poles[:2])
+    return stands
 
 
 def _half_power(freqs: np.ndarray, mag: np.ndarray, peak: int, level: float, others: np.ndarray):
@@ -492,13 +503,30 @@ def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
                            general, counted, frequency_check)
 
 
-def misfit_reason(misfit: float, noise_known: bool) -> str:
-    """Why a pole that does not explain its band was left out: a peak of the noise when the FRFs'
-    noise is known and the mode is smaller than what it leaves unexplained; else one pole
-    explaining its band poorly (close modes, or noise nobody measured)."""
+def misfit_reason(misfit: float, noise_known: bool, seen: NoiseFigures | None = None, nearest=None,
+                  half_width: float | None = None) -> str:
+    """Why a pole that does not explain its band was left out, saying what was seen.
+
+    A peak of the noise (``NOISE``) when the FRFs' noise is known and the mode is smaller than
+    what it leaves unexplained; else one pole explaining its band poorly: its misfit, the
+    residual against the noise (``seen``, when known) and the nearest other pole fitted with it
+    (``nearest``: its frequency in Hz and its distance in this mode's half-power half-widths),
+    or that none lies within ``half_width`` (Hz): then close modes are not what was seen.
+    """
     if misfit > NOISE_PEAK and noise_known:
         return NOISE
-    return f"one pole explains its band poorly (misfit {misfit:.2f}; close modes?)"
+    what = [f"misfit {misfit:.2f}"]
+    if seen is not None:
+        what.append(f"residual {seen.excess:.1f} times the noise (at most {NOISE_EXCESS:g}), noise "
+                    f"{seen.level:.1%} of the mode, which stands {seen.significance:.3g} times above it "
+                    f"(at least {SIGNIFICANCE:g})")
+    else:
+        what.append(f"above {FAIR_ERROR:g} with no measured noise to judge it by")
+    if nearest is not None:
+        what.append(f"nearest pole {nearest[0]:.1f} Hz, {nearest[1]:.1f} half-power half-widths away")
+    elif half_width is not None:
+        what.append(f"no other pole within {half_width:.3g} Hz: not close modes")
+    return f"one pole explains its band poorly ({'; '.join(what)})"
 
 
 def modes_from_rows(rows, n_points: int, method: str) -> Modes:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.fft
@@ -19,7 +19,8 @@ import scipy.fft
 from modalctl.model.modes import ModelError
 from modalctl.options import SHOT_SAMPLES_MAX
 
-__all__ = ["Sweep", "FRF", "H1", "mobility", "read_uff58", "bending_wavelength", "check_spatial_step", "SpatialAliasingWarning"]
+__all__ = ["Sweep", "FRF", "H1", "mobility", "read_uff58", "bending_wavelength", "check_spatial_step",
+           "SpatialAliasingWarning"]
 
 
 class SpatialAliasingWarning(UserWarning):
@@ -135,6 +136,12 @@ class FRF:
         Standard deviation of each value from the scatter between shots (m/s/V).
     notes : tuple of str
         What was done to the data on the way in (a unit converted, a direction turned).
+    input_unit : str
+        What the FRFs are per: ``"V"`` (a drive voltage), ``"N"`` (a force: mobility in m/s/N)
+        or ``"unit input"`` (a file that does not say).
+    noise_source : str
+        Where ``noise_std`` comes from: "" when measured (the scatter between shots), else how
+        it was estimated (:func:`modalctl.identify.noise.with_noise_estimate`).
     """
 
     frequencies: np.ndarray
@@ -146,6 +153,13 @@ class FRF:
     seconds: float = 0.0
     noise_std: np.ndarray | None = None
     notes: tuple = ()
+    input_unit: str = "V"
+    noise_source: str = ""
+
+    @property
+    def unit(self) -> str:
+        """The values' unit: ``"m/s/V"``, ``"m/s/N"``, ``"m/s per unit input"``."""
+        return f"m/s/{self.input_unit}" if self.input_unit in ("V", "N") else f"m/s per {self.input_unit}"
 
     def noise(self, bins=slice(None)) -> np.ndarray | None:
         """Standard deviation of the values at ``bins``, shape (n_points, nb) (m/s/V), or None
@@ -161,17 +175,19 @@ class FRF:
                                                                                zip(frfs, scales)])
         return cls(frfs[0].frequencies, np.vstack([f.values * c for f, c in zip(frfs, scales)]),
                    np.vstack([f.coherence for f in frfs]), np.vstack([f.points for f in frfs]), -1,
-                   min(f.averages for f in frfs), 0.0, noise)
+                   min(f.averages for f in frfs), 0.0, noise, frfs[0].notes, frfs[0].input_unit,
+                   frfs[0].noise_source)
 
     def mean_magnitude(self) -> np.ndarray:
         """Mean |H| over points, shape (nf,): a mode at a node of one point still shows (thesis 3.1.2)."""
         return np.mean(np.abs(self.values), axis=0)
 
     def band(self, f_low: float, f_high: float) -> "FRF":
-        """The bins inside [f_low, f_high] (Hz)."""
+        """The bins inside [f_low, f_high] (Hz), with their noise, notes and unit."""
         keep = (self.frequencies >= f_low) & (self.frequencies <= f_high)
-        return FRF(self.frequencies[keep], self.values[:, keep], self.coherence[:, keep], self.points,
-                   self.actuator, self.averages)
+        return replace(self, frequencies=self.frequencies[keep], values=self.values[:, keep],
+                       coherence=self.coherence[:, keep],
+                       noise_std=None if self.noise_std is None else self.noise_std[:, keep])
 
 
 class H1:
@@ -254,136 +270,11 @@ def mobility(freqs: np.ndarray, frequencies, damping, constants) -> np.ndarray:
     return np.atleast_2d(constants).T @ (1j * w / (wk**2 - w**2 + 2j * zk * wk * w))
 
 
-# UFF 58, record 6 field 1: what a function is (only FRFs are identified from)
-FUNCTION_TYPES = {0: "a general or unknown function", 1: "time response data", 2: "an auto-spectrum",
-                  3: "a cross-spectrum", 4: "a frequency response function", 5: "a transmissibility",
-                  6: "a coherence", 7: "an auto-correlation", 8: "a cross-correlation",
-                  9: "a power spectral density", 10: "an energy spectral density",
-                  11: "a probability density function", 12: "a spectrum",
-                  13: "a cumulative frequency distribution", 14: "peaks and valleys", 15: "stress per cycle",
-                  16: "strain per cycle", 17: "an orbit", 18: "a mode indicator function", 19: "a force pattern",
-                  20: "a partial power", 21: "a partial coherence", 22: "eigenvalues", 23: "eigenvectors",
-                  24: "a shock response spectrum", 25: "a finite impulse response filter",
-                  26: "a multiple coherence", 27: "an order function"}
-# record 8 field 1 (the ordinate's numerator): the power of j w that turns it into a mobility
-RESPONSES = {8: ("receptance", 1), 11: ("mobility", 0), 12: ("accelerance", -1)}
-FREQUENCY = 18  # record 7 field 1: the abscissa is a frequency (Hz)
-UFF_POINTS_MAX = 100_000  # response nodes one file may hold
-UFF_BINS_MAX = 1 << 21  # bins per FRF
-
-
-def _uff_refuse(path, what: str) -> ModelError:
-    return ModelError(f"uff: {str(path)!r}: {what}")
-
-
-def _uff_frf_sets(path, sets: list[dict]) -> list[dict]:
-    """The datasets 58 of a file, refused unless every one is an FRF against frequency."""
-    frfs = [s for s in sets if s.get("type") == 58]
-    if not frfs:
-        raise _uff_refuse(path, "no dataset 58 (functions at nodes)")
-    if len(frfs) > UFF_POINTS_MAX:
-        raise _uff_refuse(path, f"{len(frfs)} functions; at most {UFF_POINTS_MAX}")
-    kinds = sorted({int(s.get("func_type", 0)) for s in frfs})
-    if kinds != [4]:
-        held = ", ".join(f"{FUNCTION_TYPES.get(k, 'an unknown function')} (function type {k})" for k in kinds)
-        raise _uff_refuse(path, f"holds {held}; modes are identified from frequency response functions "
-                                f"(function type 4)")
-    axes = sorted({int(s.get("abscissa_spec_data_type", FREQUENCY)) for s in frfs})
-    if axes != [FREQUENCY]:
-        raise _uff_refuse(path, f"abscissa of data type(s) {axes}; FRFs against frequency (18) are expected")
-    return frfs
-
-
-def _mobility_of(path, frfs: list[dict], freqs: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Every FRF as a mobility (m/s per unit input), along +axis: rows in file order, and notes."""
-    kinds = sorted({int(s.get("ordinate_spec_data_type", 11)) for s in frfs})
-    unknown = [k for k in kinds if k not in RESPONSES]
-    if unknown or len(kinds) != 1:
-        what = "mixed responses" if len(kinds) > 1 else f"a response of data type {unknown[0]}"
-        raise _uff_refuse(path, f"{what}; FRFs of displacement (8), velocity (11) or acceleration (12) "
-                                f"are identified, one kind per file")
-    name, power = RESPONSES[kinds[0]]
-    axes = {abs(int(s.get(k, 3))) for s in frfs for k in ("rsp_dir", "ref_dir")} - {0}
-    if len({abs(int(s.get("rsp_dir", 3))) for s in frfs} - {0}) > 1 or axes - {1, 2, 3}:
-        raise _uff_refuse(path, f"responses or references along directions {sorted(axes)}; one translational "
-                                f"axis (1-3, signed) is expected")
-    sign = np.array([np.sign(int(s.get("rsp_dir", 3)) or 1) * np.sign(int(s.get("ref_dir", 3)) or 1)
-                     for s in frfs])
-    values = np.array([np.asarray(s["data"], complex) for s in frfs]) * sign[:, None]
-    values = values * (2j * np.pi * freqs) ** power
-    notes = []
-    if power:
-        notes.append(f"the file holds {name}s (data type {kinds[0]}): converted to mobility "
-                     f"({'times' if power > 0 else 'over'} j w)")
-    if np.any(sign < 0):
-        notes.append(f"{int(np.sum(sign < 0))} FRF(s) measured along a negative direction: sign turned")
-    return values, notes
-
-
-def _plane_coordinates(path, xyz: np.ndarray) -> np.ndarray:
-    """Node coordinates (n, 3) as positions along their line (n, 1) or on their plane (n, 2):
-    the axes they vary along when those are two at most and not collinear, else the line's or
-    the plane's own axes (a beam along a diagonal, a plate tilted in 3-D)."""
-    varying = np.ptp(xyz, axis=0) > 1e-9 * max(float(np.ptp(xyz)), 1e-300)
-    if varying.sum() <= 1:
-        return xyz[:, varying] if varying.any() else xyz[:, :1]
-    centred = xyz - xyz.mean(axis=0)
-    _, s, vh = np.linalg.svd(centred, full_matrices=False)
-    rank = int(np.count_nonzero(s > 1e-6 * s[0]))
-    if rank == 3:
-        raise _uff_refuse(path, "the response nodes do not lie on a line or a plane")
-    if rank == 2 and varying.sum() == 2:
-        return xyz[:, varying]
-    if rank == 1:
-        along = vh[0] * np.sign(vh[0][np.argmax(np.abs(vh[0]))])  # its largest component positive
-        return (centred @ along)[:, None]
-    return centred @ vh[:2].T
-
-
 def read_uff58(path) -> FRF:
-    """Measured FRFs from a universal file, read by what the file says they are.
+    """Measured FRFs of one input from a universal file: :func:`modalctl.identify.uff.read_uff58`."""
+    from .uff import read_uff58 as read
 
-    Datasets 58 give the functions, dataset 15 the node coordinates (metres assumed), needs the
-    optional ``pyuff``. Only FRFs (function type 4) against frequency are accepted, of one
-    reference; receptances and accelerances are converted to mobility, responses and
-    references along a negative direction turned, and each conversion said in ``FRF.notes``.
-    Rows are sorted by position (along a line, or y then x on a plane); nodes may be listed in
-    any order, with coordinates on a line, a plane (2-D) or a tilted plane in 3-D.
-    """
-    from modalctl.model.files import read_uff_sets
-
-    sets = read_uff_sets(path)
-    frfs = _uff_frf_sets(path, sets)
-    nodes = [s for s in sets if s.get("type") == 15]
-    if not nodes:
-        raise _uff_refuse(path, "no dataset 15 (node coordinates)")
-    refs = {int(s["ref_node"]) for s in frfs}
-    if len(refs) != 1:
-        raise _uff_refuse(path, f"FRFs of several references {sorted(refs)}; give one actuator per file")
-    numbers = [int(s["rsp_node"]) for s in frfs]
-    twice = sorted({n for n in numbers if numbers.count(n) > 1})
-    if twice:
-        raise _uff_refuse(path, f"node(s) {twice[:5]} have several FRFs; one per response node is expected")
-    where = {int(n): i for i, n in enumerate(nodes[0]["node_nums"])}
-    missing = [n for n in numbers if n not in where]
-    if missing:
-        raise _uff_refuse(path, f"response nodes {missing[:5]} have no coordinates in dataset 15")
-    freqs = np.asarray(frfs[0]["x"], float)
-    if not 8 <= freqs.size <= UFF_BINS_MAX or any(not np.array_equal(np.asarray(s["x"], float), freqs)
-                                                  for s in frfs):
-        raise _uff_refuse(path, f"the FRFs need one common frequency axis of 8 to {UFF_BINS_MAX} bins")
-    step = np.diff(freqs)
-    if not np.all(np.isfinite(freqs)) or step.min() <= 0 or np.ptp(step) > 1e-6 * step.mean():
-        raise _uff_refuse(path, "the frequencies must be evenly spaced and increasing")
-    values, notes = _mobility_of(path, frfs, freqs)
-    if not np.all(np.isfinite(values)):
-        raise _uff_refuse(path, "an FRF holds NaN or infinite values")
-    xyz = np.column_stack([nodes[0]["x"], nodes[0]["y"], nodes[0]["z"]]).astype(float)
-    points = _plane_coordinates(path, xyz[[where[n] for n in numbers]])
-    order = np.lexsort(points.T)  # x, then y on a plane
-    if len(np.unique(points, axis=0)) != len(points):
-        raise _uff_refuse(path, "two response nodes share coordinates")
-    return FRF(freqs, values[order], np.ones(values.shape), points[order], 0, 1, notes=tuple(notes))
+    return read(path)
 
 
 def bending_wavelength(frequency: float, modulus: float, density: float, thickness: float) -> float:

@@ -19,14 +19,16 @@ import numpy as np
 from modalctl.io.device import Device
 from modalctl.model.modes import Grid, ModalModel
 from modalctl.model.projection import crosstalk, orthonormalize_model
+from modalctl.model.scenes import ORTHONORMAL_TOLERANCE, resolved_modes
 from modalctl.options import SurveyOptions
 from modalctl.plugin.manager import pick
 
 from .acquire import measure_frf
 from .estimators import Modes, actuator_gains, constants_of, to_model
 from .frf import FRF, Sweep, bending_wavelength, check_spatial_step
+from .noise import with_noise_estimate
 
-__all__ = ["Survey", "identify_device", "identify_frf", "scan_subset"]
+__all__ = ["Survey", "identify_device", "identify_frf", "scan_subset", "orthogonalize_if_integrated", "mac"]
 
 
 @dataclass
@@ -51,6 +53,10 @@ class Survey:
         and ``modal`` (poles, shapes, gains): the compute is ``frf + modal``.
     frfs : dict
         ``{"sparse": {actuator: FRF}, "full": {actuator: FRF}}``.
+    shape_mac : ndarray, shape (k,)
+        MAC of each shape after Gram-Schmidt to itself before (ones when not applied).
+    orthogonalized : bool
+        Whether Gram-Schmidt was applied (:func:`orthogonalize_if_integrated`).
     """
 
     model: ModalModel
@@ -62,6 +68,8 @@ class Survey:
     notes: list = field(default_factory=list)
     seconds: dict = field(default_factory=dict)
     frfs: dict = field(default_factory=dict)
+    shape_mac: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    orthogonalized: bool = False
 
 
 def scan_subset(scan: np.ndarray, step: float) -> np.ndarray:
@@ -139,15 +147,15 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     order = np.argsort(good.frequencies[resolved])
     model = _with_gains(model, sparse_frf, full_frf, few, points.size)
     before = crosstalk(model.shapes, model.grid.mass)
-    if options.orthogonalize:
-        model = orthonormalize_model(model)
+    model, mac, note = orthogonalize_if_integrated(model, options.orthogonalize)
+    notes += [note] if note else []
     after = crosstalk(model.shapes, model.grid.mass)
     compute += time.perf_counter() - t0
     device.deactivate()
     frf_seconds = sum(f.seconds for f in [*sparse_frf.values(), *full_frf.values()])
     return Survey(model, poles, drive[resolved][order], chooser[resolved][order], before, after, notes,
                   {"acquisition": acquisition - frf_seconds, "frf": frf_seconds, "modal": compute},
-                  {"sparse": sparse_frf, "full": full_frf})
+                  {"sparse": sparse_frf, "full": full_frf}, mac, bool(model.meta.get("orthonormalized")))
 
 
 def _drives(good: Modes, sparse_frf: dict, channels: int) -> np.ndarray:
@@ -196,22 +204,89 @@ def _with_gains(model: ModalModel, sparse_frf: dict, full_frf: dict, few: np.nda
     return model
 
 
-def identify_frf(frf: FRF, density: float, method: str = SurveyOptions.method, orthogonalize: bool = True,
+def mac(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Modal assurance criterion of each row of ``a`` with the same row of ``b`` (k, n): shape (k,)."""
+    return np.abs(np.sum(a * b, axis=1)) ** 2 / (np.sum(a * a, axis=1) * np.sum(b * b, axis=1))
+
+
+def orthogonalize_if_integrated(model: ModalModel, wanted: bool = True) -> tuple[ModalModel, np.ndarray, str]:
+    """Gram-Schmidt on the shapes only where the grid's weights integrate the modes.
+
+    The test is the one :func:`~modalctl.model.scenes.resolved_modes` makes of a scene's grid:
+    the identified (mass-normalized) shapes must be orthonormal on the grid's weights within
+    ``ORTHONORMAL_TOLERANCE`` already. Then Gram-Schmidt only removes the noise's small
+    cross-talk; on a grid whose weights are no quadrature for the modes (a few uneven points)
+    it would turn true shapes into wrong ones, so it is left off with a note.
+
+    Returns
+    -------
+    model : ModalModel
+    mac : ndarray, shape (k,)
+        MAC of each shape after to itself before (ones when not applied).
+    note : str
+        What was done, "" when Gram-Schmidt was applied quietly or not asked for.
+    """
+    ones = np.ones(model.n_modes)
+    if not wanted or model.n_modes < 2:
+        return model, ones, ""
+    drawn = resolved_modes(model)
+    if drawn < model.n_modes:
+        talk = np.abs(crosstalk(model.shapes, model.grid.mass) - np.eye(model.n_modes))
+        i, j = np.unravel_index(np.argmax(talk), talk.shape)
+        return model, ones, (f"Gram-Schmidt not applied: the {model.grid.n} points' weights do not integrate the "
+                             f"modes (cross-talk {talk[i, j]:.3f} between the modes at {model.frequencies[i]:.1f} and "
+                             f"{model.frequencies[j]:.1f} Hz, above {ORTHONORMAL_TOLERANCE:g}): it would distort the "
+                             f"measured shapes")
+    ortho = orthonormalize_model(model)
+    return ortho, mac(model.shapes, ortho.shapes), ""
+
+
+def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthogonalize: bool = True,
                  threshold_db: float = SurveyOptions.threshold_db) -> Survey:
-    """A model from measured FRFs of one actuator (e.g. read from UFF 58), on a beam (``density``
-    in kg/m) or a plate (kg/m^2); what was done to the data on the way in is in the notes."""
+    """A model from measured FRFs (e.g. read from UFF 58), on a beam (``density`` in kg/m) or a
+    plate (kg/m^2); what was done to the data on the way in is in the notes.
+
+    Parameters
+    ----------
+    frf : FRF or list of FRF
+        One input's FRFs, or several inputs' on the same points (a multi-reference test): the
+        poles are found on all at once, each mode's shape comes from the input that drives it
+        best, and every input gets its gains. An FRF without a noise estimate (a file without
+        coherence) gets one from the scatter between its neighbouring lines
+        (:func:`~.noise.with_noise_estimate`).
+    orthogonalize : bool
+        Gram-Schmidt where the grid integrates the modes (:func:`orthogonalize_if_integrated`).
+    """
     start = time.perf_counter()
-    poles = pick("identifier", method).identify(frf, threshold_db=threshold_db)
-    model = to_model(poles, Grid.measured(frf.points, density), 1, source="identified from measured FRFs")
-    model = actuator_gains(model, frf, np.arange(frf.values.shape[0]))
+    frfs = [with_noise_estimate(f) for f in (frf if isinstance(frf, (list, tuple)) else [frf])]
+    identifier = pick("identifier", method)
+    poles = identifier.identify(frfs[0] if len(frfs) == 1 else FRF.stack(frfs), threshold_db=threshold_db)
+    grid = Grid.measured(frfs[0].points, density)
+    meta = {"source": "identified from measured FRFs", "input_unit": frfs[0].input_unit}
+    if len(frfs) == 1:
+        model = to_model(poles, grid, 1, **meta)
+        drive = np.ones((model.n_modes, 1))
+    else:
+        good = poles.only_resolved()
+        drive = _drives(good, dict(enumerate(frfs)), len(frfs))
+        chooser = np.argmax(drive, axis=1)
+        constants = np.array([constants_of(frfs[c], good.frequencies, good.damping, k, frequency_check=False).constants
+                              for k, c in enumerate(chooser)]).reshape(good.n_modes, -1)
+        model = to_model(Modes(good.frequencies, good.damping, constants, good.misfit, good.resolved, good.method),
+                         grid, len(frfs), **meta)
+        drive = drive[np.argsort(good.frequencies)]
+    for f in frfs:
+        model = actuator_gains(model, f, np.arange(f.values.shape[0]))
     before = crosstalk(model.shapes, model.grid.mass)
-    if orthogonalize:
-        model = orthonormalize_model(model)
-    notes = [*frf.notes, *poles.left_out()]
-    return Survey(model, poles, np.ones((model.n_modes, 1)), np.zeros(model.n_modes, int), before,
-                  crosstalk(model.shapes, model.grid.mass), notes,
-                  {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},
-                  {"sparse": {0: frf}, "full": {0: frf}})
+    model, shape_mac, note = orthogonalize_if_integrated(model, orthogonalize)
+    noise = [f"noise {frfs[0].noise_source}: median {np.median(frfs[0].noise_std):.2g} {frfs[0].unit}, "
+             f"{np.median(frfs[0].noise_std) / np.max(np.abs(frfs[0].values)):.1e} of the largest |H|"] \
+        if frfs[0].noise_source else []
+    notes = [*frfs[0].notes, *noise, *([note] if note else []), *poles.left_out()]
+    table = dict(enumerate(frfs))
+    return Survey(model, poles, drive, np.zeros(model.n_modes, int), before, crosstalk(model.shapes, model.grid.mass),
+                  notes, {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},
+                  {"sparse": table, "full": table}, shape_mac, bool(model.meta.get("orthonormalized")))
 
 
 def beam_wavelength(model_meta: dict, f_high: float) -> float | None:

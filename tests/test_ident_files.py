@@ -1,0 +1,212 @@
+"""Identification from files as labs export them (issue 38): a 0 Hz bin, roving-hammer and
+multi-reference layouts, the band and the options that do not apply, the noise of a file without
+coherence, and Gram-Schmidt only where the grid integrates the modes. The truth is a simply
+supported beam's analytic modes (sin shapes), written with pyuff."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+
+from modalctl.cli import main
+from modalctl.identify.frf import FRF, mobility
+from modalctl.identify.noise import SCATTER_SOURCE, scatter_noise, with_noise_estimate
+from modalctl.identify.survey import identify_frf, mac
+from modalctl.identify.uff import read_uff58, read_uff58_references
+from modalctl.model.modes import ModelError
+
+pyuff = pytest.importorskip("pyuff")
+
+L = 1.3  # beam (m)
+MODES = [(112.0, 0.002), (306.0, 0.0015), (596.0, 0.001), (974.0, 0.001)]  # (Hz, zeta), as ModeLAB's beam
+FREQS = np.arange(0.0, 1100.0, 0.05)  # from 0 Hz, as an analyzer exports
+UNEVEN = np.array([0.1, 0.25, 0.375, 0.5, 0.65, 0.8, 0.925, 1.05, 1.2])  # ModeLAB's nine hammer points (m)
+DENSITY = 2.0  # kg/m
+
+
+def shapes(x):
+    return np.array([np.sin((k + 1) * np.pi * x / L) for k in range(len(MODES))])
+
+
+def accelerance(x_points, x_drive, freqs=FREQS, noise=0.0, seed=0):
+    """Accelerance (m/s^2/N) between every point and a drive at ``x_drive`` (symmetric: H_pq = H_qp)."""
+    f, z = np.array(MODES).T
+    constants = shapes(x_points) * shapes(np.array([x_drive]))  # (k, n): phi(p) phi(q)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h = np.nan_to_num(mobility(freqs, f, z, 5.0 * constants)) * 2j * np.pi * freqs
+    rng = np.random.default_rng(seed)
+    return h + noise * (rng.standard_normal(h.shape) + 1j * rng.standard_normal(h.shape)) / np.sqrt(2)
+
+
+def write(path, nodes: dict, functions: list[tuple]):
+    """Dataset 15 of ``nodes`` {number: x (m)} and one accelerance per ``(rsp, ref, data)``."""
+    uff = pyuff.UFF(str(path))
+    numbers = sorted(nodes)
+    uff.write_sets(pyuff.prepare_15(node_nums=numbers, x=[nodes[n] for n in numbers], y=[0.0] * len(numbers),
+                                    z=[0.0] * len(numbers)), mode="add")
+    for rsp, ref, data in functions:
+        uff.write_sets(pyuff.prepare_58(func_type=4, rsp_node=rsp, rsp_dir=3, ref_node=ref, ref_dir=3, data=data,
+                                        x=FREQS, id1="frf", rsp_ent_name="beam", ref_ent_name="beam",
+                                        abscissa_spacing=1, abscissa_spec_data_type=18, ordinate_spec_data_type=12,
+                                        orddenom_spec_data_type=13), mode="add")
+    return path
+
+
+def roving_hammer(path, x=UNEVEN, sensor=3, noise=0.0):
+    """Nine hammer points (references), one accelerometer at node ``sensor + 1`` (the response)."""
+    h = accelerance(x, x[sensor], noise=noise)
+    return write(path, {i + 1: xi for i, xi in enumerate(x)}, [(sensor + 1, i + 1, h[i]) for i in range(len(x))])
+
+
+def roving_sensor(path, x=UNEVEN, drive=3, noise=0.0):
+    """The same test swapped: one hammer point (the reference), the accelerometer roved."""
+    h = accelerance(x, x[drive], noise=noise)
+    return write(path, {i + 1: xi for i, xi in enumerate(x)}, [(i + 1, drive + 1, h[i]) for i in range(len(x))])
+
+
+def test_noise_from_the_scatter_between_lines_matches_the_known_noise():
+    """Complex noise of known sigma on a beam's FRFs (peaks of 40 lines' half-power width and
+    more): the estimate is within 10% of sigma at the median and 30% at most lines."""
+    x = np.linspace(0.05, 1.25, 21)
+    clean = accelerance(x, 0.3, np.arange(50.0, 1100.0, 0.25)) / (2j * np.pi * np.arange(50.0, 1100.0, 0.25))
+    for sigma in (1e-4, 1e-6):
+        rng = np.random.default_rng(3)
+        noisy = clean + sigma * (rng.standard_normal(clean.shape) + 1j * rng.standard_normal(clean.shape)) / np.sqrt(2)
+        estimate = scatter_noise(noisy)
+        assert abs(np.median(estimate) / sigma - 1) < 0.1
+        if sigma > 1e-5:  # far below, the peaks' own curvature shows around them
+            assert np.mean(np.abs(estimate / sigma - 1) < 0.3) > 0.85  # a median of 64 lines scatters by 10%
+    frf = with_noise_estimate(FRF(np.arange(50.0, 1100.0, 0.25), noisy, np.ones(noisy.shape), x[:, None]))
+    assert frf.noise_source == SCATTER_SOURCE and frf.noise_std.shape == noisy.shape
+    measured = FRF(frf.frequencies, noisy, np.ones(noisy.shape), x[:, None], noise_std=np.full(noisy.shape, 2.0))
+    assert with_noise_estimate(measured) is measured  # a measured noise is kept
+
+
+def test_a_0_hz_export_is_read_without_warning_and_identified(tmp_path, capsys):
+    path = roving_sensor(tmp_path / "zero.uff")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # numpy's division by zero would be one
+        frf = read_uff58(path)
+        assert frf.frequencies[0] > 0 and frf.values.shape[1] == FREQS.size - 1
+        assert any("1 bin(s) dropped" in n and "(0 Hz)" in n for n in frf.notes)
+        code = main(["identify", "--frf", str(path), "--mass-per-length", "2kg/m", "--out", str(tmp_path / "m.npz"),
+                     "--no-plots", "--json"])
+    assert code == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert np.allclose(summary["frequencies_hz"], [m[0] for m in MODES], rtol=1e-4)
+    assert summary["unit"] == "m/s/N"
+
+
+@pytest.mark.parametrize("options, named", [
+    (["--snr", "30"], ["--snr"]),
+    (["--averages", "4", "--step", "2mm"], ["--step", "--averages"]),
+    (["--resolution", "1Hz", "--amplitude", "5V", "--primary", "1"], ["--resolution", "--amplitude", "--primary"]),
+    (["--transport", "tcp://localhost:1"], ["--transport"]),
+])
+def test_options_that_do_not_apply_to_a_file_are_refused_by_name(tmp_path, capsys, options, named):
+    path = roving_sensor(tmp_path / "b.uff")
+    out = tmp_path / "m.npz"
+    assert main(["identify", "--frf", str(path), "--mass-per-length", "2kg/m", "--out", str(out), "--no-plots",
+                 *options]) == 2
+    err = capsys.readouterr().err
+    assert all(name in err for name in named) and "--frf" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_the_band_is_honoured_with_a_file(tmp_path, capsys):
+    path = roving_sensor(tmp_path / "b.uff")
+    args = ["identify", "--frf", str(path), "--mass-per-length", "2kg/m", "--out", str(tmp_path / "m.npz"),
+            "--no-plots", "--json"]
+    assert main([*args, "--f-low", "200Hz", "--f-high", "700Hz"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert np.allclose(summary["frequencies_hz"], [306.0, 596.0], rtol=1e-4)
+    assert main([*args, "--f-low", "5kHz"]) == 2
+    assert "holds 0 of the file's lines" in capsys.readouterr().err
+
+
+def test_reciprocity_gives_the_model_of_the_swapped_file(tmp_path):
+    """A roving-hammer file (nine references, one response) and the same test with the roles
+    swapped (one reference, nine responses) give the same model; the first says it used reciprocity."""
+    hammer = read_uff58(roving_hammer(tmp_path / "hammer.uff"))
+    sensor = read_uff58(roving_sensor(tmp_path / "sensor.uff"))
+    assert any("roving-hammer" in n and "reciprocity" in n for n in hammer.notes)
+    assert not any("reciprocity" in n for n in sensor.notes)
+    assert np.allclose(hammer.points, sensor.points)
+    assert np.allclose(hammer.values, sensor.values, rtol=1e-5, atol=1e-8 * np.abs(sensor.values).max())
+    a, b = (identify_frf(f, DENSITY, "sdof").model for f in (hammer, sensor))
+    assert a.n_modes == b.n_modes == 4
+    assert np.allclose(a.frequencies, b.frequencies, rtol=1e-9) and np.allclose(a.damping, b.damping, rtol=1e-6)
+    assert np.all(mac(a.shapes, b.shapes) > 1 - 1e-9)
+    assert np.allclose(a.actuator_gains, b.actuator_gains, rtol=1e-6)
+    assert a.meta["input_unit"] == "N"
+
+
+def test_a_multi_reference_file_is_taken_as_it_is(tmp_path, capsys):
+    """Two references at the same nine responses: poles from both, every reference's gains;
+    the first drives nothing of modes 2 and 4 (a node at x = L/2), which the second drives."""
+    x = np.linspace(0.1, 1.2, 12)
+    nodes = {i + 1: xi for i, xi in enumerate(x)}
+    ref_a, ref_b = 100, 200
+    nodes[ref_a], nodes[ref_b] = L / 2, 0.3
+    funcs = [(i + 1, ref, h) for ref, at in ((ref_a, L / 2), (ref_b, 0.3)) for i, h in enumerate(accelerance(x, at))]
+    path = write(tmp_path / "multi.uff", nodes, funcs)
+    frfs = read_uff58_references(path)
+    assert len(frfs) == 2 and any("multi-reference" in n for n in frfs[0].notes)
+    with pytest.raises(ModelError, match="read_uff58_references"):
+        read_uff58(path)
+    out = tmp_path / "m.npz"
+    assert main(["identify", "--frf", str(path), "--mass-per-length", "2kg/m", "--out", str(out), "--no-plots",
+                 "--json", "--no-orthogonalize"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert np.allclose(summary["frequencies_hz"], [m[0] for m in MODES], rtol=1e-4)
+    from modalctl.model.modes import ModalModel
+
+    model = ModalModel.load(out)
+    assert model.actuator_gains.shape == (4, 2)
+    truth = shapes(x)
+    assert np.all(mac(model.shapes, truth) > 0.999)
+    # the gain of each reference is the mass-normalized shape at its point: phi(q) times the file's scale
+    ratio = model.actuator_gains[:, 1] / model.actuator_gains[:, 0]
+    expect = shapes(np.array([0.3]))[:, 0] / shapes(np.array([L / 2]))[:, 0]
+    assert np.allclose(ratio[[0, 2]], expect[[0, 2]], rtol=0.02)
+    assert np.all(np.abs(model.actuator_gains[[1, 3], 0]) < 1e-3 * np.abs(model.actuator_gains[[1, 3], 1]))
+
+
+def test_gram_schmidt_refused_on_a_sparse_uneven_line_and_applied_on_a_dense_scan(tmp_path):
+    """Nine uneven points are no quadrature for the sin shapes: Gram-Schmidt is left off with a
+    note, and the shapes keep MAC 0.999 to the truth (with it one falls below); on 41 even
+    points it is applied and changes each shape by MAC under 1e-4."""
+    sparse = identify_frf(read_uff58(roving_sensor(tmp_path / "sparse.uff")), DENSITY, "sdof")
+    assert not sparse.orthogonalized and np.all(sparse.shape_mac == 1)
+    assert any("Gram-Schmidt not applied" in n and "do not integrate" in n for n in sparse.notes)
+    truth = shapes(UNEVEN)
+    assert np.all(mac(sparse.model.shapes, truth) > 0.999)
+    from modalctl.model.projection import orthonormalize_model
+
+    forced = orthonormalize_model(sparse.model)  # what the old default did
+    assert np.min(mac(forced.shapes, truth)) < 0.997
+    x = np.linspace(0.0, L, 41)
+    dense = identify_frf(read_uff58(roving_sensor(tmp_path / "dense.uff", x=x, drive=7, noise=1e-3)), DENSITY, "sdof")
+    assert dense.orthogonalized and dense.model.meta.get("orthonormalized")
+    assert np.all(dense.shape_mac > 1 - 1e-4) and np.all(mac(dense.model.shapes, shapes(x)) > 0.999)
+    assert np.max(np.abs(dense.crosstalk_after - np.eye(4))) < 1e-9
+
+
+def test_left_out_modes_all_in_the_json_and_the_reason_says_what_was_seen(tmp_path, capsys):
+    """Noise without coherence: peaks of the noise are recognised as such (the noise estimated),
+    every pole left out is in the JSON's left_out, and listed in the text on request."""
+    path = roving_sensor(tmp_path / "noisy.uff", noise=1.0)  # 1/2500 of the highest peak
+    args = ["identify", "--frf", str(path), "--mass-per-length", "2kg/m", "--f-low", "50Hz", "--out",
+            str(tmp_path / "m.npz"), "--no-plots", "--method", "sdof"]
+    assert main([*args, "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert np.allclose(summary["frequencies_hz"], [m[0] for m in MODES], rtol=1e-3)
+    left = summary["left_out"]
+    assert len(left) == sum(not p["resolved"] for p in summary["poles"]) > 0
+    assert any("noise estimated from the scatter" in n for n in summary["notes"])
+    assert main([*args, "--left-out"]) == 0
+    text = capsys.readouterr().out
+    assert sum(" left out: " in line for line in text.splitlines()) == len(left)
