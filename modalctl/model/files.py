@@ -1,21 +1,121 @@
-"""Mode shapes from other programs' files: CSV tables and universal files (UFF 55).
+"""Mode shapes from other programs' files (CSV tables, universal files), and what every reader
+of a file checks before it reads: the arrays a ``.npy`` or ``.npz`` file declares, bounded by
+their file and by the memory there is.
 
 What these readers return is turned into a :class:`~modalctl.model.modes.ModalModel` by the caller
 (``modalctl decompose --model``, the identification); ``.npz`` models written by modalctl itself
-are read by :meth:`ModalModel.load <modalctl.model.modes.ModalModel.load>`.
+are read by :meth:`ModalModel.load <modalctl.model.modes.ModalModel.load>`, which checks them with
+:func:`check_npz`. A damaged file is a :class:`~modalctl.model.modes.ModelError` naming it, never
+numpy's, zipfile's or pyuff's own exception.
 """
 
 from __future__ import annotations
 
 import csv
+import re
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .modes import ModelError, check_finite
 
-__all__ = ["read_shapes_csv", "read_uff_sets", "read_uff55", "CSV_BYTES_MAX"]
+__all__ = ["read_shapes_csv", "read_uff_sets", "read_uff55", "read_npy", "check_npz", "memory_available",
+           "CSV_BYTES_MAX", "UFF_BYTES_MAX", "NPY_BYTES_MAX"]
 CSV_BYTES_MAX = 256 * 10**6  # a table of shapes larger than this is not a haptic surface's
+UFF_BYTES_MAX = 2**31  # pyuff reads a whole universal file into memory, then parses it
+NPY_BYTES_MAX = 2**30  # one field of values on a grid: 130 million points
+UFF_DELIMITER = re.compile(rb"^    -1 *\r?$", re.M)  # a dataset's first and last line (pyuff's own test)
+NPZ_COMPRESSION = (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED)  # what numpy writes
+
+
+def memory_available() -> int | None:
+    """Bytes the kernel can give without swapping (``MemAvailable``), None where it does not say."""
+    try:
+        with open("/proc/meminfo") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _check_bytes(name: str, declared: int, most: int) -> None:
+    """Refuse to read ``declared`` bytes for ``name`` beyond ``most`` or the memory available."""
+    available = memory_available()
+    if declared > most:
+        raise ModelError(f"{name} declares {declared / 2**30:.3g} GiB of arrays; at most {most / 2**30:g} GiB: "
+                         "refused unread")
+    if available is not None and declared > available:
+        raise ModelError(f"{name} declares {declared / 2**30:.3g} GiB of arrays, more than the "
+                         f"{available / 2**30:.3g} GiB of memory available: refused unread")
+
+
+def _npy_header(stream, name: str, kinds: str = "biuf") -> tuple[int, int]:
+    """The bytes the array of an ``.npy`` stream declares, and the length of its header; a stream
+    that is not an ``.npy`` array of ``kinds`` (numpy's dtype kinds: real numbers) is refused."""
+    try:
+        version = np.lib.format.read_magic(stream)
+        if version not in ((1, 0), (2, 0)):
+            raise ValueError(f"format version {version}")
+        read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+        shape, _, dtype = read(stream)
+    except (ValueError, EOFError, OSError, SyntaxError) as exc:
+        raise ModelError(f"{name} is not a .npy array ({exc})") from None
+    if dtype.hasobject or dtype.kind not in kinds:
+        raise ModelError(f"{name} holds {dtype}, not {'real numbers' if kinds == 'biuf' else 'numbers or text'}")
+    return int(np.prod(shape, dtype=object)) * dtype.itemsize, stream.tell()
+
+
+def read_npy(path, name: str = "npy", most: int = NPY_BYTES_MAX) -> np.ndarray:
+    """The array of the ``.npy`` file at ``path``, its size checked from its header first (at most
+    ``most`` bytes, no more than its file holds, no more than the memory available)."""
+    path = Path(path)
+    where = f"{name}: {str(path)!r}"
+    if not path.is_file():
+        raise ModelError(f"{name}: no such file {str(path)!r}")
+    try:
+        with path.open("rb") as handle:
+            if zipfile.is_zipfile(handle):
+                raise ModelError(f"{where} is a zip archive (an .npz?), not a .npy array")
+            handle.seek(0)
+            declared, header = _npy_header(handle, where)
+            if header + declared > path.stat().st_size:
+                raise ModelError(f"{where} declares {declared} bytes of data and holds "
+                                 f"{path.stat().st_size - header}: truncated or damaged")
+            _check_bytes(where, declared, most)
+            handle.seek(0)
+            return np.load(handle, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        if isinstance(exc, ModelError):
+            raise
+        raise ModelError(f"{where} cannot be read ({exc})") from None
+
+
+def check_npz(path, name: str, most: int) -> None:
+    """Refuse an ``.npz`` archive before reading an array of it: not a zip, encrypted or compressed
+    otherwise than numpy does, a member that is not an ``.npy`` array of numbers or declares more
+    than it holds, or more than ``most`` bytes in all (or than the memory available)."""
+    total = 0
+    try:
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                if info.flag_bits & 0x1 or info.compress_type not in NPZ_COMPRESSION:
+                    raise ModelError(f"{name}: member {info.filename!r} is encrypted or compressed otherwise "
+                                     "than numpy writes")
+                with archive.open(info) as member:
+                    declared, header = _npy_header(member, f"{name}: member {info.filename!r}", "biufU")
+                if header + declared > info.file_size:
+                    raise ModelError(f"{name}: member {info.filename!r} declares {declared} bytes and holds "
+                                     f"{info.file_size - header}: truncated or damaged")
+                total += declared
+                _check_bytes(f"{name} ({info.filename} and before)", total, most)
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+        if isinstance(exc, ModelError):
+            raise
+        raise ModelError(f"{name} is not a readable .npz archive ({exc})") from None
 
 
 def read_shapes_csv(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
@@ -51,7 +151,9 @@ def read_shapes_csv(path) -> tuple[np.ndarray, np.ndarray, list[str]]:
 
 
 def read_uff_sets(path) -> list[dict]:
-    """Every dataset of a universal file as pyuff's dicts (needs the optional ``pyuff``)."""
+    """Every dataset of a universal file as pyuff's dicts (needs the optional ``pyuff``): a file
+    above :data:`UFF_BYTES_MAX`, cut inside a dataset (a first line ``-1`` without its last) or
+    that pyuff cannot parse is refused naming it."""
     path = Path(path)
     if not path.is_file():
         raise ModelError(f"uff: no such file {str(path)!r}")
@@ -59,7 +161,16 @@ def read_uff_sets(path) -> list[dict]:
         import pyuff
     except ImportError:
         raise ModelError("uff: reading UFF files needs pyuff: pip install 'modalctl[uff]'") from None
-    sets = pyuff.UFF(str(path)).read_sets()
+    _check_bytes(f"uff: {str(path)!r}", path.stat().st_size, UFF_BYTES_MAX)
+    text = path.read_bytes()
+    ends = [m.end() for m in UFF_DELIMITER.finditer(text)]
+    if len(ends) % 2 or (ends and text[ends[-1]:].strip()):
+        raise ModelError(f"uff: {str(path)!r} is cut inside a dataset or holds text after the last one (each "
+                         "opens and closes with a line -1): truncated or damaged")
+    try:
+        sets = pyuff.UFF(str(path)).read_sets() if ends else []
+    except Exception as exc:  # noqa: BLE001 (pyuff raises Exception itself for a damaged dataset)
+        raise ModelError(f"uff: {str(path)!r} cannot be read: {exc}") from None
     return sets if isinstance(sets, list) else [sets]
 
 

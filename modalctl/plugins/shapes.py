@@ -224,7 +224,13 @@ def _load_values(values) -> np.ndarray:
         if not path.is_file():
             raise ParamError(f"array: no such file {str(path)!r}")
         if path.suffix == ".npy":
-            return np.load(path, allow_pickle=False).astype(float).ravel()
+            from modalctl.model.files import read_npy
+            from modalctl.model.modes import ModelError
+
+            try:
+                return read_npy(path, "array").astype(float).ravel()
+            except ModelError as exc:
+                raise ParamError(str(exc)) from None
         try:
             return np.loadtxt(path, delimiter=",", ndmin=1, comments="#").astype(float).ravel()
         except ValueError as exc:
