@@ -6,7 +6,10 @@ different command or options, said in its ``run.json``) unless forced, and remov
 run's files first, so that a run that fails half-way never leaves an older run's results beside its
 own. :func:`atomic` writes one file: into a temporary name in the same folder, then renamed over
 the final name, so that a reader sees the old file or the new one, never half of one, and a link
-planted under that name is replaced, never followed. A foundation module: it imports nothing of
+planted under that name is replaced, never followed; a write the disk refuses (full, read-only)
+is an :class:`OutDirError` naming the file. :func:`check_writable` refuses, before any work, a path
+results cannot be written to: a device, the kernel's files (``/proc``, ``/sys``), a read-only or
+unwritable folder, a file where a folder is needed. A foundation module: it imports nothing of
 modalctl.
 """
 
@@ -14,20 +17,80 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import secrets
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["OutDirError", "claim", "record", "atomic", "MANIFEST"]
+__all__ = ["OutDirError", "claim", "record", "atomic", "check_writable", "MANIFEST"]
 
 MANIFEST = "run.json"  # which command and options made the folder's results
 RESULTS = ("metrics.json", "fields.npz", "refusal.json", "log.json", "log.bin", "log-learning.json", "log-learning.bin",
            "sweep.json", "sweep.md")
 
 
+#: Filesystems of the kernel's state and of devices: no result is written there.
+NOT_FOR_RESULTS = {"proc", "sysfs", "devtmpfs", "devpts", "cgroup", "cgroup2", "debugfs", "tracefs", "securityfs",
+                   "configfs", "pstore", "bpf", "mqueue", "efivarfs", "binfmt_misc", "fusectl", "autofs", "hugetlbfs"}
+
+
 class OutDirError(ValueError):
-    """The folder cannot take this run (another run's results in it, a file in its place)."""
+    """The folder cannot take this run (another run's results in it, a file in its place), or a
+    file of it cannot be written."""
+
+
+def check_writable(path, folder: bool) -> None:
+    """Refuse ``path`` as where results go (a ``folder`` to make, or a file to write), before any
+    work: a file where a folder is needed or the reverse, a device or another special file, a
+    path through a file, the kernel's filesystems (:data:`NOT_FOR_RESULTS`), a read-only mount, a
+    folder this user cannot write into.
+
+    Raises
+    ------
+    OutDirError
+        Saying which part of ``path`` is the matter.
+    """
+    path = Path(os.path.abspath(path))
+    if path.exists():
+        if folder and not path.is_dir():
+            raise OutDirError(f"{str(path)!r} is a file, not a directory")
+        if not folder and path.is_dir():
+            raise OutDirError(f"{str(path)!r} is a directory; give a file name")
+        if not folder and not path.is_file():
+            raise OutDirError(f"{str(path)!r} is a device or another special file, not a file for results")
+    near = path if folder else path.parent
+    while not near.exists() and near != near.parent:
+        near = near.parent
+    if not near.is_dir():
+        raise OutDirError(f"{str(path)!r} goes through {str(near)!r}, which is not a directory")
+    kind, options = _filesystem(near)
+    if kind in NOT_FOR_RESULTS:
+        raise OutDirError(f"{str(path)!r} is on the kernel's {kind} filesystem, not a place for results")
+    if "ro" in options:
+        raise OutDirError(f"{str(path)!r} is on a read-only filesystem")
+    if not os.access(near, os.W_OK | os.X_OK):
+        raise OutDirError(f"{str(near)!r} is not writable by this user")
+
+
+def _filesystem(path: Path) -> tuple[str, set[str]]:
+    """The type and the mount options of the filesystem ``path`` is on (Linux's mount table; an
+    empty type where there is none to read)."""
+    where, found = os.path.realpath(path), ("", set())
+    try:
+        with open("/proc/self/mounts") as mounts:
+            table = [line.split() for line in mounts]
+    except OSError:
+        return found
+    longest = -1
+    for fields in table:
+        if len(fields) < 4:
+            continue
+        point = re.sub(r"\\([0-7]{3})", lambda m: chr(int(m.group(1), 8)), fields[1])  # \040: a space
+        inside = where == point or where.startswith(point.rstrip("/") + "/")
+        if inside and len(point) >= longest:  # the last mount on a point hides the earlier ones
+            longest, found = len(point), (fields[2], set(fields[3].split(",")))
+    return found
 
 
 def claim(out: Path, command: str, options: dict, force: bool = False, defaults: dict | None = None) -> Path:
@@ -76,6 +139,8 @@ def atomic(path: Path) -> Iterator[Path]:
     try:
         yield temporary
         os.replace(temporary, path)  # replaces a link of that name; never writes through it
+    except OSError as exc:  # a full disk, a folder made read-only: the file that was there is left whole
+        raise OutDirError(f"cannot write {str(path)!r}: {exc.strerror or exc}") from exc
     finally:
         if temporary.exists() or temporary.is_symlink():
             temporary.unlink()

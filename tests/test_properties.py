@@ -31,7 +31,8 @@ BASE = {
     "emulate": ["emulate", "--for", "0.01s"],
     "decompose": ["decompose", "--scene", "thesis-al-cc", "--shape", "sinc"],
 }
-UNBOUNDED_ON_PURPOSE = {"--param", "--vary", "--margin", "--drift-step", "--out", "--points", "--modes"}  # own checks
+UNBOUNDED_ON_PURPOSE = {"--param", "--vary", "--margin", "--drift-step", "--out", "--points", "--modes", "--plot",
+                        "--save-model"}  # own checks
 
 
 def _options():

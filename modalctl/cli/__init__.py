@@ -24,7 +24,7 @@ import sys
 from modalctl.plugin.command import plugin_commands
 
 from . import decompose, identify, model, plugins, run, scenes, sweep
-from .common import BAD_INPUT, DEVICE, UNREACHABLE, jsonable, refuse
+from .common import BAD_INPUT, DEVICE, UNREACHABLE, check_outputs, jsonable, refuse
 
 __all__ = ["main", "build_parser", "command_parser"]
 
@@ -126,6 +126,7 @@ def _dispatch(handler, args) -> int:
 
     as_json = getattr(args, "json", False)
     try:
+        check_outputs(args)
         return handler(args)
     except DeviceError as exc:
         return refuse(args.command, DEVICE, f"device error: {exc}", as_json)
@@ -137,6 +138,8 @@ def _dispatch(handler, args) -> int:
     except ReductionError as exc:
         return refuse(args.command, UNREACHABLE, str(exc), as_json)
     except (UnknownScene, PluginError, ParamError, UnitError, ModelError, ValueError) as exc:
+        return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
+    except OSError as exc:  # a file the system refused (the readers and outdir.atomic name theirs already)
         return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
 
 

@@ -13,16 +13,19 @@ import json
 import sys
 from pathlib import Path
 
-from modalctl.outdir import atomic
+from modalctl.outdir import OutDirError, atomic, check_writable
 from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
 
-__all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "MODES_MAX", "parse_param", "points", "modes", "out_dir",
-           "add_target", "model_and_shape", "open_device", "refuse", "jsonable", "write_json", "identity",
+__all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "MODES_MAX", "parse_param", "points", "modes", "out_dir", "out_file",
+           "check_outputs", "option_type", "add_target", "model_and_shape", "open_device", "refuse", "jsonable", "write_json", "identity",
            "identity_defaults"]
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
 MODES_MAX = 1000
+#: Options naming a file to write that their command declares without the :func:`out_file` type
+#: (``identify --out``): :func:`check_outputs` checks them before the command's work.
+FILE_OUTPUTS = {"identify": ("out",)}
 points = grid_points  # --points: N for a beam, NxM for a plate
 
 
@@ -48,12 +51,42 @@ def modes(text: str):
 
 
 def out_dir(text: str) -> str:
-    """``--out``: a directory to write into (made if absent); not empty, not an existing file."""
+    """``--out``: a directory to write into (made if absent); not empty, not an existing file, a
+    place results can be written (:func:`modalctl.outdir.check_writable`)."""
     if not text.strip():
         raise argparse.ArgumentTypeError("out: give a directory (an empty name would write into the working one)")
-    if Path(text).exists() and not Path(text).is_dir():
-        raise argparse.ArgumentTypeError(f"out: {text!r} is a file, not a directory")
+    return _writable(text, folder=True)
+
+
+def out_file(text: str) -> str:
+    """An option naming a file to write (a model file, a picture): not empty, not a directory nor
+    a device, in a folder results can be written to (made if absent)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("give a file name")
+    return _writable(text, folder=False)
+
+
+def _writable(text: str, folder: bool) -> str:
+    try:
+        check_writable(text, folder)
+    except OutDirError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
     return text
+
+
+def check_outputs(args) -> None:
+    """The files a command writes (:data:`FILE_OUTPUTS`), checked as :func:`out_file` does, before
+    its work. Raises :class:`~modalctl.outdir.OutDirError`."""
+    for dest in FILE_OUTPUTS.get(args.command, ()):
+        value = getattr(args, dest, None)
+        if value is not None:
+            flag = "--" + dest.replace("_", "-")
+            if not str(value).strip():
+                raise OutDirError(f"{flag}: give a file name")
+            try:
+                check_writable(value, folder=False)
+            except OutDirError as exc:
+                raise OutDirError(f"{flag}: {exc}") from None
 
 
 def add_target(p) -> None:
@@ -134,6 +167,14 @@ def identity(args) -> dict:
     other options holds another run."""
     shown = {"quiet", "force", "json", "no_plots", "transports", "out", "command"}
     return {k: v for k, v in sorted(vars(args).items()) if k not in shown and not callable(v)}
+
+
+def option_type(command: str, option: str):
+    """The type ``command``'s parser reads ``option`` with (its units and range): for a value
+    another command takes as text (``sweep --vary``), checked as that option would check it."""
+    from modalctl.cli import command_parser
+
+    return next(action.type for action in command_parser(command)._actions if option in action.option_strings)
 
 
 def identity_defaults(command: str) -> dict:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from modalctl.units import UnitError, number_type, parse_quantity, quantity_type
 
-from .common import parse_param
+from .common import out_file, parse_param
 
 NAME, HELP = "model", "build a modal model from a structure's geometry"
 FE_HOLES_MAX, FE_PATCHES_MAX, FE_SENSORS_MAX = 20, 32, 32
@@ -55,7 +55,7 @@ def add_arguments(model) -> None:
                    default=1e-3, help="focus grid spacing (1mm)")
     p.add_argument("--damping", type=quantity_type("1", "damping", low=0, high=0.5), default=0.01,
                    help="modal damping ratio of every mode (1%%)")
-    p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
+    p.add_argument("--out", required=True, type=out_file, help="model file to write (.npz); pictures beside it")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
@@ -192,7 +192,7 @@ def run(args) -> int:
                                            progress=say)
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    path = model.save(out)
+    path = model.save(out)  # atomically: a file that was there stays whole if the disk refuses
     summary = {"model_file": str(path), "modes": model.n_modes, "frequencies_hz": model.frequencies.tolist(),
                "convergence": convergence.to_dict(), "grid": list(model.grid.shape or (model.grid.n,))}
     if not args.no_plots:
