@@ -57,8 +57,14 @@ def test_sweep_runs_a_plate_on_its_own_grid(capsys, tmp_path):
     (["--vary", "speed=1,2"], "cannot sweep 'speed'"),
     (["--vary", "drift=0,1%", "--methods", "magic"], "unknown method"),
     (["--vary", "latency=one"], "expected numbers"),
-    (["--vary", "latency=-1,0"], "latency: values must be zero or more, got -1"),
-    (["--vary", "focus-time=0ms,25ms"], "focus-time: values must be positive"),
+    (["--vary", "latency=-1,0"], "--vary latency must lie in [0, 1000], got '-1'"),
+    (["--vary", "focus-time=0ms,25ms"], "--vary focus-time must lie in (0, inf), got '0ms'"),
+    # issue 39: the ranges modalctl run applies, one by one (a table of NaN exited 0)
+    (["--vary", "snr=40,nan"], "--vary snr must lie in [0, 200], got 'nan'"),
+    (["--vary", "snr=inf"], "--vary snr must lie in [0, 200], got 'inf'"),
+    (["--vary", "drift=0,60%"], "--vary drift must lie in (-0.5, 0.5], got '60%'"),
+    (["--vary", "finger=1e9Ns/m"], "--vary finger must lie in [0, 100], got '1e9Ns/m'"),
+    (["--vary", "seed=1.5"], "seed: expected numbers"),
 ])
 def test_sweep_refuses_bad_input(capsys, tmp_path, args, message):
     code = main(["sweep", *args, "--out", str(tmp_path), "--quiet"])

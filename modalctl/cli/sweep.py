@@ -13,16 +13,15 @@ import argparse
 import json
 from pathlib import Path
 
-from modalctl.units import number_type, parse_quantity, quantity_type
+from modalctl.units import number_type, quantity_type
 
 from .common import identity, identity_defaults, jsonable, out_dir, parse_param, points, write_json
 
 NAME, HELP = "sweep", "run a focus case over a grid of scenarios on the HIL and map where methods fail"
 
-# swept parameter -> (Case field, unit of its values)
-SWEPT = {"drift": ("drift", "1"), "damping-error": ("damping_error", "1"), "finger": ("finger", "N s/m"),
-         "latency": ("latency", None), "snr": ("snr_db", None), "focus-time": ("focus_time", "s"),
-         "seed": ("seed", None)}
+# swept parameter (an option of modalctl run, whose type reads and checks each value) -> Case field
+SWEPT = {"drift": "drift", "damping-error": "damping_error", "finger": "finger", "latency": "latency",
+         "snr": "snr_db", "focus-time": "focus_time", "seed": "seed"}
 # the simulator's options (their dest) a case takes, and its field for each; it takes none of the others
 TRUTH = {"drift": "drift", "damping_error": "damping_error", "finger": "finger", "snr": "snr_db", "seed": "seed"}
 
@@ -68,25 +67,23 @@ def add_arguments(p) -> None:
 
 
 def _swept_values(name: str, text: str) -> tuple[str, list]:
+    """A swept option's field and values, each read and checked by the type ``modalctl run`` reads
+    the option with (its unit, its range, a finite number): a sweep never reaches a value a run refuses."""
     from modalctl.model.shape import ParamError
+
+    from .common import option_type
 
     if name not in SWEPT:
         raise ParamError(f"cannot sweep {name!r}; choose from {', '.join(SWEPT)}")
-    field, unit = SWEPT[name]
-    values = []
+    read, values = option_type("run", f"--{name}"), []
     for item in text.split(","):
-        if unit is not None:
-            values.append(parse_quantity(item, unit, name))
-        else:
-            try:
-                values.append(int(item) if field in ("latency", "seed") else float(item))
-            except ValueError:
-                raise ParamError(f"{name}: expected numbers separated by commas, got {item!r}") from None
-    if field in ("latency", "seed", "finger") and min(values) < 0:
-        raise ParamError(f"{name}: values must be zero or more, got {min(values):g}")
-    if field == "focus_time" and min(values) <= 0:
-        raise ParamError(f"{name}: values must be positive, got {min(values):g} s")
-    return field, values
+        try:
+            values.append(read(item.strip()))
+        except argparse.ArgumentTypeError as exc:  # its message names the option, the range and the value
+            raise ParamError(f"--vary {exc}") from None
+        except ValueError:  # a plain number's type: argparse would say "invalid <name> value"
+            raise ParamError(f"--vary {name}: expected numbers separated by commas, got {item.strip()!r}") from None
+    return SWEPT[name], values
 
 
 def _add_truth_arguments(p, case) -> None:
