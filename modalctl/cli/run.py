@@ -111,8 +111,9 @@ def _run_options(args, out: Path):
     from modalctl.options import RunOptions
     from modalctl.plugin.manager import get_planner
 
-    if args.learn and args.loop == "open":
-        raise ParamError("--learn needs a closed loop (--loop closed or board)")
+    unused = [why for given, applies, why in _applying(args) if given and not applies]
+    if unused:
+        raise ParamError("; ".join(unused))
     get_planner(args.planner)  # an unknown planner is bad input, refused before the device opens
     plan = PlanOptions(planner=args.planner, modes=args.modes, tau_min=args.tau_target or PLAN.tau_min,
                        margin=args.margin, margin_on=args.margin_on, voltage_limit=args.voltage_limit,
@@ -123,6 +124,22 @@ def _run_options(args, out: Path):
         authority=args.authority, latency=args.latency, slew_limit=args.slew_limit, watchdog=args.watchdog,
         touch_at=args.touch_at)
     return RunOptions(args.focus_time, plan, loop, args.learn, out / "log" if loop else None, not args.quiet)
+
+
+def _applying(args) -> list[tuple[bool, bool, str]]:
+    """Each option the other choices can make meaningless: (given, applies, why not), so that an
+    option is refused where it would be ignored."""
+    closed, convex = args.loop != "open", args.planner == "convex"
+    return [
+        (bool(args.learn), closed, "--learn needs a closed loop (--loop closed or board)"),
+        (args.touch_at is not None, closed and args.controller == "touch",
+         "--touch-at tells the touch controller where the finger rests: it needs --loop closed --controller touch"),
+        (args.robust_drift > 0, convex and args.margin is not None,
+         "--robust-drift holds the convex planner's margin on drifted truths: it needs --planner convex and a "
+         "--margin (not none)"),
+        (args.slew_limit is not None, convex,
+         "--slew-limit is planned for by the convex planner only: the envelope planner's drive would exceed it"),
+    ]
 
 
 def run(args) -> int:
