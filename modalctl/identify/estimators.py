@@ -237,7 +237,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     if not resolved:
         near = min(others, key=lambda p: abs(p[0] - f), default=None)
         near = None if near is None else (near[0], abs(near[0] - f) / max(zeta * f, np.finfo(float).tiny))
-        why = misfit_reason(misfit, noise is not None, seen, near, half_width)
+        why = misfit_reason(misfit, noise is not None, seen, near, None if split else half_width)
         if split:
             why = why[:-1] + (f"; two poles, {min(split)[0]:.2f} and {max(split)[0]:.2f} Hz, leave less than half its "
                               f"residual: close modes?)")
