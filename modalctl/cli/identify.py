@@ -134,7 +134,7 @@ def run(args) -> int:
     path = survey.model.save(out)
     off = lambda c: float(np.max(np.abs(c - np.eye(len(c))))) if len(c) else 0.0  # noqa: E731
     poles = survey.poles
-    left = [dict(row, f_hz=row["f_hz"]) for row in poles.summary() if not row["resolved"]]
+    left = [row for row in poles.summary() if not row["resolved"]]
     summary = {"model_file": str(path), "modes": survey.model.n_modes, "method": args.method,
                "frequencies_hz": survey.model.frequencies.tolist(), "damping": survey.model.damping.tolist(),
                "unit": survey.frfs["full"][0].unit, "poles": poles.summary(), "left_out": left,
