@@ -18,8 +18,8 @@ from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
 
 __all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "MODES_MAX", "parse_param", "points", "modes", "out_dir", "out_file",
-           "check_outputs", "option_type", "add_target", "model_and_shape", "open_device", "refuse", "jsonable", "write_json", "identity",
-           "identity_defaults"]
+           "check_outputs", "option_type", "progress_bars", "stage", "add_target", "model_and_shape", "open_device",
+           "refuse", "jsonable", "write_json", "identity", "identity_defaults"]
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
 MODES_MAX = 1000
@@ -87,6 +87,19 @@ def check_outputs(args) -> None:
                 check_writable(value, folder=False)
             except OutDirError as exc:
                 raise OutDirError(f"{flag}: {exc}") from None
+
+
+def progress_bars(args) -> bool:
+    """Whether a command draws progress bars: on a terminal only (a log or a pipe would keep every
+    carriage-return frame), and not with ``--quiet``."""
+    return not getattr(args, "quiet", False) and sys.stderr.isatty()
+
+
+def stage(args, text: str) -> None:
+    """Where there are no bars (stderr is not a terminal), one line on stderr as a stage starts,
+    for a log to say where a command is; nothing with ``--quiet``."""
+    if not getattr(args, "quiet", False) and not sys.stderr.isatty():
+        print(f"modalctl {args.command}: {text}", file=sys.stderr, flush=True)
 
 
 def add_target(p) -> None:

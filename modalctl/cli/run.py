@@ -11,7 +11,7 @@ from modalctl.options import LEARN_FROM, ROBUST_DRIFT_MAX, LoopOptions, PlanOpti
 from modalctl.units import number_type, quantity_type
 
 from .common import DEVICE, add_target, identity, identity_defaults, jsonable, model_and_shape, open_device, out_dir, \
-    write_json
+    progress_bars, stage, write_json
 
 NAME, HELP = "run", "plan a focus, play it on a device (default sim://) and measure it"
 PLAN, LOOP = PlanOptions(), LoopOptions()  # the defaults the options below show and use
@@ -123,7 +123,7 @@ def _run_options(args, out: Path):
         control_rate=args.control_rate, controller=args.controller, on_board=args.loop == "board",
         authority=args.authority, latency=args.latency, slew_limit=args.slew_limit, watchdog=args.watchdog,
         touch_at=args.touch_at)
-    return RunOptions(args.focus_time, plan, loop, args.learn, out / "log" if loop else None, not args.quiet)
+    return RunOptions(args.focus_time, plan, loop, args.learn, out / "log" if loop else None, progress_bars(args))
 
 
 def _applying(args) -> list[tuple[bool, bool, str]]:
@@ -159,12 +159,15 @@ def run(args) -> int:
     import time
 
     started = time.perf_counter()
+    stage(args, f"the model ({args.scene or args.model}) and the shape ({args.shape})")
     model, shape = model_and_shape(args)
     loaded = time.perf_counter()
     model, growth = _grown(args, model, shape, options)
     stages = {"model_s": loaded - started, "growth_s": time.perf_counter() - loaded}
     with open_device(args, model, shape) as device:  # its options checked before the folder is made
         claim(out, "run", identity(args), args.force, identity_defaults("run"))
+        stage(args, f"the shot: planned ({options.plan.planner} planner) and played on {device.url}"
+              + (f", {args.loop} loop" if options.closed else ""))
         try:
             shot = play(model, shape, device, options)
         except PlanError as refused:  # a result: why, on disk beside where the report would be
@@ -208,6 +211,7 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     from modalctl.outdir import record
 
     started = time.perf_counter()
+    stage(args, f"the report into {out}/")
     metrics = {**shot.to_dict(), "scene": model.meta.get("name", args.model), "shape": args.shape,
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),

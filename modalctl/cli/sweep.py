@@ -15,7 +15,8 @@ from pathlib import Path
 
 from modalctl.units import number_type, quantity_type
 
-from .common import identity, identity_defaults, jsonable, out_dir, parse_param, points, write_json
+from .common import identity, identity_defaults, jsonable, out_dir, parse_param, points, progress_bars, stage, \
+    write_json
 
 NAME, HELP = "sweep", "run a focus case over a grid of scenarios on the HIL and map where methods fail"
 
@@ -142,7 +143,9 @@ def run(args) -> int:
     cases = _cases(args, axes, methods)
     out = claim(Path(args.out), "sweep", identity(args), args.force, identity_defaults("sweep"))
     executor = executor_for(args.scheduler, args.workers)
-    rows = executor.map(run_case, cases, progress=not args.quiet)
+    stage(args, f"{len(cases)} cases ({type(executor).__name__})")
+    rows = executor.map(run_case, cases, progress=progress_bars(args))
+    stage(args, f"the report into {out}/")
     summary = {"axes": {f: v for f, v in axes}, "methods": methods, "rows": rows,
                "executor": type(executor).__name__}
     write_json(out / "sweep.json", summary)
