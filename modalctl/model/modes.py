@@ -299,7 +299,8 @@ class ModalModel:
     # ----------------------------------------------------------------- files
     def save(self, path) -> Path:
         """Write the model to one ``.npz`` file (atomically: a temporary file beside it, then renamed):
-        arrays plus a JSON metadata entry (no pickle), stored, not deflated: float64 shapes deflate by some 6 % only, for 1.5 s of the tablet panel's 254 modes (0.2 s stored)."""
+        arrays plus a JSON metadata entry (no pickle), stored, not deflated: float64 shapes deflate
+        by some 6 % only, for 1.5 s of the tablet panel's 254 modes (0.2 s stored)."""
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
