@@ -15,7 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ROBUST_DRIFT_MAX", "ConvexOptions", "PlanOptions",
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions", "PlanOptions",
            "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
@@ -28,6 +28,8 @@ SHOT_SAMPLES_MAX = 1_000_000
 #: The widest band of resonance drift a plan may be made robust to: half the frequency is another
 #: structure (its drifted copies would have no positive resonances past it).
 ROBUST_DRIFT_MAX = 0.5
+# The most modes a scene is built with (a truth five times the panel's 53 modes takes 265)
+MODES_MAX = 2000
 
 #: The least tau an automatic mode set must reach (``modes="auto"``).
 DEFAULT_TAU = 0.98

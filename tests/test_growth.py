@@ -92,3 +92,13 @@ def test_a_model_whose_geometry_does_not_read_back_is_not_grown(small):
         odd = replace(small, meta={**small.meta, **broken})
         assert plate_of(odd) is None
         assert model_for(odd, _bump(odd, 0.012), PlanOptions())[1] is None  # what it has, no traceback
+
+
+def test_a_plate_continued_to_more_modes_is_grown_and_cut_to_them(small):
+    from modalctl.model.scenes import continued
+
+    richer = continued(small, 2 * small.n_modes)
+    assert richer.n_modes == 2 * small.n_modes
+    np.testing.assert_allclose(richer.frequencies[:small.n_modes], small.frequencies, rtol=1e-9)
+    np.testing.assert_array_equal(richer.grid.points, small.grid.points)
+    assert np.all(np.diff(richer.frequencies) >= 0)

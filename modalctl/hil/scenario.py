@@ -14,13 +14,14 @@ from modalctl.model.touch import touch_at
 from .vibrometer import NOISE_BLOCK, scan_noise  # noqa: F401  (the vibrometer's noise: its home is .vibrometer)
 
 __all__ = ["Perturbation", "perturb", "step", "ramp", "scan_noise", "DRIFT_MAX", "DRIFT_RATE_MAX",
-           "DAMPING_ERROR_MAX", "FINGER_MAX", "SNR_MAX",
+           "DAMPING_ERROR_MAX", "GAIN_ERROR_MAX", "FINGER_MAX", "SNR_MAX",
            "FINGER_SLIDE_MAX", "FINGER_PRESS_MAX", "FINGER_TIME_MAX"]
 
 # The largest departures a simulated truth may take (bad input beyond them, refused at the edge):
 DRIFT_MAX = 0.5  # a resonance moved by half its frequency is another structure
 DRIFT_RATE_MAX = 10.0  # 1/s: 25% over a 25 ms shot, far past any warming
 DAMPING_ERROR_MAX = 10.0  # eleven times the modelled damping
+GAIN_ERROR_MAX = 0.9  # a mode driven at a tenth (or 1.9 times) of its modelled gain
 FINGER_MAX = 100.0  # N s/m: a hundred times a pressing finger (0.1-1 N s/m)
 SNR_MAX = 200.0  # dB: beyond, the noise is below float64's round-off of the signal
 FINGER_SLIDE_MAX = 10.0  # m/s: a swipe; faster is no touch
@@ -41,6 +42,9 @@ class Perturbation:
         Standard deviation of an extra random shift per mode (relative).
     damping_error : float
         Relative error of every damping ratio (0.2 = 20% more damping than modelled).
+    gain_error : float
+        Relative error of each mode's actuator gains, its sign drawn per mode from ``seed`` (0.2:
+        every mode driven 20% more or 20% less than modelled by every patch).
     snr_db : float or None
         Measurement noise: white, with a standard deviation of the shot's peak over 10^(snr/20)
         (the vibrometer: the peak velocity over the whole grid; each sensor: its own peak).
@@ -77,6 +81,7 @@ class Perturbation:
     drift: float = 0.0
     drift_spread: float = 0.0
     damping_error: float = 0.0
+    gain_error: float = 0.0
     snr_db: float | None = None
     amplifier_bandwidth: float | None = None
     voltage_limit: float | None = None
@@ -95,6 +100,8 @@ class Perturbation:
     def __post_init__(self):
         if int(self.scan_repeats) != self.scan_repeats or self.scan_repeats < 1:
             raise ValueError(f"scan_repeats must be a whole number of shots, 1 or more, got {self.scan_repeats!r}")
+        if not 0 <= self.gain_error <= GAIN_ERROR_MAX:
+            raise ValueError(f"gain_error must lie in [0, {GAIN_ERROR_MAX:g}], got {self.gain_error!r}")
         if self.finger < 0:
             raise ValueError(f"finger damping must be zero or more N s/m, got {self.finger!r}")
         if self.finger and self.finger_at is None:
@@ -124,7 +131,8 @@ class Perturbation:
             at = tuple(model.grid.points[int(np.argmax(np.abs(target.values)))])
         step, step_time = options.get("drift_step", (0.0, 0.0))
         return cls(drift=options.get("drift", 0.0), drift_spread=options.get("drift_spread", 0.0),
-                   damping_error=options.get("damping_error", 0.0), snr_db=options.get("snr"),
+                   damping_error=options.get("damping_error", 0.0), gain_error=options.get("gain_error", 0.0),
+                   snr_db=options.get("snr"),
                    amplifier_bandwidth=options.get("amplifier_bandwidth"), voltage_limit=options.get("rails"),
                    seed=options.get("seed", 0), drift_rate=options.get("drift_rate", 0.0), drift_step=step,
                    drift_step_time=step_time, finger=finger, finger_at=at,
@@ -179,6 +187,7 @@ class Perturbation:
         parts = [f"drift {100 * self.drift:+.1f}%" if self.drift else "",
                  f"spread {100 * self.drift_spread:.1f}%" if self.drift_spread else "",
                  f"damping {100 * self.damping_error:+.0f}%" if self.damping_error else "",
+                 f"actuator gains +-{100 * self.gain_error:.0f}% by mode" if self.gain_error else "",
                  f"SNR {self.snr_db:g} dB" if self.snr_db is not None else "",
                  f"amplifier {self.amplifier_bandwidth / 1e3:g} kHz" if self.amplifier_bandwidth else "",
                  f"rails {self.voltage_limit:g} V" if self.voltage_limit else "",
@@ -197,11 +206,15 @@ class Perturbation:
 
 
 def perturb(model: ModalModel, p: Perturbation) -> ModalModel:
-    """The truth model: ``model`` with drifted resonances and erred damping (shapes unchanged)."""
+    """The truth model: ``model`` with drifted resonances, erred damping and erred actuator gains
+    (shapes unchanged)."""
     rng = np.random.default_rng(p.seed)
     shift = 1 + p.drift + p.drift_spread * rng.standard_normal(model.n_modes)
-    return replace(model, frequencies=model.frequencies * shift,
-                   damping=model.damping * (1 + p.damping_error))
+    truth = replace(model, frequencies=model.frequencies * shift, damping=model.damping * (1 + p.damping_error))
+    if p.gain_error:  # drawn after the spread: a seed's spread is the same with or without gain errors
+        signs = rng.choice([-1.0, 1.0], model.n_modes)
+        truth = replace(truth, actuator_gains=model.actuator_gains * (1 + p.gain_error * signs)[:, None])
+    return truth
 
 
 def step(at: float, size: float):

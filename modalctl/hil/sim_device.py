@@ -3,6 +3,7 @@ drifted and erred modes, a finger resting on the surface, resonances moving duri
 
 from __future__ import annotations
 
+from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
@@ -11,7 +12,7 @@ from tqdm.auto import tqdm
 from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.noise_stream import NoiseStream
-from modalctl.model.scenes import load_scene
+from modalctl.model.scenes import continued, load_scene
 from modalctl.model.shape import ParamError
 
 from .finger import FingerPlant
@@ -77,7 +78,11 @@ class SimDevice(Device):
             raise DeviceError(f"{url}: tol must be a number, got {query['tol']!r}") from None
         structure = _structure(context)
         perturbation = Perturbation.from_options(context.options, structure, context.target)
-        return cls(structure, perturbation, query.get("hold", "zoh"), tol, url)
+        device = cls(structure, perturbation, query.get("hold", "zoh"), tol, url)
+        if structure is not context.model:  # say which structure stands for the truth
+            named = context.options.get("truth") or structure.meta.get("name", "the model")
+            device.info["truth"] = f"{named}, {structure.n_modes} modes; {device.info['truth']}"
+        return device
 
     def configure(self, sample_rate: float) -> Capabilities:
         """Set the DAC/ADC rate (Hz) and report what the board can do."""
@@ -219,19 +224,36 @@ def _finger(model: ModalModel, p: Perturbation, url: str):
 
 
 def _structure(context: DeviceContext) -> ModalModel:
-    """The structure to simulate: the scene of the ``truth`` option, or the model planned on."""
-    name, model = context.options.get("truth"), context.model
-    if name is None:
-        if model is None:
-            raise DeviceError("sim://: the simulator needs the structure's model (a scene, a model file or --truth)")
-        return model
-    truth = load_scene(name)
-    if model is not None:
-        for what in ("actuator", "sensor"):
-            ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))
-            if what == "sensor" and ours == 0:  # an identified model: the sensors are the device's, unmodelled
-                continue
-            if ours != theirs:
-                raise ModelError(f"--truth {name} has {theirs} {what}s, the model {ours}: the truth must be the "
-                                 f"same structure as the one planned on (its modes may differ)")
+    """The structure to simulate: the scene or model file of the ``truth`` option, or the model
+    planned on; continued to ``truth_modes`` modes when asked (:func:`~modalctl.model.scenes.continued`)."""
+    name, model, modes = context.options.get("truth"), context.model, context.options.get("truth_modes")
+    if name is None and model is None:
+        raise DeviceError("sim://: the simulator needs the structure's model (a scene, a model file or --truth)")
+    truth = model if name is None else _named_truth(str(name))
+    if modes is not None:
+        truth = continued(truth, int(modes))
+    if model is not None and truth is not model:
+        _same_structure(model, truth, name or f"{modes} modes")
     return truth
+
+
+def _named_truth(name: str) -> ModalModel:
+    """A scene by name, or a model file (``.npz``) by path."""
+    if name.endswith(".npz") or Path(name).is_file():
+        return ModalModel.load(name)
+    return load_scene(name)
+
+
+def _same_structure(model: ModalModel, truth: ModalModel, name: str) -> None:
+    """ModelError unless ``truth`` has ``model``'s actuators and sensors (an identified model's
+    sensors are the device's: not compared) and its grid, where the scan samples it."""
+    for what in ("actuator", "sensor"):
+        ours, theirs = (getattr(m, f"{what}_gains").shape[1] for m in (model, truth))
+        if what == "sensor" and ours == 0:  # an identified model: the sensors are the device's, unmodelled
+            continue
+        if ours != theirs:
+            raise ModelError(f"--truth {name} has {theirs} {what}s, the model {ours}: the truth must be the "
+                             f"same structure as the one planned on (its modes may differ)")
+    if truth.grid.n != model.grid.n or not np.allclose(truth.grid.points, model.grid.points, atol=1e-9):
+        raise ModelError(f"--truth {name} lies on {truth.grid.n} grid points, the model on {model.grid.n} (or elsewhere): "
+                         f"the vibrometer scans the model's grid")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from modalctl.io.device import Device, DeviceContext, TransportOptions
+from modalctl.options import MODES_MAX
 from modalctl.plugin.spec import hookimpl
 from modalctl.units import number_type, quantity_type
 
@@ -22,6 +23,7 @@ from .scenario import (
     FINGER_PRESS_MAX,
     FINGER_SLIDE_MAX,
     FINGER_TIME_MAX,
+    GAIN_ERROR_MAX,
     SNR_MAX,
 )
 
@@ -50,7 +52,12 @@ def _drift_step(text: str) -> tuple[float, float]:
 def modalctl_add_options(options: TransportOptions):
     """The simulator's truth: how the structure it simulates differs from the model planned on."""
     group = options.group("sim", "simulator truth (sim:// only)")
-    group.add_argument("--truth", help="scene simulated as the structure (default: the --scene or --model itself)")
+    group.add_argument("--truth", metavar="SCENE|MODEL.npz",
+                       help="the structure simulated: a scene, or a model file on the same grid with the same "
+                            "actuators and sensors (default: the --scene or --model itself)")
+    group.add_argument("--truth-modes", type=number_type(int, "truth-modes", low=1, high=MODES_MAX, low_open=False),
+                       metavar="N", help="the truth continued to its N lowest modes (a scene's structure or a "
+                                         "finite-element plate's; spillover from the modes the model lacks)")
     group.add_argument("--drift", type=quantity_type("1", "drift", low=-DRIFT_MAX, high=DRIFT_MAX), default=0.0,
                        help="shift of every resonance, e.g. 1%%")
     group.add_argument("--drift-spread", type=quantity_type("1", "drift-spread", low=0, high=DRIFT_MAX, low_open=False),
@@ -64,6 +71,10 @@ def modalctl_add_options(options: TransportOptions):
     group.add_argument("--damping-error", type=quantity_type("1", "damping-error", low=-1, high=DAMPING_ERROR_MAX),
                        default=0.0,
                        help="relative damping error, e.g. 20%%")
+    group.add_argument("--gain-error", type=quantity_type("1", "gain-error", low=0, high=GAIN_ERROR_MAX,
+                                                          low_open=False), default=0.0,
+                       help="each mode's actuator gains off by this, up or down by mode (drawn from --seed), "
+                            "e.g. 20%%")
     group.add_argument("--finger", type=quantity_type("N s/m", "finger", low=0, high=FINGER_MAX, low_open=False),
                        default=0.0,
                        help="a finger resting on the surface: its viscous damping, e.g. 0.5Ns/m")

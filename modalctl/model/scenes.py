@@ -23,13 +23,15 @@ from typing import Callable
 
 import numpy as np
 
-from .fe_models import cache_dir, solved
+from modalctl.options import MODES_MAX
+
+from .fe_models import cache_dir, grown, plate_of, solved
 from .fe_plate import MATERIALS, FEPlate, Hole, Outline, Support
 from .modes import ModalModel, ModelError
 from .projection import gram
 from .structures import Beam, BeamPatch, Plate, PlatePatch
 
-__all__ = ["Scene", "SCENES", "load_scene", "thesis_tables", "UnknownScene", "cache_dir"]
+__all__ = ["Scene", "SCENES", "load_scene", "continued", "thesis_tables", "UnknownScene", "cache_dir"]
 
 
 class UnknownScene(LookupError):
@@ -71,38 +73,52 @@ def _fill_missing(beam: Beam, numbers: np.ndarray, freqs: list, zetas: list) -> 
     return f, z, estimated
 
 
+def _continued(numbers: np.ndarray, modes: int | None) -> np.ndarray:
+    """Elastic mode ``numbers`` cut or continued to ``modes`` of them, by the sequence's last step
+    (a free-free beam's symmetric modes go by two)."""
+    if modes is None:
+        return numbers
+    step = int(numbers[-1] - numbers[-2]) if numbers.size > 1 else 1
+    return np.r_[numbers, numbers[-1] + step * np.arange(1, max(modes - numbers.size, 0) + 1)][:modes]
+
+
 def _thesis_beam(key: str, name: str, patches: Callable[[Beam], list], sensors, n_points: int,
-                 elastic_numbers=None) -> ModalModel:
+                 modes: int | None = None) -> ModalModel:
+    """A thesis beam's identified modes, or ``modes`` of them: past the table, the analytic modes
+    with frequencies scaled by the highest identified modes' ratio measured / analytic and their
+    damping (the beam continued, a truth richer than the model)."""
     beam, table = _beam_from_table(key)
     rows = table["modes"]
-    numbers = np.array([r["n"] for r in rows]) if elastic_numbers is None else np.asarray(elastic_numbers)
-    freqs = [r.get("f_hz") if r.get("f_hz") is not None else np.nan for r in rows]
-    zetas = [r.get("zeta") if r.get("zeta") is not None else np.nan for r in rows]
-    f, z, estimated = _fill_missing(beam, numbers, freqs, zetas)
+    numbers = _continued(np.array([r["n"] for r in rows]), modes)
+    freqs = [r.get("f_hz") if r.get("f_hz") is not None else np.nan for r in rows][:numbers.size]
+    zetas = [r.get("zeta") if r.get("zeta") is not None else np.nan for r in rows][:numbers.size]
+    beyond = numbers.size - len(freqs)
+    f, z, estimated = _fill_missing(beam, numbers, freqs + [np.nan] * beyond, zetas + [np.nan] * beyond)
     meta = {"name": name, "source": f"thesis tables: {key}", "what": table["what"],
-            "estimated_modes": estimated,
+            "estimated_modes": estimated[:len(estimated) - beyond],
             "estimated_note": "frequency scaled from the analytic one by the nearest identified modes' ratio",
+            **({"continued_modes": estimated[len(estimated) - beyond:]} if beyond > 0 else {}),
             "thesis_gain": [r.get("gain") for r in rows], "thesis_gain_unit": table["gain_unit_as_printed"]}
     return beam.modal_model(numbers, n_points=n_points, patches=patches(beam), sensors=sensors,
                             frequencies=f, damping=z, meta=meta)
 
 
-def _al_cc(n_points):
+def _al_cc(n_points, modes=None):
     return _thesis_beam("al_cc_beam", "thesis-al-cc", lambda b: _even_patches(b.length, 8, 0.010),
-                        [-0.036, -0.012, 0.012, 0.036], n_points)
+                        [-0.036, -0.012, 0.012, 0.036], n_points, modes)
 
 
-def _rython_pp(n_points):
+def _rython_pp(n_points, modes=None):
     # mode 1 was not identified (printed gain 0): its frequency is estimated like the thesis's FEM value
     return _thesis_beam("rython_pp_beam", "thesis-rython-pp",
                         lambda b: [BeamPatch(-b.length / 2 + 0.002, -b.length / 2 + 0.017, "patch1")],
-                        [0.0], n_points)
+                        [0.0], n_points, modes)
 
 
-def _al_ff(n_points):
+def _al_ff(n_points, modes=None):
     # the thesis models the nine symmetric elastic modes, numbered 1, 3, ..., 17
     return _thesis_beam("al_ff_beam", "thesis-al-ff", lambda b: _even_patches(b.length, 6, 0.012),
-                        [0.0, 0.02], n_points)
+                        [0.0, 0.02], n_points, modes)
 
 
 def _patches(centres, width: float, height: float) -> list[PlatePatch]:
@@ -115,10 +131,10 @@ PLATE_PATCHES = _patches([(-0.035, -0.022), (0.035, -0.022), (-0.035, 0.022), (0
 PLATE_SENSORS = [(0.0, 0.0), (0.02, 0.01)]
 
 
-def _plate(n_points):
+def _plate(n_points, modes=None):
     nx, ny = (101, 71) if n_points is None else n_points
     plate = Plate(0.100, 0.070, 0.001, 70e9, 2500, 0.22)  # glass, the size of a small touch screen
-    return plate.modal_model(21, nx=nx, ny=ny, patches=PLATE_PATCHES, sensors=PLATE_SENSORS,
+    return plate.modal_model(modes or 21, nx=nx, ny=ny, patches=PLATE_PATCHES, sensors=PLATE_SENSORS,
                              damping=0.01, meta={"name": "plate-glass", "source": "analytic"})
 
 
@@ -139,31 +155,33 @@ def _fe_scene(name: str, plate: FEPlate, n_points, **options) -> ModalModel:
 CLAMPED_PATCHES = [(-0.025, -0.015), (0.025, -0.015), (-0.025, 0.015), (0.025, 0.015)]
 
 
-def _plate_clamped(n_points):
+def _plate_clamped(n_points, modes=None):
     """plate-glass held on a clamped rim instead of simply supported: the same plate and sensors,
     its four patches moved inward (:data:`CLAMPED_PATCHES`)."""
     plate = FEPlate(Outline.rectangle(0.100, 0.070), 0.001, MATERIALS["glass"], {"rim": Support("clamped")},
                     patches=tuple(_patches(CLAMPED_PATCHES, 0.012, 0.012)), sensors=tuple(PLATE_SENSORS))
-    return _fe_scene("plate-glass-clamped", plate, n_points or (101, 71), n_modes=21, damping=0.01)
+    return _fe_scene("plate-glass-clamped", plate, n_points or (101, 71), n_modes=modes or 21, damping=0.01)
 
 
 #: The touch panel's six patches (x, y centres, m): two rows along its long edges.
 PANEL_PATCHES = [(-0.040, -0.024), (0.0, -0.024), (0.040, -0.024), (-0.040, 0.024), (0.0, 0.024), (0.040, 0.024)]
 
 
-def _panel(n_points):
+def _panel(n_points, modes=None):
     """A rounded touch panel: 120 x 70 x 1 mm glass, 8 mm corners, glued (clamped) on its rim, a
     rounded 20 x 10 mm slot cut out near one end, six 14 x 10 mm patches; the modes below 12 kHz."""
     outline = Outline.rectangle(0.120, 0.070, 0.008, holes=(Hole((0.042, 0.0), size=(0.020, 0.010),
                                                                   corner_radius=0.004),))
     plate = FEPlate(outline, 0.001, MATERIALS["glass"], {"rim": Support("clamped")},
                     patches=tuple(_patches(PANEL_PATCHES, 0.014, 0.010)), sensors=((0.0, 0.0), (-0.02, 0.01)))
-    return _fe_scene("panel-rounded", plate, n_points or (121, 71), band=12e3, damping=0.01)
+    solve = {"band": 12e3} if modes is None else {"n_modes": modes}
+    return _fe_scene("panel-rounded", plate, n_points or (121, 71), **solve, damping=0.01)
 
 
 @dataclass(frozen=True)
 class Scene:
-    """A named model builder; ``build(n_points)`` returns its :class:`ModalModel`."""
+    """A named model builder; ``build(n_points, modes=None)`` returns its :class:`ModalModel`
+    (``modes``: that many of the structure's modes instead of the scene's own)."""
 
     name: str
     summary: str
@@ -190,18 +208,22 @@ SCENES = {s.name: s for s in [
 ORTHONORMAL_TOLERANCE = 0.05
 
 
-def load_scene(name: str, n_points=None) -> ModalModel:
-    """Build the scene ``name`` (see :data:`SCENES`); ``n_points`` overrides its grid size."""
+def load_scene(name: str, n_points=None, modes: int | None = None) -> ModalModel:
+    """Build the scene ``name`` (see :data:`SCENES`); ``n_points`` overrides its grid size, ``modes``
+    the count of its structure's modes (the lowest; a truth richer than the scene: the grid is not
+    asked to draw them)."""
     if name not in SCENES:
         raise UnknownScene(f"unknown scene {name!r}; available scenes: {', '.join(SCENES)}")
     scene = SCENES[name]
+    if modes is not None and not 1 <= modes <= MODES_MAX:
+        raise ModelError(f"{name}: between 1 and {MODES_MAX} modes, got {modes!r}")
     if n_points is None:
-        return scene.build(scene.default_points)
+        return scene.build(scene.default_points, modes)
     if np.ndim(scene.default_points) != np.ndim(n_points):
         raise ModelError(f"{name}: its grid is given as {scene.default_points!r} points, got {n_points!r}")
-    model = scene.build(n_points)
+    model = scene.build(n_points, modes)
     drawn = resolved_modes(model)
-    if drawn == model.n_modes:
+    if drawn == model.n_modes or modes is not None:
         return model
     if drawn == 0:
         raise ModelError(f"{name} on {n_points!r} points: the grid is too coarse to draw even its first mode; use "
@@ -210,6 +232,35 @@ def load_scene(name: str, n_points=None) -> ModalModel:
                   f"(beyond, their inner products on it are off by more than {ORTHONORMAL_TOLERANCE:g}); the model "
                   f"keeps those {drawn}. The default is {scene.default_points!r} points", UserWarning, stacklevel=2)
     return model.select(np.arange(drawn))
+
+
+def continued(model: ModalModel, modes: int) -> ModalModel:
+    """The structure ``model`` describes with its ``modes`` lowest modes, on the same grid, actuators
+    and sensors: a truth richer than the model (the modes it leaves out, spillover's cause). A
+    finite-element plate's is solved again to a higher band (:func:`~.fe_models.grown`); a scene's
+    is built with more modes (a thesis beam continued by its analytic shapes, their frequencies
+    scaled by the highest identified modes' ratio measured / analytic). ModelError for any other
+    model (an identified one: give the truth as a model file) or when the grid would change."""
+    if not model.n_modes <= modes <= MODES_MAX:
+        raise ModelError(f"a truth continues the model's {model.n_modes} modes: between {model.n_modes} and "
+                         f"{MODES_MAX} modes, got {modes!r}")
+    name = str(model.meta.get("name"))
+    if plate_of(model) is not None:
+        richer, band = model, float(model.frequencies.max())
+        while richer.n_modes < modes:  # a plate's modes grow about in proportion to the band (Weyl)
+            band *= max(1.2, 1.1 * modes / richer.n_modes)
+            richer = grown(model, band)
+        richer = richer.select(np.arange(modes))
+    elif name in SCENES:
+        richer = load_scene(name, modes=modes)
+    else:
+        raise ModelError(f"model {name!r} is neither a scene nor a finite-element plate's: it cannot be continued to "
+                         f"{modes} modes (give the truth as a model file)")
+    same = richer.grid.n == model.grid.n and np.allclose(richer.grid.points, model.grid.points, atol=1e-9)
+    if not same:
+        raise ModelError(f"{name} continued to {modes} modes lies on another grid ({richer.grid.n} points against "
+                         f"{model.grid.n}): build the model on the scene's default grid")
+    return richer
 
 
 def resolved_modes(model: ModalModel, tolerance: float = None) -> int:
