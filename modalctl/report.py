@@ -484,13 +484,13 @@ def plot_sweep_maps(rows, axes, methods, path) -> Path:
 
 
 def _frf_panel(ax, survey):
-    """Every actuator's mean mobility (m/s/V) over kHz; poles kept black, left out (not noise) red."""
+    """Every input's mean mobility (in the file's unit: m/s/V, m/s/N) over kHz; poles kept black, left out red."""
     for a, frf in sorted(survey.frfs["sparse"].items()):
         ax.semilogy(frf.frequencies / 1e3, frf.mean_magnitude(), lw=0.7, label=f"actuator {a}")
     for f, ok, why in zip(survey.poles.frequencies, survey.poles.resolved, survey.poles.reasons):
         if ok or why != NOISE:
             ax.axvline(f / 1e3, color="k" if ok else "r", lw=0.6, ls="-" if ok else "--")
-    ax.set(xlabel="frequency (kHz)", ylabel="mean |H| over points (m/s/V)",
+    ax.set(xlabel="frequency (kHz)", ylabel=f"mean |H| over points (m/s/{survey.model.meta.get('input_unit', 'V')})",
            title=f"mean mobility per actuator; poles found ({survey.model.n_modes} kept, red dashed: left out)")
     ax.legend(fontsize=7, ncol=4)
 
