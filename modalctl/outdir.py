@@ -30,6 +30,7 @@ RESULTS = ("metrics.json", "fields.npz", "refusal.json", "log.json", "log.bin", 
            "sweep.json", "sweep.md")
 
 
+TEMPORARY_EXTRA = 14  # what atomic's temporary name adds to the name it stands for: '.', '.1234abcd', '.tmp'
 #: Filesystems of the kernel's state and of devices: no result is written there.
 NOT_FOR_RESULTS = {"proc", "sysfs", "devtmpfs", "devpts", "cgroup", "cgroup2", "debugfs", "tracefs", "securityfs",
                    "configfs", "pstore", "bpf", "mqueue", "efivarfs", "binfmt_misc", "fusectl", "autofs", "hugetlbfs"}
@@ -51,7 +52,18 @@ def check_writable(path, folder: bool) -> None:
     OutDirError
         Saying which part of ``path`` is the matter.
     """
-    path = Path(os.path.abspath(path))
+    path = Path.cwd() / path  # not normalized: 'new/..' is what the kernel makes of it, not what the text says
+    try:
+        _check_writable(path, folder)
+    except OSError as exc:  # a name too long, a loop of links: what the system says of it
+        raise OutDirError(f"{str(path)!r}: {exc.strerror or exc}") from None
+
+
+def _check_writable(path: Path, folder: bool) -> None:
+    for i, part in enumerate(path.parts):
+        if part == ".." and not Path(*path.parts[:i]).is_dir():
+            raise OutDirError(f"{str(path)!r} goes up ('..') from {str(Path(*path.parts[:i]))!r}, not an existing "
+                              "directory")
     if path.exists():
         if folder and not path.is_dir():
             raise OutDirError(f"{str(path)!r} is a file, not a directory")
@@ -64,6 +76,12 @@ def check_writable(path, folder: bool) -> None:
         near = near.parent
     if not near.is_dir():
         raise OutDirError(f"{str(path)!r} goes through {str(near)!r}, which is not a directory")
+    most = os.pathconf(near, "PC_NAME_MAX")
+    names = [(part, most) for part in path.parts[1:-1]] + [(path.name, most if folder else most - TEMPORARY_EXTRA)]
+    longest = max(names, key=lambda named: len(os.fsencode(named[0])) - named[1])
+    if len(os.fsencode(longest[0])) > longest[1]:
+        raise OutDirError(f"{str(path)!r}: the name {longest[0][:40]!r}... is longer than the {longest[1]} bytes "
+                          "this filesystem takes" + ("" if folder else " (with the temporary name's tail)"))
     kind, options = _filesystem(near)
     if kind in NOT_FOR_RESULTS:
         raise OutDirError(f"{str(path)!r} is on the kernel's {kind} filesystem, not a place for results")
