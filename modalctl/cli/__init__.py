@@ -141,6 +141,8 @@ def _dispatch(handler, args) -> int:
         return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
     except OSError as exc:  # a file the system refused (the readers and outdir.atomic name theirs already)
         return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
+    except KeyboardInterrupt as exc:  # Ctrl-C, or a signal common.interruptible turned into it: no traceback
+        return refuse(args.command, getattr(exc, "code", 128 + 2), str(exc) or "interrupted by SIGINT", as_json)
 
 
 def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:

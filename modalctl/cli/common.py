@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 from modalctl.outdir import OutDirError, atomic, check_writable
@@ -18,7 +21,7 @@ from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
 
 __all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "MODES_MAX", "parse_param", "points", "modes", "out_dir", "out_file",
-           "check_outputs", "option_type", "progress_bars", "stage", "add_target", "model_and_shape", "open_device",
+           "check_outputs", "option_type", "progress_bars", "stage", "Interrupted", "interruptible", "add_target", "model_and_shape", "open_device",
            "refuse", "jsonable", "write_json", "identity", "identity_defaults"]
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
@@ -100,6 +103,42 @@ def stage(args, text: str) -> None:
     for a log to say where a command is; nothing with ``--quiet``."""
     if not getattr(args, "quiet", False) and not sys.stderr.isatty():
         print(f"modalctl {args.command}: {text}", file=sys.stderr, flush=True)
+
+
+class Interrupted(KeyboardInterrupt):
+    """A signal asked the command to stop (SIGINT, SIGTERM, SIGHUP: Ctrl-C, ``kill``, ``timeout``, a
+    closed terminal, a cancelled CI job): it ends as Ctrl-C ends it, a shot through the supervisor's
+    ramp-down, with exit code 128 + the signal's number (the shell's: 130, 143, 129)."""
+
+    def __init__(self, signum: int):
+        super().__init__(f"interrupted by {signal.Signals(signum).name}")
+        self.signum, self.code = signum, 128 + signum
+
+
+STOPPING_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+@contextmanager
+def interruptible():
+    """While the block runs, the first of :data:`STOPPING_SIGNALS` raises :class:`Interrupted` in
+    the main thread; those after it are ignored (the stop is under way: a second Ctrl-C must not
+    break the ramp-down). The previous handlers are back after the block."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    heard: list[int] = []
+
+    def stop(signum, frame):
+        if not heard:
+            heard.append(signum)
+            raise Interrupted(signum)
+
+    previous = {number: signal.signal(number, stop) for number in STOPPING_SIGNALS}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
 
 
 def add_target(p) -> None:

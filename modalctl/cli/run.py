@@ -4,14 +4,15 @@ the run's report (metrics.json, fields.npz, the pictures) into ``--out``."""
 from __future__ import annotations
 
 import json
+import signal
 import sys
 from pathlib import Path
 
 from modalctl.options import LEARN_FROM, ROBUST_DRIFT_MAX, LoopOptions, PlanOptions
 from modalctl.units import number_type, quantity_type
 
-from .common import DEVICE, add_target, identity, identity_defaults, jsonable, model_and_shape, open_device, out_dir, \
-    progress_bars, stage, write_json
+from .common import DEVICE, add_target, identity, identity_defaults, interruptible, jsonable, model_and_shape, \
+    open_device, out_dir, progress_bars, stage, write_json
 
 NAME, HELP = "run", "plan a focus, play it on a device (default sim://) and measure it"
 PLAN, LOOP = PlanOptions(), LoopOptions()  # the defaults the options below show and use
@@ -143,6 +144,13 @@ def _applying(args) -> list[tuple[bool, bool, str]]:
 
 
 def run(args) -> int:
+    """A shot; a signal (SIGINT, SIGTERM, SIGHUP) ends it as a fault does, with its own exit code
+    (:class:`~modalctl.cli.common.Interrupted`)."""
+    with interruptible():
+        return _run(args)
+
+
+def _run(args) -> int:
     import warnings
 
     from modalctl.io.device import DeviceError
@@ -178,6 +186,9 @@ def run(args) -> int:
         except DeviceError as fault:
             _halted(out, device, fault)
             raise
+        except KeyboardInterrupt as stopped:  # a signal: the loop ramped its outputs down; every board stopped here
+            _halted(out, device, stopped, getattr(stopped, "code", 128 + 2))
+            raise
         return _report(args, model, shot, device, out, growth, stages)
 
 
@@ -190,14 +201,20 @@ def _grown(args, model, shape, options):
     return model_for(model, shape, options.plan, say)
 
 
-def _halted(out: Path, device, fault: Exception) -> None:
-    """After a device fault: every output commanded to zero (best effort), and what happened in
-    ``out/metrics.json`` beside the loop's log, so the run's folder says why it has no field."""
+def _halted(out: Path, device, fault: BaseException, code: int = DEVICE) -> None:
+    """After a device fault or a signal: every output commanded to zero (best effort), and what
+    happened in ``out/metrics.json`` beside the loop's log, so the run's folder says why it has no
+    field (``interrupted``: the signal's name, when one stopped it)."""
     could_not = device.halt()
     log = out / "log.json"
-    metrics = {"fault": str(fault), "exit_code": DEVICE, "device": device.url, "device_info": device.info,
-               "outputs": "commanded to zero" if could_not is None else f"not confirmed at zero: {could_not}",
-               "log": str(log) if log.exists() else None, "out": str(out)}
+    outputs = "commanded to zero" if could_not is None else f"not confirmed at zero: {could_not}"
+    metrics = {"fault": str(fault) or "interrupted by SIGINT", "exit_code": code, "device": device.url,
+               "device_info": device.info, "outputs": outputs, "log": str(log) if log.exists() else None,
+               "out": str(out)}
+    if code != DEVICE:
+        metrics["interrupted"] = signal.Signals(code - 128).name
+        print(f"modalctl run: {metrics['fault']}: outputs {outputs}; {out}/metrics.json"
+              + (f", log in {out}/log.json + log.bin" if log.exists() else ""), file=sys.stderr)
     write_json(out / "metrics.json", metrics)
 
 

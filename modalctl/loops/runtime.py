@@ -297,6 +297,10 @@ class Runtime:
             if self.state == State.ACTIVE:
                 self.fault(f"{type(exc).__name__}: {exc}")
             raise
+        except KeyboardInterrupt as exc:  # Ctrl-C or a signal the command line raises as it: a fault of its own
+            if self.state == State.ACTIVE:
+                self.fault(str(exc) or "interrupted by SIGINT")
+            raise
         finally:
             if self.state == State.ACTIVE:
                 self.deactivate()

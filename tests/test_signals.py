@@ -1,0 +1,74 @@
+"""Signals (issue 39 item 7): SIGTERM, SIGINT or SIGHUP mid-shot ends a closed loop over the serial
+emulator through the supervisor's ramp-down: the board's outputs at zero within a period of the
+signal's handling, every board stopped, ``metrics.json`` and the loop's log on disk naming the
+interruption, exit code 128 + the signal's number (docs/errors.md), no traceback. Before, SIGTERM
+ended the host at once and the board played the planned drive to the end of the shot."""
+
+import json
+import os
+import signal
+
+import numpy as np
+import pytest
+
+from modalctl.cli import main
+from modalctl.hil.scenario import Perturbation
+from modalctl.hil.serial_board import SerialBoardEmulator
+from modalctl.loops.recorder import read_log
+from modalctl.model.scenes import load_scene
+
+CLOSED = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
+          "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--control-rate", "2kHz",
+          "--quiet", "--no-plots", "--planner", "envelope", "--margin", "none", "--loop", "closed"]
+PERIOD = 250  # DAC samples per control period (500 kHz / 2 kHz)
+
+
+class SignalledBoard(SerialBoardEmulator):
+    """A board that, on the commands of period ``at``, has the host sent ``signum`` (as ``kill`` or
+    a terminal would), and notes the sample it had played by then."""
+
+    def __init__(self, model, signum: int, at: int = 40):
+        super().__init__(model, Perturbation(drift=0.01))
+        self.signum, self.at, self.sent_at = signum, at, None
+
+    def _on_commands(self, message):
+        super()._on_commands(message)
+        if self.sent_at is None and message.period >= self.at:
+            self.sent_at = self.board.sample
+            os.kill(os.getpid(), self.signum)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_scene("thesis-al-cc", 211)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP], ids=lambda s: s.name)
+def test_a_signal_mid_shot_ramps_the_board_to_zero_and_says_so(model, tmp_path, capsys, signum):
+    before = signal.getsignal(signum)
+    with SignalledBoard(model, signum) as board:
+        code = main([*CLOSED, "--transport", f"serial://{board.path}", "--out", str(tmp_path)])
+    assert signal.getsignal(signum) is before  # the command's handlers gone with it
+    err = capsys.readouterr().err
+    assert code == 128 + signum, err
+    assert f"interrupted by {signum.name}" in err and "Traceback" not in err
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["interrupted"] == signum.name and metrics["exit_code"] == 128 + signum
+    assert metrics["outputs"] == "commanded to zero"
+    records, _ = read_log(tmp_path / "log")
+    assert records["state"][-1] == 3 and records.size <= board.at + 3  # the periods, then the stop
+    first, length = board.board.ramp
+    assert board.sent_at <= first <= board.sent_at + PERIOD and length <= PERIOD  # within one period
+    applied = board.board.applied
+    assert np.all(applied[:, first + length:] == 0)
+    assert np.max(np.abs(applied[:, :first])) > 0.5  # it was driving when stopped (about 1 V, rising)
+
+
+def test_a_signal_outside_a_shot_ends_the_command_without_a_traceback(tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the model loads: exit 130 and a line, not a KeyboardInterrupt traceback."""
+    def interrupted(*_, **__):
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr("modalctl.model.scenes.load_scene", interrupted)
+    code = main([*CLOSED, "--out", str(tmp_path / "out")])
+    assert code == 130 and "interrupted by SIGINT" in capsys.readouterr().err
