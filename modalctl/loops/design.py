@@ -21,7 +21,7 @@ from .pi import PIControl
 # python-control loads matplotlib's pyplot when imported (~0.4 s): the controller plugins import
 # this module only when a controller is made, so commands that design no loop do not pay for it
 
-__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "pi_controller"]
+__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "channel_poles", "pi_controller"]
 
 
 def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
@@ -116,6 +116,45 @@ def loop_poles(design: LoopDesign, index: int, sigma: float, bandwidth: float, c
     lock = lockin_filter(bandwidth)
     loop = control.series(control.append(pi, pi), plant, control.append(lock, lock), control.append(delay, delay))
     return control.poles(control.feedback(loop, np.eye(2)))
+
+
+def channel_poles(parts, index: int, poles: np.ndarray, paths: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Closed-loop poles of loop ``index`` of ``parts`` (:class:`~.runtime.LoopParts`: its PI design,
+    carrier, lock-in corner, rate, leak and lead) on all that its reading holds of a structure's
+    answer to its own drive (a truth's every mode, those the model lacks too: spillover), as
+    ``log(z) * control_rate`` (1/s: a positive real part is a growing loop).
+
+    In the carrier's frame the loop's drive reaches mode m of the truth, poles ``p_m`` (1/s, shape
+    (M,)), and comes back through ``paths[m]`` (:func:`~.sensing.through`) as ``r_m / (s - (p_m - j
+    w_c))``, ``r_m = p_m / (p_m - conj(p_m))``; the partner term at ``conj(p_m)``, twice the carrier
+    away, stands as its static gain; less the leak the runtime removes (static). This complex plant,
+    as its real I/Q pair, read through the lock-in's low-pass, is sampled at the control rate with
+    the board's ramp between commands (first-order hold, the command computed from one period's
+    reading ramping in over the next: the lead's periods) under the runtime's discrete PI, its gains
+    times ``scale``. Other loops' drives reach this reading at their own carriers, turning, and are
+    left to the lock-in: not here."""
+    s, design = parts.schedule, parts.design
+    bandwidth, control_rate, latency, leak = s.bandwidths[index], s.control_rate, parts.lead, parts.leak[index]
+    poles, paths = np.asarray(poles, complex), np.asarray(paths, complex)
+    w = 2j * np.pi * s.carriers[index]
+    a, r = poles - w, poles / (poles - poles.conj())
+    static = np.sum(paths * r.conj() / -(poles.conj() - w)) - leak
+    m, c = poles.size, paths * r
+    A, C = np.zeros((2 * m, 2 * m)), np.zeros((2, 2 * m))
+    for row, col, value in ((0, 0, a.real), (0, 1, -a.imag), (1, 0, a.imag), (1, 1, a.real)):
+        A[row::2, col::2][np.diag_indices(m)] = value
+    C[0, 0::2], C[0, 1::2], C[1, 0::2], C[1, 1::2] = c.real, -c.imag, c.imag, c.real
+    D = np.array([[static.real, -static.imag], [static.imag, static.real]])
+    lock = lockin_filter(bandwidth)
+    seen = control.series(control.ss(A, np.tile(np.eye(2), (m, 1)), C, D), control.append(lock, lock))
+    period = 1 / control_rate
+    plant = control.c2d(seen, period, method="foh")  # the command ramps in over the next period
+    late = control.ss(control.tf([1], [1] + [0] * max(1, int(latency)), period))
+    kp, ki = scale * design.kp[index], scale * design.ki[index] * period
+    pi = control.ss(control.tf([kp + ki, -kp], [1, -1], period))  # kp e + the integral of ki e, as the runtime
+    loop = control.series(control.append(pi, pi), control.append(late, late), plant)
+    z = control.poles(control.feedback(loop, np.eye(2)))
+    return np.log(z.astype(complex)) * control_rate
 
 
 def pi_controller(plant: LoopPlant, phase_margin: float = 50.0, gain_margin: float = 6.0) -> PIControl:
