@@ -227,3 +227,13 @@ def test_an_option_the_other_choices_make_meaningless_exits_2(capsys, no_work, t
     assert call([*RUN, *options, "--out", str(tmp_path / "out")]) == 2
     assert words in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_allocation_no_estimate_refused_ends_in_exit_2_not_a_traceback(capsys, monkeypatch, tmp_path):
+    """Before: numpy's MemoryError (3.26 GiB) as a traceback from a stiff elastic rim at --tolerance 1e-5."""
+    def allocate(*_, **__):
+        raise MemoryError("Unable to allocate 3.26 GiB for an array with shape (21000, 21000) and data type float64")
+
+    monkeypatch.setattr("modalctl.model.fe_plate.FEPlate.modal_model", allocate)
+    assert call([*FE, "--out", str(tmp_path / "plate.npz")]) == 2
+    assert "more memory than there is (Unable to allocate 3.26 GiB" in capsys.readouterr().err

@@ -141,6 +141,9 @@ def _dispatch(handler, args) -> int:
         return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
     except OSError as exc:  # a file the system refused (the readers and outdir.atomic name theirs already)
         return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
+    except MemoryError as exc:  # an allocation no estimate refused first (numpy's "Unable to allocate ...")
+        return refuse(args.command, BAD_INPUT, f"error: more memory than there is ({exc or 'out of memory'}): ask for "
+                      "less (a smaller band, grid or tolerance, a shorter shot)", as_json)
     except KeyboardInterrupt as exc:  # Ctrl-C, or a signal common.interruptible turned into it: no traceback
         return refuse(args.command, getattr(exc, "code", 128 + 2), str(exc) or "interrupted by SIGINT", as_json)
 
