@@ -190,6 +190,9 @@ def run(args) -> int:
     model, convergence = plate.modal_model(args.modes, band=args.band, spacing=args.spacing, damping=args.damping,
                                            tolerance=args.tolerance, meta={"name": Path(args.out).stem},
                                            progress=say)
+    if args.band is not None and model.frequencies[0] > args.band:  # the solve keeps one mode at least
+        raise ParamError(f"model fe: no mode below --band {args.band:g} Hz: this plate's lowest is at "
+                         f"{model.frequencies[0]:.0f} Hz; give a higher --band or --modes N")
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     path = model.save(out)  # atomically: a file that was there stays whole if the disk refuses
