@@ -210,3 +210,79 @@ def test_left_out_modes_all_in_the_json_and_the_reason_says_what_was_seen(tmp_pa
     assert main([*args, "--left-out"]) == 0
     text = capsys.readouterr().out
     assert sum(" left out: " in line for line in text.splitlines()) == len(left)
+
+
+def test_a_roving_hammer_with_two_accelerometers_is_read_by_reciprocity(tmp_path):
+    """Ten hammer points and two accelerometers (more references than responses): two inputs on
+    the hammer points, as the swapped file (two references at ten responses) gives them."""
+    x = np.linspace(0.1, 1.2, 10)
+    sensors = (1, 5)
+    nodes = {i + 1: xi for i, xi in enumerate(x)}
+    hammer = write(tmp_path / "hammer.uff", nodes, [(s, i + 1, h) for s in sensors
+                                                    for i, h in enumerate(accelerance(x, x[s - 1]))])
+    swapped = write(tmp_path / "swapped.uff", nodes, [(i + 1, s, h) for s in sensors
+                                                      for i, h in enumerate(accelerance(x, x[s - 1]))])
+    a, b = read_uff58_references(hammer), read_uff58_references(swapped)
+    assert len(a) == len(b) == 2 and [f.actuator for f in a] == [0, 1]
+    assert any("2 accelerometers" in n and "reciprocity" in n for n in a[0].notes)
+    assert not any("reciprocity" in n for n in b[0].notes)
+    for fa, fb in zip(a, b):
+        assert np.allclose(fa.points, fb.points) and np.allclose(fa.values, fb.values)
+    model = identify_frf(a, DENSITY, "sdof", orthogonalize=False).model
+    assert np.allclose(model.frequencies, [m[0] for m in MODES], rtol=1e-4)
+    assert np.all(mac(model.shapes, shapes(x)) > 0.9999) and model.actuator_gains.shape == (4, 2)
+
+
+def test_one_input_of_a_multi_input_file_is_identified_alone(tmp_path):
+    """The second input's FRF alone (its ``actuator`` 1) gives a one-input model (it raised an
+    IndexError filling gains)."""
+    x = np.linspace(0.1, 1.2, 10)
+    nodes = {i + 1: xi for i, xi in enumerate(x)}
+    path = write(tmp_path / "hammer.uff", nodes, [(s, i + 1, h) for s in (1, 5)
+                                                  for i, h in enumerate(accelerance(x, x[s - 1]))])
+    second = read_uff58_references(path)[1]
+    model = identify_frf(second, DENSITY, "sdof").model
+    assert model.actuator_gains.shape == (4, 1) and np.all(model.actuator_gains != 0)
+
+
+def with_coherence(path, x, coherence):
+    """A roving-sensor file with each FRF's coherence (function type 6) written after it."""
+    h = accelerance(x, x[3])
+    uff = pyuff.UFF(str(path))
+    uff.write_sets(pyuff.prepare_15(node_nums=list(range(1, len(x) + 1)), x=list(x), y=[0.0] * len(x),
+                                    z=[0.0] * len(x)), mode="add")
+    for i in range(len(x)):
+        for kind, data in ((4, h[i]), (6, coherence[i])):
+            if data is None:
+                continue
+            uff.write_sets(pyuff.prepare_58(func_type=kind, rsp_node=i + 1, rsp_dir=3, ref_node=4, ref_dir=3,
+                                            data=data, x=FREQS, id1="f", rsp_ent_name="b", ref_ent_name="b",
+                                            abscissa_spacing=1, abscissa_spec_data_type=18,
+                                            ordinate_spec_data_type=12 if kind == 4 else 0,
+                                            orddenom_spec_data_type=13 if kind == 4 else 0), mode="add")
+    return path
+
+
+def test_coherence_exported_beside_the_frfs_is_read_and_checked(tmp_path):
+    """A file with each FRF's coherence is read (it was refused as holding 'a coherence'), the
+    coherence kept per point on the FRFs' bins; one FRF without its coherence, or a coherence
+    above 1, is refused naming it; a time response still is."""
+    x = UNEVEN
+    rng = np.random.default_rng(5)
+    coherence = rng.uniform(0.5, 1.0, (len(x), FREQS.size))
+    frf = read_uff58(with_coherence(tmp_path / "c.uff", x, coherence))
+    assert np.allclose(frf.coherence, coherence[:, 1:], atol=1e-6)  # the 0 Hz bin dropped with the FRFs'
+    assert any("coherence read" in n for n in frf.notes)
+    partial = [c if i else None for i, c in enumerate(coherence)]
+    with pytest.raises(ModelError, match="has no coherence"):
+        read_uff58(with_coherence(tmp_path / "partial.uff", x, partial))
+    with pytest.raises(ModelError, match=r"leaves \[0, 1\]"):
+        read_uff58(with_coherence(tmp_path / "above.uff", x, coherence * 1.5))
+    uff = pyuff.UFF(str(tmp_path / "time.uff"))
+    uff.write_sets(pyuff.prepare_15(node_nums=[1], x=[0.0], y=[0.0], z=[0.0]), mode="add")
+    uff.write_sets(pyuff.prepare_58(func_type=1, rsp_node=1, rsp_dir=3, ref_node=1, ref_dir=3, data=np.ones(16),
+                                    x=np.arange(16.0), id1="t", rsp_ent_name="b", ref_ent_name="b",
+                                    abscissa_spacing=1, abscissa_spec_data_type=17, ordinate_spec_data_type=12,
+                                    orddenom_spec_data_type=0), mode="add")
+    with pytest.raises(ModelError, match="time response data"):
+        read_uff58(tmp_path / "time.uff")

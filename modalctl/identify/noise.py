@@ -27,7 +27,7 @@ SIGNIFICANCE = 25.0  # ...and the mode's energy this many times what a fit to no
 
 BLOCK = 64  # lines per block whose median gives the noise there
 SECOND_DIFFERENCE = 6.0  # variance of H_{k-1} - 2 H_k + H_{k+1} over that of one line's noise
-SCATTER_SOURCE = "estimated from the scatter between neighbouring lines (the file has no coherence)"
+SCATTER_SOURCE = "estimated from the scatter between neighbouring lines (the file gives no noise)"
 
 
 def scatter_noise(values: np.ndarray, block: int = BLOCK) -> np.ndarray:

@@ -12,7 +12,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -258,7 +258,8 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
         Gram-Schmidt where the grid integrates the modes (:func:`orthogonalize_if_integrated`).
     """
     start = time.perf_counter()
-    frfs = [with_noise_estimate(f) for f in (frf if isinstance(frf, (list, tuple)) else [frf])]
+    frfs = [replace(with_noise_estimate(f), actuator=a)  # the inputs given, numbered as given
+            for a, f in enumerate(frf if isinstance(frf, (list, tuple)) else [frf])]
     identifier = pick("identifier", method)
     poles = identifier.identify(frfs[0] if len(frfs) == 1 else FRF.stack(frfs), threshold_db=threshold_db)
     grid = Grid.measured(frfs[0].points, density)

@@ -6,11 +6,12 @@ input's unit (force in N, or a voltage), and the layout of the test:
 
 - one reference, many responses (a shaker, or a roving accelerometer): the responses are the
   points, the reference the actuator;
-- many references, one response (a roving hammer): read by reciprocity (``H_pq = H_qp``), the
-  hammer points are the points and the accelerometer is the input;
-- several references and several responses (a multi-reference test): one FRF per reference,
-  every one on the same response points.
+- many references, fewer responses (a roving hammer, with one accelerometer or a few): read by
+  reciprocity (``H_pq = H_qp``), the hammer points are the points and each accelerometer an input;
+- a few references and more responses (a multi-reference test): one FRF per reference, every
+  one on the same response points.
 
+Coherences (function type 6) exported beside the FRFs are read with them (``FRF.coherence``).
 Bins where a conversion is singular (the 0 Hz bin of an accelerance divided by ``j w``) are
 dropped and said so; every conversion is said in ``FRF.notes``.
 """
@@ -42,6 +43,7 @@ FUNCTION_TYPES = {0: "a general or unknown function", 1: "time response data", 2
 RESPONSES = {8: ("receptance", 1), 11: ("mobility", 0), 12: ("accelerance", -1)}
 FORCES = {9, 13}  # record 10 field 1 (the denominator): a reaction or an excitation force (N)
 FREQUENCY = 18  # record 8 field 1: the abscissa is a frequency (Hz)
+FRF_TYPE, COHERENCE = 4, 6  # record 6 field 1: the functions read (a coherence beside its FRF)
 NODE_SETS = (15, 2411)  # datasets that give node coordinates
 UFF_POINTS_MAX = 100_000  # functions one file may hold
 UFF_BINS_MAX = 1 << 21  # bins per FRF
@@ -51,22 +53,53 @@ def _refuse(path, what: str) -> ModelError:
     return ModelError(f"uff: {str(path)!r}: {what}")
 
 
-def _frf_sets(path, sets: list[dict]) -> list[dict]:
-    """The datasets 58 of a file, refused unless every one is an FRF against frequency."""
-    frfs = [s for s in sets if s.get("type") == 58]
-    if not frfs:
+def _frf_sets(path, sets: list[dict]) -> tuple[list[dict], list[dict]]:
+    """The FRFs and the coherences among the datasets 58 of a file, refused unless every one is
+    one of those two against frequency and there is an FRF."""
+    functions = [s for s in sets if s.get("type") == 58]
+    if not functions:
         raise _refuse(path, "no dataset 58 (functions at nodes)")
-    if len(frfs) > UFF_POINTS_MAX:
-        raise _refuse(path, f"{len(frfs)} functions; at most {UFF_POINTS_MAX}")
-    kinds = sorted({int(s.get("func_type", 0)) for s in frfs})
-    if kinds != [4]:
+    if len(functions) > UFF_POINTS_MAX:
+        raise _refuse(path, f"{len(functions)} functions; at most {UFF_POINTS_MAX}")
+    kinds = sorted({int(s.get("func_type", 0)) for s in functions})
+    if FRF_TYPE not in kinds or set(kinds) - {FRF_TYPE, COHERENCE}:
         held = ", ".join(f"{FUNCTION_TYPES.get(k, 'an unknown function')} (function type {k})" for k in kinds)
         raise _refuse(path, f"holds {held}; modes are identified from frequency response functions "
-                            f"(function type 4)")
-    axes = sorted({int(s.get("abscissa_spec_data_type", FREQUENCY)) for s in frfs})
+                            f"(function type 4), with their coherences (6) if exported")
+    axes = sorted({int(s.get("abscissa_spec_data_type", FREQUENCY)) for s in functions})
     if axes != [FREQUENCY]:
         raise _refuse(path, f"abscissa of data type(s) {axes}; FRFs against frequency (18) are expected")
-    return frfs
+    return ([s for s in functions if int(s.get("func_type", 0)) == FRF_TYPE],
+            [s for s in functions if int(s.get("func_type", 0)) == COHERENCE])
+
+
+def _channel(s: dict) -> tuple:
+    """What a function is measured between: response node and direction, reference node and direction."""
+    return tuple(int(s.get(k, 0)) for k in ("rsp_node", "rsp_dir", "ref_node", "ref_dir"))
+
+
+def _coherence(path, frfs: list[dict], coherences: list[dict], freqs: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Each FRF's coherence (rows in file order), ones when the file has none; every FRF needs its
+    own, on its frequencies, real, finite and within [0, 1] (rounding above 1 clipped)."""
+    if not coherences:
+        return np.ones((len(frfs), freqs.size)), []
+    by_channel = {_channel(s): s for s in coherences}
+    rows = []
+    for s in frfs:
+        c = by_channel.get(_channel(s))
+        if c is None:
+            raise _refuse(path, f"the FRF of response node {s['rsp_node']} to reference node {s['ref_node']} has no "
+                                f"coherence, which others have; export all or none")
+        values = np.asarray(c["data"])
+        if not np.array_equal(np.asarray(c["x"], float), freqs) or np.iscomplexobj(values) and np.any(values.imag):
+            raise _refuse(path, f"the coherence of response node {s['rsp_node']} is not real on the FRFs' frequencies")
+        values = np.real(values).astype(float)
+        if not np.all(np.isfinite(values)) or values.min() < 0 or values.max() > 1 + 1e-6:
+            raise _refuse(path, f"the coherence of response node {s['rsp_node']} leaves [0, 1]")
+        rows.append(np.minimum(values, 1.0))
+    coherence = np.array(rows)
+    return coherence, [f"coherence read with each FRF (function type 6): median {np.median(coherence):.2f}, lowest "
+                       f"{coherence.min():.2f}; without the number of averages it gives no noise level"]
 
 
 def input_unit(frfs: list[dict]) -> str:
@@ -140,12 +173,13 @@ def _layout(path, frfs: list[dict]) -> tuple[list[list[int]], list[int], list[st
     """Which function is which: per input, the indices of its FRFs (one per point, the same
     points in the same order for every input), the point node of each row, and a note.
 
-    One reference: its responses are the points. One response and several references: the
-    references are (reciprocity). Else every reference must have the same responses.
+    More references than responses (a roving hammer, one accelerometer or a few): the references
+    are the points (reciprocity), each response an input. Else the responses are the points,
+    each reference an input. Every input must have the same points.
     """
     refs = sorted({int(s["ref_node"]) for s in frfs})
     rsps = sorted({int(s["rsp_node"]) for s in frfs})
-    swapped = len(refs) > 1 and len(rsps) == 1
+    swapped = len(refs) > len(rsps)
     point_key, input_key = ("ref_node", "rsp_node") if swapped else ("rsp_node", "ref_node")
     by_input: dict = defaultdict(dict)
     for i, s in enumerate(frfs):
@@ -160,12 +194,18 @@ def _layout(path, frfs: list[dict]) -> tuple[list[list[int]], list[int], list[st
     for a in inputs[1:]:
         if sorted(by_input[a]) != points:
             missing = sorted(set(points) ^ set(by_input[a]))[:5]
-            raise _refuse(path, f"references {inputs[0]} and {a} were measured at different response nodes "
-                                f"(e.g. {missing}); a multi-reference file needs every reference at the same nodes")
+            what = ("responses", "from different reference nodes", "every response from the same references") \
+                if swapped else ("references", "at different response nodes", "every reference at the same responses")
+            raise _refuse(path, f"{what[0]} {inputs[0]} and {a} were measured {what[1]} (e.g. {missing}); a file of "
+                                f"several inputs needs {what[2]}")
     notes = []
-    if swapped:
+    if swapped and len(rsps) == 1:
         notes.append(f"{len(refs)} references and one response (node {rsps[0]}): a roving-hammer test, read by "
                      f"reciprocity (H_pq = H_qp): the hammer points are the points, the response the input")
+    elif swapped:
+        notes.append(f"{len(refs)} references and {len(rsps)} responses (nodes {rsps[:8]}): a roving-hammer test "
+                     f"with {len(rsps)} accelerometers, read by reciprocity (H_pq = H_qp): the hammer points are "
+                     f"the points, each response an input")
     elif len(inputs) > 1:
         notes.append(f"{len(inputs)} references (nodes {inputs[:8]}) at the same {len(points)} responses: "
                      f"a multi-reference test, one FRF per reference")
@@ -200,7 +240,7 @@ def read_uff58_references(path) -> list[FRF]:
     from modalctl.model.files import read_uff_sets
 
     sets = read_uff_sets(path)
-    frfs = _frf_sets(path, sets)
+    frfs, coherences = _frf_sets(path, sets)
     where, xyz = _node_table(path, sets)
     groups, point_nodes, layout_notes = _layout(path, frfs)
     missing = [n for n in point_nodes if n not in where]
@@ -214,17 +254,19 @@ def read_uff58_references(path) -> list[FRF]:
     if not np.all(np.isfinite(freqs)) or step.min() <= 0 or np.ptp(step) > 1e-6 * step.mean():
         raise _refuse(path, "the frequencies must be evenly spaced and increasing")
     values, keep, notes = _mobility(path, frfs, freqs)
+    coherence, coherence_notes = _coherence(path, frfs, coherences, freqs)
     if np.count_nonzero(keep) < 8:
         raise _refuse(path, "fewer than 8 bins left where the conversion to mobility is finite")
     points = _plane_coordinates(path, xyz[[where[n] for n in point_nodes]])
     if len(np.unique(points, axis=0)) != len(points):
         raise _refuse(path, "two measured nodes share coordinates")
     order = np.lexsort(points.T)  # x, then y on a plane
-    unit, notes = input_unit(frfs), tuple(layout_notes + notes)
+    unit, notes = input_unit(frfs), tuple(layout_notes + notes + coherence_notes)
     result = []
     for a, rows in enumerate(groups):
-        v = values[np.asarray(rows)[order]][:, keep]
-        result.append(FRF(freqs[keep], v, np.ones(v.shape), points[order], a, 1, notes=notes, input_unit=unit))
+        rows = np.asarray(rows)[order]
+        result.append(FRF(freqs[keep], values[rows][:, keep], coherence[rows][:, keep], points[order], a, 1,
+                          notes=notes, input_unit=unit))
     return result
 
 
