@@ -173,6 +173,17 @@ def _fe_sensor(text: str) -> tuple[float, float]:
     return x, y
 
 
+def _refuse_overlapping(patches) -> None:
+    """Two patches on one place of the plate's back cannot both be bonded there (sharing an edge can)."""
+    from modalctl.model.shape import ParamError
+
+    for j, b in enumerate(patches):
+        for i, a in enumerate(patches[:j]):
+            if a.xlim[0] < b.xlim[1] and b.xlim[0] < a.xlim[1] and a.ylim[0] < b.ylim[1] and b.ylim[0] < a.ylim[1]:
+                raise ParamError(f"model fe: --patch {i + 1} and --patch {j + 1} overlap: two patches cannot be "
+                                 "bonded on one place of the plate's back")
+
+
 def run(args) -> int:
     from modalctl.model.fe_plate import FEPlate
     from modalctl.model.shape import ParamError
@@ -182,6 +193,7 @@ def run(args) -> int:
                               ("sensor", args.sensor, FE_SENSORS_MAX)):
         if len(items) > most:
             raise ParamError(f"model fe: at most {most} --{name} options, got {len(items)}")
+    _refuse_overlapping(args.patch)
     outline = dataclasses.replace(args.outline, holes=tuple(args.hole))  # the holes checked against it
     patches = tuple(PlatePatch(p.xlim, p.ylim, f"patch{i + 1}") for i, p in enumerate(args.patch))
     plate = FEPlate(outline, args.thickness, args.material, args.boundary, patches, tuple(args.sensor))
