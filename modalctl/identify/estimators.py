@@ -18,8 +18,6 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass, replace
 
 import numpy as np
-import scipy.optimize
-import scipy.signal
 
 from modalctl.model.modes import Grid, ModalModel, ModelError
 from modalctl.model.projection import mass_normalize
@@ -276,6 +274,8 @@ def frequency_fixed(freqs: np.ndarray, h: np.ndarray, weight: np.ndarray, f: flo
     of heavily damped modes hidden in the noise explains the band to the noise, as the cluster
     does, and lands anywhere between them: its frequency is not fixed.
     """
+    import scipy.optimize  # here, not at import: the command line's help loads every identifier
+
     tol, log_z = FREQUENCY_TOLERANCE, np.log(zeta)
     scaled = h * np.sqrt(weight)  # the residual of a projection is what the basis's span leaves of the data
     total = np.sum(np.abs(scaled) ** 2)
@@ -376,6 +376,8 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
     points (Eq 3.6), the modal constants ``2 zeta w Re H(w_k)`` (Eq 3.9) from the FRF
     interpolated at the refined frequency.
     """
+    import scipy.signal  # here, not at import: the command line's help loads every identifier
+
     mag = frf.mean_magnitude()
     freqs = frf.frequencies
     level_db = 20 * np.log10(np.maximum(mag, np.finfo(float).tiny))
@@ -425,6 +427,8 @@ def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int 
     in the basis but not moved (modes outside the band that still reach into it);
     ``general`` is passed to :func:`pole_basis`.
     """
+    import scipy.optimize  # here, not at import: the command line's help loads every identifier
+
     start = np.array(poles, float).reshape(-1, 2)
     keep = np.flatnonzero(np.abs(frf.frequencies - centre) <= half_width)
     keep = keep[::max(1, -(-keep.size // max_bins))]

@@ -24,8 +24,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.cluster.hierarchy
-import scipy.linalg
 
 from modalctl.model.modes import ModelError
 
@@ -133,6 +131,8 @@ def pick_poles(stab: Stabilization, support: float = SUPPORT) -> tuple[np.ndarra
     doubtful : ndarray, shape (m, 2)
         Clusters present in fewer orders, but in ``DOUBTFUL`` of them (and two) at least.
     """
+    import scipy.cluster.hierarchy  # here, not at import: the command line's help loads every identifier
+
     high = stab.orders[stab.orders > stab.orders.max() / 2]  # a band's modes all fit in the upper half only
     points = [(n, f, z) for n, p in zip(stab.orders, stab.poles) if n in high for f, z in p]
     if len(points) < 2:
