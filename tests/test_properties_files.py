@@ -259,3 +259,32 @@ def test_sweep_refuses_a_value_run_refuses_with_exit_2_before_any_case(tmp_path,
         return
     assert main(["sweep", "--vary", f"{name}={value}", "--quiet", "--out", str(tmp_path / "sweep")]) == 2
     assert not (tmp_path / "sweep" / "sweep.json").exists()
+
+
+# -- CSV tables ----------------------------------------------------------------------------------------
+CELLS = st.one_of(st.floats().map(repr), st.sampled_from(["", " ", "x", "y", "nan", "1e400", "#", "\"", "1;2", "\x00"]),
+                  st.text(max_size=5))
+
+
+@settings(max_examples=150, **SETTINGS)
+@given(rows=st.lists(st.lists(CELLS, min_size=0, max_size=5), max_size=6), header=st.booleans(),
+       raw=st.binary(max_size=40))
+def test_a_hostile_csv_is_read_as_finite_shapes_or_refused(tmp_path, rows, header, raw):
+    path = tmp_path / "shapes.csv"
+    text = "\n".join(",".join(row) for row in ([["x", "mode1"]] if header else []) + rows)
+    path.write_bytes(text.encode("utf-8", "surrogatepass") + raw)
+    try:
+        points, shapes, names = files.read_shapes_csv(path)
+    except ModelError:
+        return
+    assert np.all(np.isfinite(points)) and np.all(np.isfinite(shapes)) and shapes.shape[0] == len(names)
+
+
+@settings(max_examples=60, **SETTINGS)
+@given(rows=st.lists(CELLS, max_size=70), raw=st.binary(max_size=20))
+def test_a_hostile_csv_of_values_gives_a_target_or_exit_2(tmp_path, capsys, rows, raw):
+    path = tmp_path / "values.csv"
+    path.write_bytes("\n".join(rows).encode("utf-8", "surrogatepass") + raw)
+    code = main(["decompose", "--scene", "thesis-al-cc", "--points", "61", "--shape", "array", "--param",
+                 f"values={path}"])
+    assert code in (0, 1, 2), capsys.readouterr().err
