@@ -81,14 +81,14 @@ def test_a_run_on_a_truth_from_a_model_file_simulates_its_modes(tmp_path, capsys
     assert np.isfinite(metrics["tau"]) and np.isfinite(metrics["margin_ratio"])
 
 
-def test_a_run_continues_the_scene_for_its_truth_and_refuses_a_truth_on_another_grid(tmp_path, capsys):
+def test_a_run_continues_the_scene_for_its_truth_and_cannot_scan_a_truth_coarser_than_the_model(tmp_path, capsys):
     assert main([*RUN, "--truth-modes", "30", "--out", str(tmp_path / "run")]) == 0
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert metrics["device_info"]["modes_available"] == 30
-    other = load_scene("thesis-al-cc", 501)
+    other = load_scene("thesis-al-cc", 501)  # every other point of the model's: the vibrometer misses half
     other.save(tmp_path / "coarse.npz")
-    assert main([*RUN, "--truth", str(tmp_path / "coarse.npz"), "--out", str(tmp_path / "bad")]) == 2
-    assert "grid points" in capsys.readouterr().err
+    assert main([*RUN, "--truth", str(tmp_path / "coarse.npz"), "--out", str(tmp_path / "bad")]) == 3
+    assert "nearest scan point" in capsys.readouterr().err
 
 
 @pytest.fixture(scope="module")
