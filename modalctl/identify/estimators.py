@@ -231,7 +231,10 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     resolved = misfit <= UNRESOLVED_ERROR or (seen is not None and seen.within)
     split = []
     if not resolved and misfit <= fair_limit(frf, seen):
-        resolved = counted or one_pole_stands(frf, f, zeta, half_width, others, raw, split)
+        # a pole the diagram counted stands on a fair misfit; above it (where only the estimated
+        # noise's limit lets it be tried) it must pass the split test as any other
+        resolved = (counted and misfit <= FAIR_ERROR) or one_pole_stands(frf, f, zeta, half_width, others, raw,
+                                                                         split)
     if not resolved:
         near = min(others, key=lambda p: abs(p[0] - f), default=None)
         near = None if near is None else (near[0], abs(near[0] - f) / max(zeta * f, np.finfo(float).tiny))
