@@ -152,6 +152,58 @@ def test_the_coarse_mesh_s_child_is_stopped_when_the_fine_mesh_fails(monkeypatch
     with pytest.raises(FileNotFoundError):  # killed and reaped
         open(f"/proc/{children[0]}/stat").close()
 
+
+@pytest.mark.parametrize("support, lowest", [("clamped", 1405), ("free", 502)])
+def test_a_band_below_the_lowest_mode_is_refused_naming_it(support, lowest):
+    """--band 1Hz: the meshes find no mode below the band (times BAND_MARGIN), and nothing is
+    left to converge (compare_levels read an empty mode list: IndexError)."""
+    plate = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"], {"rim": Support(support)})
+    with pytest.raises(ModelError, match=f"no mode below the band 1 Hz: this plate's lowest is at {lowest} Hz"):
+        plate.modal_model(band=1.0, spacing=4e-3)
+
+
+def test_covers_is_inclusive_on_every_side_and_contains_is_unchanged():
+    outline = Outline.rectangle(0.1, 0.07, holes=(Hole((0.0, 0.0), radius=0.01),))
+    rims = np.array([[0.05, 0.0], [-0.05, 0.0], [0.0, 0.035], [0.0, -0.035], [0.05, 0.035], [0.01, 0.0]])
+    assert np.all(outline.covers(rims, 1e-9))
+    assert not np.any(outline.covers(np.array([[0.05 + 1e-6, 0.0], [0.0, 0.035 + 1e-6], [0.0, 0.0]]), 1e-9))
+    assert list(outline.contains(rims[:4])) == [False, True, False, True]  # the lattice's even-odd rule
+    rounded = Outline.rectangle(0.1, 0.07, corner_radius=0.01)
+    assert np.all(rounded.covers(np.array([[0.05, 0.0], [0.0, 0.035]]), 1e-9))
+    assert not rounded.covers(np.array([[0.05, 0.035]]), 1e-9)[0]  # the cut corner is off the plate
+    square_hole = Outline.rectangle(0.1, 0.07, holes=(Hole((0.0, 0.0), size=(0.02, 0.01)),))
+    assert np.all(square_hole.covers(np.array([[0.01, 0.0], [0.0, -0.005]]), 1e-9))
+    assert not square_hole.covers(np.array([[0.009, 0.0]]), 1e-9)[0]
+
+
+@pytest.mark.parametrize("side", ["right", "top", "left", "bottom"])
+def test_a_patch_and_a_sensor_flush_with_any_rim_are_on_the_plate(side):
+    """Flush with the right or top rim was refused, the same on the left or bottom accepted."""
+    sign, axis = {"right": (1, 0), "top": (1, 1), "left": (-1, 0), "bottom": (-1, 1)}[side]
+    half = (0.05, 0.035)[axis]
+    inner, outer = sorted((sign * (half - 0.01), sign * half))
+    span = (inner, outer), (-0.005, 0.005)
+    patch = PlatePatch(*(span if axis == 0 else span[::-1]))
+    sensor = (sign * half, 0.0) if axis == 0 else (0.0, sign * half)
+    FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"], patches=(patch,), sensors=(sensor,))
+    beyond = (sensor[0] * 1.001, sensor[1] * 1.001)
+    with pytest.raises(ModelError, match="not on the plate"):
+        FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"], sensors=(beyond,))
+
+
+def test_flush_patches_and_sensors_on_opposite_rims_act_alike():
+    """A free plate is symmetric about its centre: a patch and a sensor flush with the right rim
+    drive and see each mode as their mirror images on the left do, up to the mode's sign."""
+    right = PlatePatch((0.04, 0.05), (0.0, 0.01), "right")
+    left = PlatePatch((-0.05, -0.04), (-0.01, 0.0), "left")
+    plate = FEPlate(Outline.rectangle(0.1, 0.07), 1e-3, MATERIALS["glass"], {"rim": Support("free")},
+                    patches=(right, left), sensors=((0.05, 0.02), (-0.05, -0.02)))
+    model, _ = plate.modal_model(4, spacing=4e-3)
+    assert np.all(np.abs(model.actuator_gains[:, 0]) > 0)
+    assert np.allclose(np.abs(model.actuator_gains[:, 0]), np.abs(model.actuator_gains[:, 1]), rtol=0.01)  # the mesh: 0.2%
+    assert np.all(np.abs(model.sensor_gains[:, 0]) > 0)
+    assert np.allclose(np.abs(model.sensor_gains[:, 0]), np.abs(model.sensor_gains[:, 1]), rtol=0.01)
+
 def fe_command(tmp_path, *extra) -> list[str]:
     return ["model", "fe", "--thickness", "1mm", "--modes", "4", "--spacing", "4mm", "--no-plots",
             "--out", str(tmp_path / "plate.npz"), *extra]
@@ -176,6 +228,17 @@ def test_the_command_refuses_bad_geometry_with_exit_2(tmp_path, capsys, extra, w
         code = refused.code
     assert code == 2
     assert words in capsys.readouterr().err
+    assert not (tmp_path / "plate.npz").exists()
+
+
+@pytest.mark.parametrize("band", ["1Hz", "1300Hz"])
+def test_the_command_refuses_a_band_below_the_lowest_mode_with_exit_2(tmp_path, capsys, band):
+    from modalctl.cli import main
+
+    args = [a for a in fe_command(tmp_path, "--outline", "rect:100mm,70mm") if a not in ("--modes", "4")]
+    assert main([*args, "--band", band]) == 2
+    err = capsys.readouterr().err
+    assert "this plate's lowest is at 1405 Hz" in err and "Traceback" not in err
     assert not (tmp_path / "plate.npz").exists()
 
 

@@ -62,6 +62,7 @@ NCV_FACTOR = 1.5  # Lanczos vectors per mode sought
 RESIDUAL_TOLERANCE = 1e-6  # a relative residual r moves a frequency by about r / 2: above this, 20 times under...
 ROUNDOFF = 1e-12  # ...the least tolerance (1e-5), and a backward error above this (sound: 1e-16; a tiny pivot's
 # growth g: g 1e-16), a band's mid-band factors were unsound and it is solved again from below (see _residual)
+RIM_TOLERANCE = 1e-9  # m: a patch or sensor this near the rim is on it (flush, as lengths in mm round)
 PROBE_BLOCK = 16384  # sampling: this many points at a time (the 15-parameter basis: 40 MB per array)
 PROBE_NEIGHBOURS = 8  # a point's element sought among this many nearest element centroids
 
@@ -86,9 +87,10 @@ class FEPlate:
         ``edgeN``; ``bottom``, ``right``, ``top``, ``left`` for a rectangle) to :class:`Support`.
         Unnamed: a clamped rim, free holes.
     patches : tuple of PlatePatch
-        Rectangular piezo patches on the back (m), wholly on the plate.
+        Rectangular piezo patches on the back (m), wholly on the plate (flush with the rim
+        allowed, on any side: :meth:`Outline.covers`).
     sensors : tuple of (x, y)
-        Velocity sensors (m), on the plate.
+        Velocity sensors (m), on the plate or its rim.
     piezo : Piezo
     """
 
@@ -118,11 +120,12 @@ class FEPlate:
             corners = rectangle_ring(p.xlim, p.ylim)
             inside = lambda q: (q[:, 0] > p.xlim[0]) & (q[:, 0] < p.xlim[1]) & (q[:, 1] > p.ylim[0]) & (  # noqa: E731
                 q[:, 1] < p.ylim[1])
-            if not (p.xlim[0] < p.xlim[1] and p.ylim[0] < p.ylim[1]) or not np.all(self.outline.contains(corners)) \
+            if not (p.xlim[0] < p.xlim[1] and p.ylim[0] < p.ylim[1]) \
+                    or not np.all(self.outline.covers(corners, RIM_TOLERANCE)) \
                     or any(np.any(inside(h.boundary())) for h in self.outline.holes):
                 raise ModelError(f"plate: patch {p.name or i + 1} {p.xlim} x {p.ylim} m is not wholly on the plate")
         for i, s in enumerate(self.sensors):
-            if not self.outline.contains(np.atleast_2d(np.asarray(s, float)))[0]:
+            if not self.outline.covers(np.atleast_2d(np.asarray(s, float)), RIM_TOLERANCE)[0]:
                 raise ModelError(f"plate: sensor {i + 1} at {tuple(s)} m is not on the plate")
 
     @property
@@ -472,6 +475,10 @@ class FEPlate:
             freqs, vectors, rigid, basis = self.solve(mesh, wanted)
         else:
             freqs, vectors, rigid, basis = self.solve(mesh, below=band * BAND_MARGIN)
+            if not len(freqs):  # nothing to converge: the plate's lowest mode named (as this mesh solves it)
+                lowest = self.solve(mesh, 1)[0][0]
+                raise ModelError(f"fe plate: no mode below the band {band:g} Hz: this plate's lowest is at "
+                                 f"{lowest:.0f} Hz; give a higher band or a number of modes")
             if np.count_nonzero(freqs <= band) > MODES_MAX:
                 raise ModelError(f"fe plate: the band {band:g} Hz holds more than {MODES_MAX} modes")
         on = grid.mass > 0

@@ -181,6 +181,27 @@ class Outline:
             inside &= ~hole.contains(points)
         return inside
 
+    def covers(self, points: np.ndarray, tolerance: float) -> np.ndarray:
+        """Whether each point (n, 2) (m) lies on the plate or on its rim: within ``tolerance`` (m)
+        of the outer outline's inside (rounded corners included) and not deeper than ``tolerance``
+        inside a hole. Inclusive on every edge alike, where :meth:`contains` (the even-odd rule)
+        counts a point on the left or bottom edge of a rectangle in and one on the right or top
+        edge out; the grid's lattice relies on that, so it stays."""
+        p = np.asarray(points, float).reshape(-1, 2)
+        if self.corner_radius:
+            lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
+            inside = _in_rounded_rectangle(p - (lo + hi) / 2, *(hi - lo + 2 * tolerance), self.corner_radius + tolerance)
+        else:
+            inside = _in_polygon(p, self.vertices) | (distance_to_edges(p, self.vertices) <= tolerance)
+        for hole in self.holes:
+            d = p - np.asarray(hole.centre, float)
+            if hole.size is None:
+                inside &= np.hypot(d[:, 0], d[:, 1]) >= hole.radius - tolerance
+            else:
+                width, height = hole.size[0] - 2 * tolerance, hole.size[1] - 2 * tolerance
+                inside &= ~_in_rounded_rectangle(d, width, height, max(hole.corner_radius - tolerance, 0.0))
+        return inside
+
     @property
     def area(self) -> float:
         """Area of the plate (m^2), holes cut out."""
