@@ -28,7 +28,7 @@ from .noise import NOISE_EXCESS, SIGNIFICANCE, NoiseFigures, noise_figures, nois
 __all__ = ["Identifier", "Modes", "BandFit", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "one_pole_stands",
            "half_width", "neighbours", "constants_of", "to_model", "actuator_gains", "UNRESOLVED_ERROR",
            "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "noise_figures", "NoiseFigures", "noise_weights",
-           "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "misfit_reason", "modes_from_rows",
+           "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "RESOLVED_LINES", "misfit_reason", "modes_from_rows",
            "frequency_fixed", "FREQUENCY_TOLERANCE", "CONFIDENCE", "UNCERTAIN"]
 
 UNRESOLVED_ERROR = 0.1  # relative RMS misfit of one pole below which a mode is resolved whatever the noise...
@@ -37,6 +37,7 @@ FAIR_ERROR = 0.3  # ...or, up to this misfit, when a second pole in the band exp
 SPLIT_GAIN = 2.0  # a second pole explains more when it divides the residual by this
 BINS_PER_COLUMN = 3  # a band fit gets at least this many bins per unknown of each point (else it is widened)
 NOISE_PEAK = 1.0  # a "mode" leaving more unexplained than itself (misfit above this), where the noise was measured, is a peak of it
+RESOLVED_LINES = 3.0  # a half-power band (2 zeta f) over fewer lines than this is under-resolved by the file
 FREQUENCY_TOLERANCE = 0.01  # where the noise is measured, a mode is returned only when it fixes its frequency within this...
 CONFIDENCE = 9.0  # ...: the noise-weighted chi-square, damping re-fitted, rises by this (3 sigma) before either end
 
@@ -238,10 +239,13 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     if not resolved:
         near = min(others, key=lambda p: abs(p[0] - f), default=None)
         near = None if near is None else (near[0], abs(near[0] - f) / max(zeta * f, np.finfo(float).tiny))
-        why = misfit_reason(misfit, noise is not None, seen, near, None if split else half_width)
+        lines = 2 * zeta * f / (frf.frequencies[1] - frf.frequencies[0])
+        why = misfit_reason(misfit, noise is not None, seen, near, None if split else half_width, lines)
         if split:
+            what = "close modes, or FRFs that disagree on a peak too narrow for the lines?" \
+                if 0 < lines < RESOLVED_LINES else "close modes?"
             why = why[:-1] + (f"; two poles, {min(split)[0]:.2f} and {max(split)[0]:.2f} Hz, leave less than half its "
-                              f"residual: close modes?)")
+                              f"residual: {what})")
         return BandFit(constants, misfit, why)
     judged = frequency_check and noise is not None and misfit > UNRESOLVED_ERROR
     if judged and not frequency_fixed(freqs, h, noise_weights(noise), f, zeta, others, general):
@@ -511,16 +515,19 @@ def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int,
 
 
 def misfit_reason(misfit: float, noise_known: bool, seen: NoiseFigures | None = None, nearest=None,
-                  half_width: float | None = None) -> str:
+                  half_width: float | None = None, lines: float | None = None) -> str:
     """Why a pole that does not explain its band was left out, saying what was seen.
 
     A peak of the noise (``NOISE``) when the FRFs' noise is known and the mode is smaller than
-    what it leaves unexplained; else one pole explaining its band poorly: its misfit, the
-    residual against the noise (``seen``, when known) and the nearest other pole fitted with it
-    (``nearest``: its frequency in Hz and its distance in this mode's half-power half-widths),
-    or that none lies within ``half_width`` (Hz): then close modes are not what was seen.
+    what it leaves unexplained, unless it stands ``SIGNIFICANCE`` times above that noise (a peak
+    the noise cannot make); else one pole explaining its band poorly: its misfit, the residual
+    against the noise (``seen``, when known), the nearest other pole fitted with it (``nearest``:
+    its frequency in Hz and its distance in this mode's half-power half-widths), or that none lies
+    within ``half_width`` (Hz): then close modes are not what was seen; and, when its half-power
+    band spans fewer than ``RESOLVED_LINES`` lines (``lines``, ``2 zeta f`` over the line spacing),
+    that the file under-resolves it: one pole cannot be fixed on a peak of one or two lines.
     """
-    if misfit > NOISE_PEAK and noise_known:
+    if misfit > NOISE_PEAK and noise_known and (seen is None or seen.significance < SIGNIFICANCE):
         return NOISE
     what = [f"misfit {misfit:.2f}"]
     if seen is not None:
@@ -533,6 +540,9 @@ def misfit_reason(misfit: float, noise_known: bool, seen: NoiseFigures | None = 
         what.append(f"nearest pole {nearest[0]:.1f} Hz, {nearest[1]:.1f} half-power half-widths away")
     elif half_width is not None:
         what.append(f"no other pole within {half_width:.3g} Hz: not close modes")
+    if lines is not None and 0 < lines < RESOLVED_LINES:
+        what.append(f"its half-power band spans {lines:.1f} lines (at least {RESOLVED_LINES:g} resolve a pole): "
+                    f"the file's lines are too coarse for its damping")
     return f"one pole explains its band poorly ({'; '.join(what)})"
 
 
