@@ -289,3 +289,39 @@ def test_plate_identified_end_to_end_then_focused_with_its_model(tmp_path):
     # the scene's own five modes on the same 11 x 8 points focus as well (a 40 mm Gaussian wants more modes)
     assert main(["run", "--scene", "plate-glass", "--points", "11x8", *focus, "--out", str(tmp_path / "scene")]) == 0
     assert abs(tau - json.loads((tmp_path / "scene" / "metrics.json").read_text())["tau"]) < 0.03
+
+
+def test_identify_draws_no_bars_into_a_log_and_says_its_stage(tmp_path, capsys):
+    """stderr not a terminal (capsys: a log): one line for the survey, no carriage-return frames;
+    the simulator's vibrometer still at its 40 dB when --snr is not given."""
+    import json
+
+    from modalctl.cli import identify, main
+
+    seen = []
+    real = identify.open_device
+
+    def spy(args, scene):
+        seen.append(args.snr)
+        return real(args, scene)
+
+    identify.open_device = spy
+    try:
+        code = main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--step", "2mm", "--no-plots",
+                     "--json", "--out", str(tmp_path / "m.npz")])
+    finally:
+        identify.open_device = real
+    captured = capsys.readouterr()
+    assert code == 0 and json.loads(captured.out)["modes"] == 5
+    assert "\r" not in captured.err and "modalctl identify: the survey: 100 to 6000 Hz" in captured.err
+    assert seen == [identify.SNR]
+
+
+@pytest.mark.parametrize("out, words", [("/proc/modalctl-x/m.npz", "kernel's proc"), ("", "give a file name")])
+def test_identify_out_is_checked_by_its_type_before_any_work(capsys, out, words):
+    from modalctl.cli import main
+
+    with pytest.raises(SystemExit) as refused:
+        main(["identify", "--scene", "thesis-al-cc", "--out", out])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2 and "argument --out: " in err and words in err

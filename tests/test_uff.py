@@ -172,3 +172,16 @@ def test_a_beam_along_a_diagonal_is_a_line(tmp_path):
     frf = read_uff58(write(tmp_path / "diag.uff", xyz[:, :2], values, xyz=xyz))
     assert frf.points.shape == (21, 1)
     assert np.allclose(np.diff(frf.points[:, 0]), 0.005)  # distances along the line kept
+
+
+@pytest.mark.parametrize("options, named", [(["--snr", "40"], "--snr"), (["--snr", "20"], "--snr"),
+                                            (["--averages", "1"], "--averages")])
+def test_a_sweep_option_given_with_a_file_is_refused_even_at_its_default(tmp_path, capsys, options, named):
+    """``--snr 40`` (the simulator's default) with --frf was taken as not given, and ignored."""
+    points = grid_points()
+    path = write(tmp_path / "m.uff", points, mobility(points))
+    out = tmp_path / "plate.npz"
+    assert main(["identify", "--frf", str(path), "--mass-per-area", "2.5kg/m^2", "--out", str(out), "--no-plots",
+                 *options]) == 2
+    err = capsys.readouterr().err
+    assert named in err and "not apply to --frf" in err and not out.exists()

@@ -24,7 +24,7 @@ import sys
 from modalctl.plugin.command import plugin_commands
 
 from . import decompose, identify, model, plugins, run, scenes, sweep
-from .common import BAD_INPUT, DEVICE, UNREACHABLE, check_outputs, jsonable, refuse
+from .common import BAD_INPUT, DEVICE, UNREACHABLE, jsonable, refuse
 
 __all__ = ["main", "build_parser", "command_parser"]
 
@@ -126,7 +126,6 @@ def _dispatch(handler, args) -> int:
 
     as_json = getattr(args, "json", False)
     try:
-        check_outputs(args)
         return handler(args)
     except DeviceError as exc:
         return refuse(args.command, DEVICE, f"device error: {exc}", as_json)

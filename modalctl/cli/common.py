@@ -21,14 +21,11 @@ from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
 
 __all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "MODES_MAX", "parse_param", "points", "modes", "out_dir", "out_file",
-           "check_outputs", "option_type", "progress_bars", "stage", "Interrupted", "interruptible", "add_target", "model_and_shape", "open_device",
+           "option_type", "progress_bars", "stage", "Interrupted", "interruptible", "add_target", "model_and_shape", "open_device",
            "refuse", "jsonable", "write_json", "identity", "identity_defaults"]
 
 BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
 MODES_MAX = 1000
-#: Options naming a file to write that their command declares without the :func:`out_file` type
-#: (``identify --out``): :func:`check_outputs` checks them before the command's work.
-FILE_OUTPUTS = {"identify": ("out",)}
 points = grid_points  # --points: N for a beam, NxM for a plate
 
 
@@ -75,21 +72,6 @@ def _writable(text: str, folder: bool) -> str:
     except OutDirError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
-
-
-def check_outputs(args) -> None:
-    """The files a command writes (:data:`FILE_OUTPUTS`), checked as :func:`out_file` does, before
-    its work. Raises :class:`~modalctl.outdir.OutDirError`."""
-    for dest in FILE_OUTPUTS.get(args.command, ()):
-        value = getattr(args, dest, None)
-        if value is not None:
-            flag = "--" + dest.replace("_", "-")
-            if not str(value).strip():
-                raise OutDirError(f"{flag}: give a file name")
-            try:
-                check_writable(value, folder=False)
-            except OutDirError as exc:
-                raise OutDirError(f"{flag}: {exc}") from None
 
 
 def progress_bars(args) -> bool:

@@ -9,11 +9,12 @@ from pathlib import Path
 from modalctl.options import SurveyOptions
 from modalctl.units import number_type, quantity_type
 
-from .common import open_device
+from .common import open_device, out_file, progress_bars, stage
 
 NAME, HELP = "identify", "identify a structure's modes from FRFs measured through a device"
 SURVEY = SurveyOptions()  # the defaults the options below show and use
 SCAN_POINTS_MIN = 5  # scan points a mode shape needs
+SNR = 40.0  # dB: the simulated vibrometer's noise below the largest velocity, unless --snr says
 SWEEP = {"f_low": 100.0, "f_high": 100e3, "resolution": 4.0, "amplitude": 15.0, "step": 1e-3}  # defaults of the sweep
 SURVEY_ONLY = ("resolution", "amplitude", "step", "primary", "averages")  # options a file's FRFs have no use for
 
@@ -28,7 +29,7 @@ def add_arguments(p) -> None:
     p.add_argument("--transport", default="sim://", help="device URL (default sim://)")
     p.add_argument("--scene", help="sim://: the structure simulated (and its mass per length by default)")
     p.add_argument("--frf", help="identify from measured FRFs in a universal file (datasets 58 and 15) instead")
-    p.set_defaults(transports=add_transport_options(p), snr=40.0)  # a vibrometer of 40 dB, unless said
+    p.set_defaults(transports=add_transport_options(p), snr=None)  # SNR on sim:// unless said; said with --frf: refused
     p.add_argument("--f-low", type=quantity_type("Hz", "f-low", low=0, low_open=False),
                    help=f"sweep start ({SWEEP['f_low']:g}Hz); with --frf the band's start (the file's)")
     p.add_argument("--f-high", type=quantity_type("Hz", "f-high", low=0),
@@ -52,7 +53,7 @@ def add_arguments(p) -> None:
     p.add_argument("--no-orthogonalize", action="store_true",
                    help="skip Gram-Schmidt (it is applied only where the grid's weights integrate the modes)")
     p.add_argument("--left-out", action="store_true", help="list every mode left out, peaks of the noise too")
-    p.add_argument("--out", required=True, help="model file to write (.npz); pictures beside it")
+    p.add_argument("--out", required=True, type=out_file, help="model file to write (.npz); pictures beside it")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--json", action="store_true")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -166,6 +167,9 @@ def _survey(args, scene, meta: dict):
     sweep = Sweep.design(opt["f_low"], opt["f_high"], opt["resolution"], opt["amplitude"])
     options = SurveyOptions(method=args.method, primary=opt["primary"], averages=opt["averages"],
                             orthogonalize=not args.no_orthogonalize)
+    if args.snr is None and args.transport.startswith("sim"):  # (another transport's options refuse --snr)
+        args.snr = SNR
+    stage(args, f"the survey: {opt['f_low']:g} to {opt['f_high']:g} Hz swept through {args.transport}")
     with open_device(args, scene) as device:
         caps = device.configure(sweep.sample_rate)
         scan = np.asarray(caps.scan_points, float).reshape(len(caps.scan_points), -1)
@@ -176,7 +180,7 @@ def _survey(args, scene, meta: dict):
                              f"{' x '.join(f'{e * 1e3:.0f}' for e in np.ptp(scan, axis=0))} mm; at least "
                              f"{SCAN_POINTS_MIN} per direction draw a mode shape")
         survey = identify_device(device, sweep, points, density, options, beam_wavelength(meta, opt["f_high"]),
-                                 progress=not args.quiet)
+                                 progress=progress_bars(args))
     return survey, points
 
 
