@@ -16,11 +16,29 @@ Sets (``SETS``; their published modal parameters are in ``benchmarks/identify_re
     leekunhwee/Vibration-Signal-Processing, folder ``ExperimentalModalAnalysis``: an impact test
     of a cutting tool in its holder, receptance H_1k (m/N) between the tip (point 1) and five
     points at 0, 55, 90, 130 and 165 mm from it (``Proj_3.m``), 0 to 5000 Hz every 1 Hz.
+``strip``
+    WangSuhan/Modal-identification-of-plate, folder ``20201016``: a roving-hammer test of a
+    free-free steel strip (1.252 m by 0.165 m, ``beam.png``): hammer points 1 to 10 every 0.1 m
+    along its centre line, two accelerometers, at points 1 and 5; file ``20201016_AA_HH.mat`` is
+    the FRF of the accelerometer at point AA to the hammer at point HH, 0 to 1024 Hz every 0.5 Hz
+    (exported by the analyzer as ``MAT_001_FRF_Channel_8``: frequency, then the complex FRF, an
+    accelerance by its rise with frequency; the files do not give the unit: m/s^2/N assumed).
+    Written as measured: ten references, two responses.
+``rail-wheel``
+    virgilecheminot/ADMS-Assignments, file ``Assignment 1/LRV_wheel_FRF.mat`` (Politecnico di
+    Milano's Advanced Dynamics of Mechanical Systems course data): an impact test of a light rail
+    vehicle's resilient wheel, free-free, one axial hammer point, twelve accelerometers sensing the
+    rim's axial vibration every 15 degrees over half the wheel; inertance 0 to 5000 Hz every
+    1/3 Hz with its coherence. The rim's radius is not given: 0.3 m is assumed (it scales the
+    geometry only); the hammer's place is not given either, so its node has no coordinates.
+    Written with the coherence (function type 6) beside each FRF.
 
 Usage::
 
     python benchmarks/real_data/convert.py modelab-beam PATH/TO/ModeLAB/Example/SignalCalc OUT.uff
     python benchmarks/real_data/convert.py tool-tip PATH/TO/ExperimentalModalAnalysis OUT.uff
+    python benchmarks/real_data/convert.py strip PATH/TO/Modal-identification-of-plate/20201016 OUT.uff
+    python benchmarks/real_data/convert.py rail-wheel "PATH/TO/ADMS-Assignments/Assignment 1" OUT.uff
 """
 
 from __future__ import annotations
@@ -55,7 +73,7 @@ def read_setup(path: Path) -> dict[str, list[float]]:
 
 def write_uff(out: Path, nodes: dict[int, tuple[float, float, float]], functions: list[dict]) -> Path:
     """Dataset 15 (``nodes``: number -> x, y, z in m) then one dataset 58 per function (the
-    keywords of ``pyuff.prepare_58``), an FRF against frequency."""
+    keywords of ``pyuff.prepare_58``), against frequency: an FRF unless ``func_type`` says else."""
     import pyuff
 
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -67,8 +85,8 @@ def write_uff(out: Path, nodes: dict[int, tuple[float, float, float]], functions
     uff.write_sets(pyuff.prepare_15(node_nums=numbers, def_cs=[0] * len(numbers), disp_cs=[0] * len(numbers),
                                     color=[0] * len(numbers), x=xyz[:, 0], y=xyz[:, 1], z=xyz[:, 2]), mode="add")
     for f in functions:
-        uff.write_sets(pyuff.prepare_58(func_type=4, abscissa_spacing=1, abscissa_spec_data_type=18, binary=0,
-                                        **f), mode="add")
+        f = {"func_type": 4, **f}
+        uff.write_sets(pyuff.prepare_58(abscissa_spacing=1, abscissa_spec_data_type=18, binary=0, **f), mode="add")
     return out
 
 
@@ -110,7 +128,59 @@ def tool_tip(folder: Path, out: Path) -> Path:
     return write_uff(out, nodes, functions)
 
 
-SETS = {"modelab-beam": modelab_beam, "tool-tip": tool_tip}
+STRIP_POINTS_M = [0.094 + 0.1 * k for k in range(11)]  # beam.png: point 0 at 9.4 cm from the right end
+STRIP_SENSORS = (1, 5)  # beam.png: the accelerometers (red)
+
+
+def read_analyzer_mat(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A MATLAB file of one exported FRF: one variable, columns frequency (Hz) and the complex FRF."""
+    from scipy.io import loadmat
+
+    table = [v for k, v in loadmat(path).items() if not k.startswith("__")]
+    if len(table) != 1 or table[0].ndim != 2 or table[0].shape[1] != 2:
+        raise SystemExit(f"{path}: one (n, 2) table of frequency and FRF expected")
+    return table[0][:, 0].real, table[0][:, 1]
+
+
+def strip(folder: Path, out: Path) -> Path:
+    """The strip's twenty FRFs: accelerometers at points 1 and 5, the hammer at points 1 to 10."""
+    nodes = {k: (x, 0.0, 0.0) for k, x in enumerate(STRIP_POINTS_M)}
+    functions = []
+    for sensor in STRIP_SENSORS:
+        for hammer in range(1, 11):
+            freqs, h = read_analyzer_mat(folder / f"20201016_{sensor:02d}_{hammer:02d}.mat")
+            functions.append(dict(rsp_node=sensor, rsp_dir=3, ref_node=hammer, ref_dir=3, data=h, x=freqs,
+                                  id1=f"accelerometer {sensor} hammer {hammer}", rsp_ent_name="strip",
+                                  ref_ent_name="strip", ordinate_spec_data_type=12, orddenom_spec_data_type=13,
+                                  ordinate_axis_units_lab="m/s^2", orddenom_axis_units_lab="N"))
+    return write_uff(out, {k: nodes[k] for k in range(1, 11)}, functions)
+
+
+WHEEL_RADIUS_M = 0.3  # not given by the source: scales the geometry only
+WHEEL_HAMMER = 100  # the hammer's node (its place is not given)
+
+
+def rail_wheel(folder: Path, out: Path) -> Path:
+    """The wheel's twelve inertances and coherences, accelerometers every 15 degrees on the rim."""
+    from scipy.io import loadmat
+
+    data = loadmat(folder / "LRV_wheel_FRF.mat")
+    freqs, frf, coherence = data["freq"][:, 0], data["frf"].T, data["cohe"].T
+    angles = np.radians(15.0 * np.arange(frf.shape[0]))
+    nodes = {k + 1: (WHEEL_RADIUS_M * np.cos(a), WHEEL_RADIUS_M * np.sin(a), 0.0) for k, a in enumerate(angles)}
+    functions = []
+    for k in range(frf.shape[0]):
+        common = dict(rsp_node=k + 1, rsp_dir=3, ref_node=WHEEL_HAMMER, ref_dir=3, x=freqs, rsp_ent_name="wheel",
+                      ref_ent_name="wheel")
+        functions.append(dict(common, data=frf[k], id1=f"inertance {k + 1}", ordinate_spec_data_type=12,
+                              orddenom_spec_data_type=13, ordinate_axis_units_lab="m/s^2",
+                              orddenom_axis_units_lab="N"))
+        functions.append(dict(common, func_type=6, data=coherence[k], id1=f"coherence {k + 1}",
+                              ordinate_spec_data_type=0, orddenom_spec_data_type=0))
+    return write_uff(out, nodes, functions)
+
+
+SETS = {"modelab-beam": modelab_beam, "tool-tip": tool_tip, "strip": strip, "rail-wheel": rail_wheel}
 
 
 def main(argv=None) -> int:
