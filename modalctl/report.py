@@ -372,23 +372,21 @@ def plot_learning(learned, labels, path) -> Path:
     return _save(fig, path)
 
 
-def write_run_report(shot, out) -> dict:
-    """All the pictures of a run (a :class:`modalctl.run.ShotResult`) into directory ``out`` (the
-    loop's from its ``log.json`` there); returns {name: path}. A finger the device says rests on the
-    structure is drawn where it rests."""
-    out = Path(out)
-    finger = shot.metrics.device_info.get("finger_at_m")
+def write_run_report(shot, out, names=None) -> dict:
+    """The pictures of a run (a :class:`modalctl.run.ShotResult`), or those of ``names``, into
+    directory ``out`` (the loop's from its ``log.json`` there); returns {name: path}. A finger the
+    device says rests on the structure is drawn where it rests."""
+    out, finger = Path(out), shot.metrics.device_info.get("finger_at_m")
     where = float(shot.decomposition.model.grid.points[shot.focus_point, 0])
-    paths = {"spacetime": plot_spacetime(shot, out / "spacetime.png", finger),
-             "modal_bars": plot_modal_bars(shot, out / "modal_bars.png"),
-             "voltages": plot_voltages(shot, out / "voltages.png"),
-             "spectrogram": plot_spectrogram(shot, shot.focus_velocity, shot.plan.sample_rate, where,
-                                             out / "spectrogram.png")}
-    if shot.learning is not None:
-        paths["learning"] = plot_learning(shot.learning, shot.decomposition.model.labels, out / "learning.png")
-    if shot.loop is not None and (out / "log.json").exists():
-        paths["loop"] = plot_loop(out / "log", out / "loop.png")
-    return {k: str(v) for k, v in paths.items()}
+    draw = {"spacetime": lambda: plot_spacetime(shot, out / "spacetime.png", finger),
+            "modal_bars": lambda: plot_modal_bars(shot, out / "modal_bars.png"),
+            "voltages": lambda: plot_voltages(shot, out / "voltages.png"),
+            "spectrogram": lambda: plot_spectrogram(shot, shot.focus_velocity, shot.plan.sample_rate, where,
+                                                    out / "spectrogram.png"),
+            "learning": lambda: plot_learning(shot.learning, shot.decomposition.model.labels, out / "learning.png"),
+            "loop": lambda: plot_loop(out / "log", out / "loop.png")}
+    drawn = {"learning": shot.learning is not None, "loop": shot.loop is not None and (out / "log.json").exists()}
+    return {k: str(f()) for k, f in draw.items() if drawn.get(k, True) and (names is None or k in names)}
 
 
 def plot_loop(log, path) -> Path:

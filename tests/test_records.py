@@ -208,3 +208,30 @@ def test_an_empty_field_writes_and_reads(shape, tmp_path):
         back = read_field_record(path)
         assert back.field.shape == shape and back.points.shape == (n, 2) and back.times.shape == (nt,)
         assert back.step > 0 and back.rank == 0
+
+
+def test_a_simulators_field_is_stored_as_the_modes_it_made_and_read_back_with_its_noise(plate, tmp_path):
+    """``modes``: the simulated vibrometer's field (its modes' shapes times their velocities, plus keyed
+    noise, as :func:`~modalctl.hil.vibrometer.scan_field` makes it) stored without a pass over it."""
+    from modalctl.hil.vibrometer import scan_field, scan_noise_stream
+
+    rng = np.random.default_rng(5)
+    samples = np.arange(0, 2400, 6)
+    velocity = rng.standard_normal((plate.n_modes, samples.size)).astype(np.float32)
+    sigma = 0.01 * float(np.abs(plate.shapes.T @ velocity).max())
+    field = scan_field(plate.shapes, velocity, samples, sigma=sigma, key=(7, 1))
+    noise = scan_noise_stream((7, 1), samples, plate.grid.n, sigma)
+    t = samples / 1e5
+    made = write_field_record(tmp_path / "made.npz", t, plate.grid.points, field, noise=noise,
+                              basis=plate.shapes.T, modes=(plate.shapes.T, velocity))
+    back = read_field_record(made)
+    assert _kept(back, field) and back.step == pytest.approx(np.abs(field).max() * RESOLUTION)
+    assert back.rank == plate.n_modes
+    # modes that did not make the field (one velocity off) are found out and the field is stored by its passes
+    off = velocity.copy()
+    off[3] *= 1.01
+    other = read_field_record(write_field_record(tmp_path / "off.npz", t, plate.grid.points, field, noise=noise,
+                                                 basis=plate.shapes.T, modes=(plate.shapes.T, off)))
+    assert _kept(other, field)
+    with pytest.raises(ModelError, match="modes"):
+        write_field_record(tmp_path / "bad.npz", t, plate.grid.points, field, modes=(plate.shapes.T, velocity[:, :5]))

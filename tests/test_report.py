@@ -81,8 +81,9 @@ def test_a_run_draws_its_pictures_beside_its_fields_and_says_what_stopped_them(c
     metrics = json.loads(capsys.readouterr().out)
     assert metrics["stages_s"]["pictures_s"] > 0 and metrics["stages_s"]["pictures_wait_s"] >= 0
     assert all((tmp_path / "drawn" / f"{name}.png").stat().st_size > 10_000 for name in metrics["pictures"])
+    assert set(metrics["pictures"]) == {"spacetime", "modal_bars", "voltages", "spectrogram"}  # both children's
 
-    def broken(shot, out):
+    def broken(shot, out, names=None):
         raise ValueError("out of ink")
 
     monkeypatch.setattr(report, "write_run_report", broken)

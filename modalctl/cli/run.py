@@ -233,16 +233,17 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
                          "grown": None if growth is None else growth.to_dict()}}
-    pictures = None if args.no_plots else beside(functools.partial(_draw, shot, out, time.perf_counter()))
+    pictures = [] if args.no_plots else [beside(functools.partial(_draw, shot, out, time.perf_counter(), names))
+                                         for names in PICTURE_GROUPS]
     try:
         _write_fields(model, shot, out, device)
     except BaseException:
-        if pictures is not None:
-            pictures.stop()
+        for child in pictures:
+            child.stop()
         raise
     written = time.perf_counter()
     drawn = None
-    if pictures is not None:
+    if pictures:
         drawn = _pictures_drawn(pictures, metrics, out)
         record(out, [Path(picture).name for picture in metrics.get("pictures", {}).values()]
                + (["pictures-error.txt"] if "pictures_error" in metrics else []))
@@ -263,18 +264,28 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     return DEVICE if fault else 0
 
 
-def _pictures_drawn(pictures, metrics: dict, out: Path) -> float | None:
-    """The pictures a :func:`modalctl.forked.beside` child of :func:`_draw` made, into
-    ``metrics["pictures"]``, and the seconds they took; a drawing that failed (the shot, its
-    metrics and its fields are not lost for it) is said on stderr, its traceback in
-    ``DIR/pictures-error.txt`` and its last line in ``metrics["pictures_error"]``: None."""
-    try:
-        answer = pictures.result()
-    except RuntimeError as ended:  # the child ended without an answer
-        answer = {"error": str(ended)}
-    if "error" not in answer:
-        metrics["pictures"] = answer["pictures"]
-        return answer["seconds"]
+#: The run's pictures, drawn by two forked children at once (on a plate each group takes about half)
+PICTURE_GROUPS = (("spacetime", "voltages"), ("modal_bars", "spectrogram", "learning", "loop"))
+
+
+def _pictures_drawn(pictures: list, metrics: dict, out: Path) -> float | None:
+    """The pictures the :func:`modalctl.forked.beside` children of :func:`_draw` made, into
+    ``metrics["pictures"]``, and the seconds the last took; a drawing that failed (the shot, its
+    metrics, its fields and the other pictures are not lost for it) is said on stderr, its
+    traceback in ``DIR/pictures-error.txt`` and its last line in ``metrics["pictures_error"]``: None."""
+    answers = []
+    for child in pictures:
+        try:
+            answers.append(child.result())
+        except RuntimeError as ended:  # the child ended without an answer
+            answers.append({"error": str(ended)})
+    drawn = {k: v for answer in answers for k, v in answer.get("pictures", {}).items()}
+    if drawn:
+        metrics["pictures"] = drawn
+    failed = [answer["error"] for answer in answers if "error" in answer]
+    if not failed:
+        return max(answer["seconds"] for answer in answers)
+    answer = {"error": failed[0]}
     from modalctl.outdir import atomic
 
     text = f"drawing the run's pictures failed: {answer['error']}"
@@ -287,10 +298,10 @@ def _pictures_drawn(pictures, metrics: dict, out: Path) -> float | None:
     return None
 
 
-def _draw(shot, out: Path, started: float) -> dict:
-    """The pictures (:func:`modalctl.report.write_run_report`) and the seconds since ``started``, or
-    the traceback of what stopped them: drawn in a forked child while the run writes its fields (it
-    shares the shot without a copy and imports matplotlib itself)."""
+def _draw(shot, out: Path, started: float, names=None) -> dict:
+    """The pictures ``names`` (:func:`modalctl.report.write_run_report`; default all) and the seconds
+    since ``started``, or the traceback of what stopped them: drawn in a forked child while the run
+    writes its fields (it shares the shot without a copy and imports matplotlib itself)."""
     import gc
     import time
     import traceback
@@ -299,7 +310,7 @@ def _draw(shot, out: Path, started: float) -> dict:
     try:
         from modalctl.report import write_run_report
 
-        return {"pictures": write_run_report(shot, out), "seconds": time.perf_counter() - started}
+        return {"pictures": write_run_report(shot, out, names), "seconds": time.perf_counter() - started}
     except Exception:  # noqa: BLE001 (told to the parent, which raises it)
         return {"error": traceback.format_exc()}
     finally:
@@ -324,10 +335,10 @@ def _write_fields(model, shot, out: Path, device) -> None:
                  labels=np.asarray(model.labels), **{f"coefficients_{k}": v for k, v in coeffs.items()})
     caps = device.capabilities
     points = None if caps is None else scan_indices(caps, model.grid.points, device.url)  # as the shot scanned
-    noise = device.scan_noise_stream(shot.times, points)
+    noise, modes = device.scan_noise_stream(shot.times, points), device.scan_modes(shot.times, points)
     with atomic(out / "fields.npz") as temporary:
         write_field_record(temporary, shot.times, model.grid.points, shot.field, extra=extra, noise=noise,
-                           basis=model.shapes.T)
+                           basis=model.shapes.T, modes=modes)
 
 
 def _print_shot(args, m: dict, report) -> None:

@@ -284,6 +284,13 @@ class HILBoard(PhasorBoard):
             noise.add_to(field)
         return field
 
+    def scan_modes(self, times: np.ndarray, points=None) -> tuple[np.ndarray, np.ndarray]:
+        """The modes' shapes on the points ``scan(times, points)`` reads (n, k) and their velocities
+        then (k, nt): the scan less its noise, as made."""
+        shapes = self.plant.model.shapes
+        rows = np.arange(shapes.shape[1]) if points is None else np.arange(shapes.shape[1])[points]
+        return shapes[:, rows].T, self.velocity[:, self._samples(times)]
+
     def scan_noise_stream(self, times: np.ndarray, points=None):
         """The vibrometer's noise in ``scan(times, points)``, described (a
         :class:`~modalctl.model.noise_stream.NoiseStream`), None without noise."""

@@ -191,6 +191,15 @@ class SimDevice(Device):
         return scan_noise_stream((self.perturbation.seed, self._shots), self._samples(times),
                                  self.truth.shapes.shape[1], self._noise_sigma or 0.0, points)
 
+    def scan_modes(self, times: np.ndarray, points=None) -> tuple[np.ndarray, np.ndarray]:
+        """The simulated modes' shapes on the points ``scan(times, points)`` reads (n, k) and their
+        velocities then (k, nt): the scan less its noise, as made."""
+        if self._board is not None:
+            return self._board.scan_modes(times, points)
+        shapes = self.truth.shapes[self._kept]
+        rows = np.arange(shapes.shape[1]) if points is None else np.arange(shapes.shape[1])[points]
+        return shapes[:, rows].T, self._modal[:, self._samples(times)]
+
     def _samples(self, times: np.ndarray) -> np.ndarray:
         """The last open-loop shot's sample indices nearest to ``times``."""
         if self._modal is None:

@@ -135,6 +135,13 @@ class Device(ABC):
         the device does not know it (the default: a real vibrometer's noise is in its samples)."""
         return None
 
+    def scan_modes(self, times: np.ndarray, points=None) -> tuple[np.ndarray, np.ndarray] | None:
+        """``scan(times, points)`` less its noise as the device made it, ``(shapes (n, k),
+        velocities (k, nt))`` (a simulator: its modes' shapes on the points scanned and their
+        velocities then), so that a record stores it as it is; None when the device measures the
+        field rather than makes it (the default)."""
+        return None
+
     def phasor_board(self, level: float, control_rate: float, latency: int = 0) -> PhasorBoard:
         """The board in phasor mode for one closed-loop shot whose field peaks near ``level`` (m/s),
         at ``control_rate`` (Hz), its commands used ``latency`` periods late."""

@@ -81,6 +81,7 @@ COARSEST = 2.0 ** -10  # the residual's coarsest step, relative to the field's p
 RANK_MAX = 64  # columns of the range finder: a scene's modes and then some
 ROUNDS = 4  # of the range finder on what the basis leaves: up to 4 x 64 directions the basis lacks
 _BLOCK = 256  # grid points per block of each pass (12 MB of the panel's field: L3 holds it)
+CHECKED = 4  # blocks of a simulator's field checked against the modes it was made of
 
 
 @dataclass(frozen=True, eq=False)
@@ -272,10 +273,10 @@ def _residual(field: np.ndarray, basis: np.ndarray, coefficients: np.ndarray, st
     return out
 
 
-def write_field_record(path, times, points, values, resolution: float = RESOLUTION, extra: dict | None = None,
-                       noise: NoiseStream | None = None, basis: np.ndarray | None = None) -> Path:
+def write_field_record(path, times, points, values, extra: dict | None = None, noise: NoiseStream | None = None,
+                       basis: np.ndarray | None = None, modes=None) -> Path:
     """Write the field ``values`` (n, nt) m/s measured at ``times`` (nt,) s on ``points`` (n, d) m to
-    ``path`` (``.npz``), every sample kept within half a step (``resolution`` times its peak, or
+    ``path`` (``.npz``), every sample kept within half a step (:data:`RESOLUTION` of its peak, or
     an eighth of the RMS of the noise its modes leave: see the module's notes), and the arrays of
     ``extra`` as they are (their names prefixed ``extra_`` on file). Returns the path.
 
@@ -284,7 +285,10 @@ def write_field_record(path, times, points, values, resolution: float = RESOLUTI
     samples. ``basis`` (n, k): shapes the field lives in (the model's modes on the grid), used
     instead of finding them (one pass over the field instead of three); where what they leave
     would coarsen the step, the range finder finds what they lack (two passes a round), and what
-    is left after that is kept too, in the residual."""
+    is left after that is kept too, in the residual. ``modes`` ``(shapes (n, k), velocities (k,
+    nt))``: the field less its noise as a simulator made it (:meth:`Device.scan_modes
+    <modalctl.io.device.Device.scan_modes>`), stored as they are, without the passes, once rows
+    across the field are found within half the finest step of them (else as without it)."""
     field = np.ascontiguousarray(values, np.float32)
     times, points = np.asarray(times, float), _columns(points, len(field), float)
     if field.ndim != 2 or field.shape[1] != times.size:
@@ -297,10 +301,15 @@ def write_field_record(path, times, points, values, resolution: float = RESOLUTI
         raise ModelError(f"field record: noise from generator {noise.generator!r} version {noise.version}; this "
                          f"modalctl makes {GENERATOR!r} version {NOISE_VERSION} only")
     with serial_blas():  # small products but for the passes, which run on two threads of their own
-        stored, basis, coefficients, left, peak = _low_rank(field, noise, basis, resolution)
-        step = max(peak * resolution, min(left / NOISE_STEPS, peak * COARSEST)) if peak > 0 else 1.0
-        residual = _residual(stored, basis, coefficients, step) if field.size else np.zeros(field.shape, np.int8)
-    header = {"format": FORMAT, "version": VERSION, "step_m_per_s": step, "resolution": resolution,
+        given = None if modes is None else _as_made(field, noise, modes, RESOLUTION)
+        if given is not None:
+            basis, coefficients, step = given
+            residual = np.zeros(field.shape, np.int8)
+        else:
+            stored, basis, coefficients, left, peak = _low_rank(field, noise, basis, RESOLUTION)
+            step = max(peak * RESOLUTION, min(left / NOISE_STEPS, peak * COARSEST)) if peak > 0 else 1.0
+            residual = _residual(stored, basis, coefficients, step) if field.size else np.zeros(field.shape, np.int8)
+    header = {"format": FORMAT, "version": VERSION, "step_m_per_s": step, "resolution": RESOLUTION,
               "field": "basis @ coefficients + step * residual" + (" + noise" if noise else ""),
               "noise": None if noise is None else {
                   "generator": noise.generator, "version": noise.version, "key": list(noise.key),
@@ -317,6 +326,30 @@ def write_field_record(path, times, points, values, resolution: float = RESOLUTI
             with archive.open(f"{name}.npy", "w", force_zip64=True) as member:
                 np.lib.format.write_array(member, np.asanyarray(array), allow_pickle=False)
     return path
+
+
+def _as_made(field: np.ndarray, noise: NoiseStream | None, modes, resolution: float):
+    """``(basis, coefficients, step)`` of a field made as ``shapes @ velocities`` (+ ``noise``), the
+    finest step; None when rows spread over the field (:data:`CHECKED` blocks of :data:`_BLOCK`
+    points, noise taken away) are not all within half of it, or the field is empty."""
+    shapes, velocity = (np.ascontiguousarray(a, np.float32) for a in modes)
+    n, nt = field.shape
+    if shapes.shape[0] != n or velocity.shape != (shapes.shape[1], nt):
+        raise ModelError(f"field record: modes {shapes.shape} x {velocity.shape} for a field {field.shape}")
+    peak = max(float(field.max(initial=0.0)), -float(field.min(initial=0.0)))
+    if not np.isfinite(peak):
+        raise ModelError("field record: the field holds NaN or infinite samples")
+    if not (n and nt and peak > 0):
+        return None
+    step = peak * resolution
+    for first in np.unique(np.linspace(0, max(n - _BLOCK, 0), CHECKED).astype(int)):
+        rows = slice(first, min(first + _BLOCK, n))
+        left = field[rows] - shapes[rows] @ velocity
+        if noise is not None:
+            noise.add_to(left, first, sign=-1)
+        if not np.abs(left).max() <= step / 2:
+            return None
+    return shapes, velocity, step
 
 
 def read_field_record(path) -> FieldRecord:
