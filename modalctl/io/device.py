@@ -24,7 +24,6 @@ from typing import Any, Callable
 from urllib.parse import urlsplit
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from modalctl.loops.runtime import PhasorBoard
 from modalctl.model.modes import ModalModel
@@ -279,6 +278,8 @@ def scan_indices(caps: Capabilities, positions: np.ndarray, url: str = "device")
     pos = np.asarray(positions, float).reshape(len(positions), -1)
     if scan.shape[1] != pos.shape[1]:
         raise DeviceError(f"{url}: scans {scan.shape[1]}-D points, the model's grid is {pos.shape[1]}-D")
+    from scipy.spatial import cKDTree  # here: 0.2 s of every command's start otherwise
+
     distance, index = cKDTree(scan).query(pos)  # (a dense distance table is n m: 50 ms at 1051 points)
     spacing = np.min(np.linalg.norm(np.diff(pos, axis=0), axis=1)) if len(pos) > 1 else np.inf
     worst = float(distance.max())

@@ -15,8 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.fft import next_fast_len
-from scipy.signal import hilbert
 
 from modalctl.model.propagate import Plant
 
@@ -117,6 +115,9 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     planned = lockin(drive)
     kept = velocity[plan.modes]
     own = lockin(kept)
+    from scipy.fft import next_fast_len  # here, not at import: scipy.signal is a third of a second of every
+    from scipy.signal import hilbert  # command's start (the device layer imports this module)
+
     padded = hilbert(kept, next_fast_len(2 * t.size), axis=1)[:, :t.size]  # zeros after: no wrap-around
     analytic = (padded * phasors.conj())[:, decimation - 1::decimation]  # at each period's end
     return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),

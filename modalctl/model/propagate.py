@@ -20,7 +20,6 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-from scipy.signal import lfilter
 
 from .modes import ModalModel, ModelError
 
@@ -109,6 +108,8 @@ class _Bank:
         if self.state is None:
             self.state = self.start * force[:, :1]
         out = np.empty(force.shape)
+        from scipy.signal import lfilter  # here: scipy.signal is a third of a second of every command's start
+
         for k in range(force.shape[0]):
             out[k], self.state[k] = lfilter(self.b[k], self.a[k], force[k], zi=self.state[k])
         return out
