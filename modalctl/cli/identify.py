@@ -130,6 +130,11 @@ def run(args) -> int:
         raise ModelError("identify: the simulator needs --scene (the structure to simulate)")
     meta = scene.meta if scene is not None else {}
     survey, points = _from_file(args, meta) if args.frf else _survey(args, scene, meta)
+    if scene is not None and scene.voltage_limit is not None and args.frf is None and args.transport.startswith("sim"):
+        from dataclasses import replace  # the simulated structure's patches are the scene's: their safe voltage
+
+        survey.model = replace(survey.model, meta={**survey.model.meta, "voltage_limit_v": scene.voltage_limit,
+                                                   "voltage_limit_source": scene.meta.get("voltage_limit_source")})
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     path = survey.model.save(out)

@@ -50,8 +50,10 @@ def _add_plan_arguments(p) -> None:
                    default=PLAN.robust_drift,
                    help="convex planner: hold the margin on every truth whose resonances lie within this band "
                         "of the model's, e.g. 1%% (0)")
-    p.add_argument("--voltage-limit", type=quantity_type("V", "voltage-limit", low=0),
-                   help="largest drive voltage, e.g. 100V")
+    p.add_argument("--voltage-limit", type=_voltage_limit,
+                   help="largest drive voltage, e.g. 100V, or none; a plan above it is refused (exit 1). Default: "
+                        "the model's actuators' safe voltage (its meta's voltage_limit_v: 70 V for the scenes' "
+                        "0.2 mm PZT-5A patches), none when the model does not say")
     p.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=0),
                    help="largest output slope, e.g. 2e6V/s: planned for by the convex planner, and the "
                         "closed loop's feedback clipped to it")
@@ -95,6 +97,49 @@ def _add_loop_arguments(loop) -> None:
                            "the shot planned again on the updated model is the one reported")
 
 
+_VOLTS = quantity_type("V", "voltage-limit", low=0)
+
+
+def _voltage_limit(text: str):
+    """``--voltage-limit``: a voltage (V) above zero, or ``none`` (no limit but the device's rails)."""
+    if text.strip().lower() == "none":
+        return "none"
+    return _VOLTS(text)
+
+
+_voltage_limit.bounds, _voltage_limit.__name__ = _VOLTS.bounds, _VOLTS.__name__  # its range, for the property suite
+
+
+def _planned_voltage(args, model, options):
+    """``options`` with the plan's voltage limit: ``--voltage-limit``, or none, or by default the
+    model's actuators' safe voltage (:attr:`~modalctl.model.modes.ModalModel.voltage_limit`)."""
+    if args.voltage_limit is not None or model.voltage_limit is None:
+        return options
+    return options.but(plan=options.plan.but(voltage_limit=model.voltage_limit))
+
+
+def _voltage_said(args, model) -> dict:
+    """The plan's voltage limit (V, or None) and where it came from, for metrics.json."""
+    if args.voltage_limit == "none" or (args.voltage_limit is None and model.voltage_limit is None):
+        return {"voltage_limit_v": None, "voltage_limit_source": "none"}
+    if args.voltage_limit is not None:
+        return {"voltage_limit_v": args.voltage_limit, "voltage_limit_source": "--voltage-limit"}
+    return {"voltage_limit_v": model.voltage_limit,
+            "voltage_limit_source": model.meta.get("voltage_limit_source", "the model's meta")}
+
+
+def _said_why(args, model, refused):
+    """A refusal under the default voltage limit says where the limit comes from (the model's
+    actuators) and how to change it."""
+    from modalctl.plan.planner import PlanError
+
+    if args.voltage_limit is not None or model.voltage_limit is None:
+        return refused
+    source = model.meta.get("voltage_limit_source", "its meta's voltage_limit_v")
+    return PlanError(f"{refused} (the {model.voltage_limit:g} V limit is the model's actuators' safe voltage: "
+                     f"{source}; --voltage-limit sets another)", refused.needed, refused.limit, refused.certificate)
+
+
 def _margin(text: str) -> float | None:
     """``--margin``: a share of the focus peak in (0, 1], or ``none``."""
     if text.strip().lower() == "none":
@@ -117,7 +162,8 @@ def _run_options(args, out: Path):
         raise ParamError("; ".join(unused))
     get_planner(args.planner)  # an unknown planner is bad input, refused before the device opens
     plan = PlanOptions(planner=args.planner, modes=args.modes, tau_min=args.tau_target or PLAN.tau_min,
-                       margin=args.margin, margin_on=args.margin_on, voltage_limit=args.voltage_limit,
+                       margin=args.margin, margin_on=args.margin_on,
+                       voltage_limit=None if args.voltage_limit == "none" else args.voltage_limit,
                        slew_limit=args.slew_limit, robust_drift=args.robust_drift, kappa=args.kappa,
                        brake=not args.no_brake, after=args.after, sample_rate=args.sample_rate)
     loop = None if args.loop == "open" else LoopOptions(
@@ -169,6 +215,7 @@ def _run(args) -> int:
     started = time.perf_counter()
     stage(args, f"the model ({args.scene or args.model}) and the shape ({args.shape})")
     model, shape = model_and_shape(args)
+    options = _planned_voltage(args, model, options)
     loaded = time.perf_counter()
     model, growth = _grown(args, model, shape, options)
     stages = {"model_s": loaded - started, "growth_s": time.perf_counter() - loaded}
@@ -179,10 +226,12 @@ def _run(args) -> int:
         try:
             shot = play(model, shape, device, options)
         except PlanError as refused:  # a result: why, on disk beside where the report would be
+            refused = _said_why(args, model, refused)
             write_json(out / "refusal.json", {"refused": str(refused), "needed": refused.needed,
                                               "limit": refused.limit, "certificate": refused.certificate,
-                                              "planner": options.plan.planner})
-            raise
+                                              "planner": options.plan.planner,
+                                              "voltage_limit": options.plan.voltage_limit})
+            raise refused from None
         except DeviceError as fault:
             _halted(out, device, fault)
             raise
@@ -232,7 +281,7 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     metrics = {**shot.to_dict(), "scene": model.meta.get("name", args.model), "shape": args.shape,
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
-                         "grown": None if growth is None else growth.to_dict()}}
+                         "grown": None if growth is None else growth.to_dict()}, **_voltage_said(args, model)}
     pictures = [] if args.no_plots else [beside(functools.partial(_draw, shot, out, time.perf_counter(), names))
                                          for names in PICTURE_GROUPS]
     try:
@@ -361,7 +410,8 @@ def _print_shot(args, m: dict, report) -> None:
                if report.predicted_margin_ratio is None else f"planned {m['predicted_margin_ratio']:.3f} on the kept "
                f"modes, {m['whole_model_margin_ratio']:.3f} predicted on the whole model")
     print(f"margin ratio {m['margin_ratio']:.3f} measured ({'met' if m['margin_ok'] else 'NOT met'}: criterion "
-          f"{m['margin_criterion']:g}); {planned}; peak voltage {m['peak_voltage']:.1f} V")
+          f"{m['margin_criterion']:g}); {planned}; peak voltage {m['peak_voltage']:.1f} V"
+          + (f" (limit {m['voltage_limit_v']:g} V)" if m.get("voltage_limit_v") is not None else ""))
     print(f"plan {m['plan_seconds']:.2f} s ({m['planner']} planner), device {m['sim_seconds']:.2f} s")
 
 

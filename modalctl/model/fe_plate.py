@@ -517,7 +517,7 @@ class FEPlate:
                 "actuators": [{"name": p.name or f"patch{i + 1}", "xlim_m": list(p.xlim), "ylim_m": list(p.ylim)}
                               for i, p in enumerate(self.patches)],
                 "sensors": [{"name": f"sensor{i + 1}", "position_m": list(map(float, s))}
-                            for i, s in enumerate(sensors)],
+                            for i, s in enumerate(sensors)], **self.piezo.voltage_meta(),
                 "convergence": convergence.to_dict()}
 
 

@@ -17,9 +17,10 @@ import numpy as np
 
 from modalctl.outdir import atomic
 
-__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite"]
+__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "VOLTAGE_LIMIT_KEY"]
 
 FORMAT_VERSION = 1
+VOLTAGE_LIMIT_KEY = "voltage_limit_v"  # meta: the actuators' safe drive voltage (V), run's default --voltage-limit
 
 #: The arrays a model file holds (besides ``meta_json``), and the most it may hold in all (bytes):
 #: a 2,000 x 2,000 plate with 200 modes is 6.4 GB; a model file beyond that is refused unread.
@@ -262,10 +263,24 @@ class ModalModel:
             json.dumps(self.meta)
         except TypeError as exc:
             raise ModelError(f"meta: must be JSON-serializable ({exc})") from None
+        limit = self.meta.get(VOLTAGE_LIMIT_KEY)
+        if limit is not None and not (isinstance(limit, (int, float)) and not isinstance(limit, bool)
+                                      and np.isfinite(limit) and limit > 0):
+            raise ModelError(f"meta.{VOLTAGE_LIMIT_KEY}: the actuators' safe voltage must be a positive finite "
+                             f"number of volts, got {limit!r}")
         for name, value in [("frequencies", f), ("damping", z), ("shapes", shapes), ("labels", labels),
                             ("rigid_shapes", rigid), *gains.items()]:
             value.setflags(write=False)
             object.__setattr__(self, name, value)
+
+    @property
+    def voltage_limit(self) -> float | None:
+        """The actuators' safe drive voltage (V, peak, either sign) the model carries in ``meta``
+        (``voltage_limit_v``: a piezo patch's depolarization field times its thickness, see
+        :meth:`modalctl.model.structures.Piezo.safe_voltage`), or None when it does not say
+        (an identified model, a file written before it was kept)."""
+        limit = self.meta.get(VOLTAGE_LIMIT_KEY)
+        return None if limit is None else float(limit)
 
     @property
     def n_modes(self) -> int:

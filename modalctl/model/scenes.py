@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from importlib import resources
 from typing import Callable
@@ -145,8 +145,10 @@ def _spacing(plate: FEPlate, n_points) -> float:
 
 
 def _fe_scene(name: str, plate: FEPlate, n_points, **options) -> ModalModel:
-    """The FE plate's model on a lattice of ``n_points``, solved once and kept (:func:`solved`)."""
-    return solved(name, plate, _spacing(plate, n_points), **options)
+    """The FE plate's model on a lattice of ``n_points``, solved once and kept (:func:`solved`),
+    its actuators' safe voltage in its ``meta`` (a model cached before it was kept gets it here)."""
+    model = solved(name, plate, _spacing(plate, n_points), **options)
+    return replace(model, meta={**model.meta, **plate.piezo.voltage_meta()})
 
 
 #: The clamped plate's patches (x, y centres, m): inward of plate-glass's, where a clamped plate's

@@ -10,7 +10,7 @@ between the patch ends (Eq 2.19 integrated by parts).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import brentq
@@ -18,6 +18,13 @@ from scipy.optimize import brentq
 from .modes import Grid, ModalModel, ModelError
 
 __all__ = ["Piezo", "BeamPatch", "PlatePatch", "Beam", "Plate", "BOUNDARIES"]
+
+#: The field (V/m) a drive may reach against a PZT-5A patch's poling direction without starting to
+#: depolarize it: 0.35 MV/m, the low end of the 0.35-0.5 MV/m given for soft PZT (PZT-5A) against the
+#: poling (along it about 1-2 MV/m is tolerated; the coercive field is about 1.2 MV/m). A plan's
+#: voltages swing both ways, so the side against the poling binds. The thesis names its amplifier
+#: (NF HSA 4051, section 4.1) but neither its rails nor the patches' limit, so the patch sets it.
+PZT5A_DEPOLARIZATION_FIELD = 0.35e6
 
 #: Beam end conditions: clamped-clamped, pinned-pinned, free-free, clamped-free.
 BOUNDARIES = ("clamped-clamped", "pinned-pinned", "free-free", "clamped-free")
@@ -35,11 +42,36 @@ class Piezo:
         Young's modulus of the patch (Pa).
     thickness : float
         Patch thickness (m).
+    depolarization_field : float
+        The largest field (V/m) a drive may put across the patch against its poling
+        (:data:`PZT5A_DEPOLARIZATION_FIELD`); it sets :attr:`safe_voltage`. Not in the repr: it
+        changes no mode, and the finite-element cache keys on the repr.
     """
 
     d31: float = 171e-12
     modulus: float = 61e9
     thickness: float = 0.2e-3
+    depolarization_field: float = field(default=PZT5A_DEPOLARIZATION_FIELD, repr=False)
+
+    def __post_init__(self):
+        for name in ("d31", "modulus", "thickness", "depolarization_field"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise ModelError(f"piezo.{name}: must be positive and finite, got {value!r}")
+
+    @property
+    def safe_voltage(self) -> float:
+        """The largest drive voltage (V, peak, either sign) the patch takes without depolarizing:
+        its depolarization field times its thickness (70 V for 0.2 mm of PZT-5A)."""
+        return self.depolarization_field * self.thickness
+
+    def voltage_meta(self) -> dict:
+        """What a model's ``meta`` says of its actuators' safe voltage (``voltage_limit_v``, the
+        default ``--voltage-limit`` of ``modalctl run``) and where it comes from."""
+        return {"voltage_limit_v": self.safe_voltage,
+                "voltage_limit_source": f"piezo patches {self.thickness * 1e3:g} mm thick at "
+                                        f"{self.depolarization_field / 1e6:g} MV/m against their poling "
+                                        f"(depolarization; PZT-5A: 0.35-0.5 MV/m)"}
 
     def moment_per_volt(self, host_modulus: float, host_thickness: float) -> float:
         """Bending moment per unit patch width per volt (N m / m / V = N/V), pin-force model.
@@ -213,7 +245,8 @@ class Beam:
                 "actuators": [{"name": p.name or f"patch{i + 1}", "start_m": p.start, "stop_m": p.stop}
                               for i, p in enumerate(patches)],
                 "sensors": [{"name": f"sensor{i + 1}", "position_m": [float(s)]} for i, s in enumerate(sensors)],
-                "piezo": {"d31_m_V": piezo.d31, "modulus_Pa": piezo.modulus, "thickness_m": piezo.thickness}}
+                "piezo": {"d31_m_V": piezo.d31, "modulus_Pa": piezo.modulus, "thickness_m": piezo.thickness},
+                **piezo.voltage_meta()}
         info.update(meta or {})
         return ModalModel(
             grid=grid, frequencies=freqs, damping=np.broadcast_to(damping, numbers.shape),
@@ -302,7 +335,7 @@ class Plate:
                 "actuators": [{"name": p.name or f"patch{i + 1}", "xlim_m": list(p.xlim), "ylim_m": list(p.ylim)}
                               for i, p in enumerate(patches)],
                 "sensors": [{"name": f"sensor{i + 1}", "position_m": list(map(float, s))}
-                            for i, s in enumerate(sensors)]}
+                            for i, s in enumerate(sensors)], **piezo.voltage_meta()}
         info.update(meta or {})
         return ModalModel(
             grid=grid, frequencies=self.frequencies(indices), damping=np.broadcast_to(damping, (n_modes,)),
