@@ -290,3 +290,35 @@ def test_the_estimator_refuses_memories_that_are_not_positive_finite_seconds(mem
 
     with pytest.raises(ValueError, match="memories"):
         TouchEstimator([400.0], [0.01], np.ones((1, 8)), 20e3, memories)
+
+
+@pytest.mark.slow
+def test_the_estimator_reads_the_departure_from_the_plan_what_its_model_misses_on_the_plan_taken_away(monkeypatch):
+    """On the HIL board (its own lock-in at the DAC rate, every mode of plate-glass), no touch, no noise, the
+    loops closed: the residuals the estimator's envelope model leaves, less those it leaves on the plan
+    (``planned_residuals``), vanish to round-off; without that they are tens of thousands of times ``|h|^2``
+    (the force's ramp over a period, the lock-in's transients: near the focus as much as a finger's work)."""
+    import modalctl.loops.touch as touch
+    from modalctl.experiments.focus import Bench, run_focus
+    from modalctl.options import LoopOptions
+
+    model = load_scene("plate-glass")
+    gaussian = get_shape("gaussian")
+    target = gaussian.generate(model.grid, **parse_params(gaussian, {"width": "30mm", "center": "20mm,10mm"}))
+    _, plan = plan_shot(model, target, 25e-3, RunOptions(25e-3, PlanOptions(), LoopOptions()).planned)
+    made = []
+    monkeypatch.setattr(touch.TouchControl, "reset", lambda self, _reset=touch.TouchControl.reset: (made.append(self),
+                                                                                                   _reset(self))[1])
+
+    def left() -> float:
+        """Residual energy over |h|^2 on the longest memory at the end of the shot."""
+        sums = made[-1].estimator._sums[-1]
+        return float(sums[0, 0, :-1].sum() / sums[1, 1, :-1].sum())
+
+    run_focus(model, plan, target, LoopOptions(controller="touch"), Bench(snr_db=None))
+    with_plan = left()
+    assert made[-1].estimator.estimate.sure == 0.0
+    monkeypatch.setattr(touch, "planned_residuals", lambda estimator, own, drive: np.zeros(np.shape(own)[::-1], complex))
+    run_focus(model, plan, target, LoopOptions(controller="touch"), Bench(snr_db=None))
+    without = left()
+    assert without > 1e3 and with_plan < 1e-6 * without, (with_plan, without)

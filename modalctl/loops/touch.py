@@ -11,7 +11,9 @@ force that cancels the touch's damping on the planned motion: in mode k's carrie
 ``y_k`` the planned velocity envelope when the command plays and ``r_k`` the velocity residue.
 Untouched, it is the inner controller. The commands the estimator is told of pass through the
 lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
-that the drive and the response meet in the lock-in's frame.
+that the drive and the response meet in the lock-in's frame; and the residuals its envelope
+model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
+the estimator reads the departure from the plan.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from .controller import Controller, LoopPlant
 from .design import lockin_filter
 from .lockin import hold_gain
 from .schedule import HOLD
-from .touch_estimator import MEMORIES, TouchEstimator
+from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
 
 __all__ = ["TouchControl", "CommandFilter"]
 
@@ -112,6 +114,7 @@ class TouchControl(Controller):
         # unit of added decay on the planned motion when the command plays (velocity / residue)
         self._drive_rows = np.ascontiguousarray(self.drive.T)
         self._give_rows = np.ascontiguousarray((self.velocity / self.residues[:, None]).T)
+        self._expected = planned_residuals(self.estimator, s.own, s.drive)  # what the model misses on the plan
         self.reset()
 
     def reset(self) -> None:
@@ -130,8 +133,8 @@ class TouchControl(Controller):
         self._sent.append(np.asarray(sent, complex))
         playing = self._sent.popleft()  # the command whose ramp ends with this period
         rows = self._drive_rows
-        drive = rows[min(period, rows.shape[0] - 1)] + self.held * self.filter.step(playing)
-        self.estimator.update(envelope, drive)
+        n = min(period, rows.shape[0] - 1)
+        self.estimator.update(envelope, rows[n] + self.held * self.filter.step(playing), self._expected[n])
         self.period = period
         e = self.estimator.estimate
         self.history.append((e.damping, e.stderr, e.sure, e.fit, e.memory))
