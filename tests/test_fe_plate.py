@@ -200,7 +200,8 @@ def test_flush_patches_and_sensors_on_opposite_rims_act_alike():
                     patches=(right, left), sensors=((0.05, 0.02), (-0.05, -0.02)))
     model, _ = plate.modal_model(4, spacing=4e-3)
     assert np.all(np.abs(model.actuator_gains[:, 0]) > 0)
-    assert np.allclose(np.abs(model.actuator_gains[:, 0]), np.abs(model.actuator_gains[:, 1]), rtol=0.01)  # the mesh: 0.2%
+    gains = np.abs(model.actuator_gains)
+    assert np.allclose(gains[:, 0], gains[:, 1], rtol=0.01)  # the mesh is not symmetric: 0.2% apart
     assert np.all(np.abs(model.sensor_gains[:, 0]) > 0)
     assert np.allclose(np.abs(model.sensor_gains[:, 0]), np.abs(model.sensor_gains[:, 1]), rtol=0.01)
 

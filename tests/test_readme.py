@@ -1,4 +1,4 @@
-"""Every command block of README.md runs (issue 39 item 1), against ``sim://`` or the emulators, in
+"""Every command block of README.md (and docs/) runs (issue 39 item 1), against ``sim://`` or the emulators, in
 a fresh folder, and ends as the README says; where the text quotes a number that does not move
 (a mode count, a record's size, a tau or a voltage to the digits printed), it is checked. A changed
 default that breaks a documented flow fails here, and so does a command the README adds or
@@ -32,10 +32,11 @@ BIN = ".venv/bin/"
 
 
 def readme_blocks() -> list[list[str]]:
-    """The README's ``sh`` blocks, each a list of its commands: continuation lines joined,
-    comments dropped, whitespace collapsed."""
+    """The ``sh`` blocks of the README and of docs/, each a list of its commands: continuation
+    lines joined, comments dropped, whitespace collapsed."""
     blocks = []
-    for block in re.findall(r"^```sh\n(.*?)^```", README.read_text(), flags=re.M | re.S):
+    text = "\n".join(page.read_text() for page in [README, *sorted((ROOT / "docs").glob("*.md"))])
+    for block in re.findall(r"^```sh\n(.*?)^```", text, flags=re.M | re.S):
         commands = []
         for line in re.sub(r"\\\n\s*", " ", block).splitlines():
             line = re.sub(r"\s+#.*$", "", line).strip()
@@ -79,6 +80,8 @@ HOW = {
     "make demo": ("skip", "make's demo target: its commands run in test_make_demo_s_commands_run"),
     "make test": ("skip", "make test runs this suite"),
     "make bench": ("skip", "the benchmarks: most of an hour on two cores"),
+    "python tools/architecture.py": ("skip", "docs/architecture.md's: it rewrites docs/architecture.png, a tracked "
+                                             "file; tests/test_architecture.py checks the layers it draws"),
     ".venv/bin/modalctl scenes": ("drop", _scenes),
     ".venv/bin/modalctl plugins": ("drop", None),
     ".venv/bin/modalctl decompose --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm "

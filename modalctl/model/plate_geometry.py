@@ -190,7 +190,8 @@ class Outline:
         p = np.asarray(points, float).reshape(-1, 2)
         if self.corner_radius:
             lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
-            inside = _in_rounded_rectangle(p - (lo + hi) / 2, *(hi - lo + 2 * tolerance), self.corner_radius + tolerance)
+            grown = hi - lo + 2 * tolerance
+            inside = _in_rounded_rectangle(p - (lo + hi) / 2, *grown, self.corner_radius + tolerance)
         else:
             inside = _in_polygon(p, self.vertices) | (distance_to_edges(p, self.vertices) <= tolerance)
         for hole in self.holes:
