@@ -176,6 +176,36 @@ def test_covers_is_inclusive_on_every_side_and_contains_is_unchanged():
     assert not square_hole.covers(np.array([[0.009, 0.0]]), 1e-9)[0]
 
 
+def circle(radius: float, vertices: int) -> Outline:
+    t = np.linspace(0, 2 * np.pi, vertices, endpoint=False)
+    return Outline(radius * np.column_stack([np.cos(t), np.sin(t)]))
+
+
+def test_n_modes_that_cut_a_degenerate_pair_converge():
+    """A clamped circle's modes 2-3 and 4-5 are pairs: asked for 4, the 4th's partner was not
+    solved, its shape (any of the pair's) failed the shape test on every mesh, and the command
+    refused blaming the band. The pair's partner is solved, not kept. Against the clamped
+    circular plate's lambda^2 = 10.2158 and 21.260 (Leissa, Table 2.1); the 100-gon inscribed."""
+    plate = FEPlate(circle(0.04, 100), 1e-3, MATERIALS["glass"])
+    model, convergence = plate.modal_model(4, spacing=4e-3)
+    assert model.n_modes == 4 and convergence.shape_mac.min() >= fe_plate.SHAPE_TOLERANCE
+    lam = 2 * np.pi * model.frequencies * 0.04**2 * np.sqrt(plate.mass_per_area / plate.rigidity)
+    assert np.allclose(lam[:3], [10.2158, 21.260, 21.260], rtol=0.002), lam
+
+
+@pytest.mark.slow
+def test_an_outline_of_many_short_edges_is_refused_naming_them(tmp_path, capsys):
+    """A 1000-vertex circle: its 0.25 mm edges make the mesh that fine along the rim, past the
+    budget on the first refinement; the refusal named the band."""
+    from modalctl.cli import main
+
+    ring = ";".join(f"{40 * np.cos(a):.4f}mm,{40 * np.sin(a):.4f}mm" for a in np.linspace(0, 2 * np.pi, 1000,
+                                                                                       endpoint=False))
+    assert main(fe_command(tmp_path, "--outline", f"polygon:{ring}")) == 2
+    err = capsys.readouterr().err
+    assert "the outline's edges as short as 0.25 mm" in err and "give fewer vertices" in err
+
+
 @pytest.mark.parametrize("side", ["right", "top", "left", "bottom"])
 def test_a_patch_and_a_sensor_flush_with_any_rim_are_on_the_plate(side):
     """Flush with the right or top rim was refused, the same on the left or bottom accepted."""
@@ -269,12 +299,15 @@ def test_a_model_file_from_the_command_plays_a_focus(tmp_path, capsys):
     model = ModalModel.load(summary["model_file"])
     assert model.n_modes == 4 and model.actuator_gains.shape == (4, 2) and model.sensor_gains.shape == (4, 1)
     assert summary["convergence"]["converged"]
-    code = main(["run", "--model", summary["model_file"], "--shape", "bump", "--param", "width=50mm",
-                 "--param", "center=-10mm,0", "--modes", "all", "--focus-time", "25ms",
-                 "--out", str(tmp_path / "run"), "--json"])
+    run = ["run", "--model", summary["model_file"], "--shape", "bump", "--param", "width=50mm", "--param",
+           "center=-10mm,0", "--modes", "all", "--focus-time", "25ms", "--json"]
+    # two patches hold the 0.5 margin at 282 V only: above the patches' 70 V (the file's), refused
+    assert main([*run, "--out", str(tmp_path / "margin")]) == 1
+    assert "within voltage 70 V" in capsys.readouterr().err
+    code = main([*run, "--margin", "none", "--out", str(tmp_path / "run")])
     assert code == 0, capsys.readouterr().err
     metrics = json.loads(capsys.readouterr().out)
-    assert 0.5 < metrics["tau"] <= 1.0
+    assert 0.5 < metrics["tau"] <= 1.0 and metrics["peak_voltage"] <= 70 * 1.001
 
 
 @pytest.mark.slow

@@ -39,7 +39,7 @@ from modalctl.threads import serial_blas
 from .fe_convergence import Convergence, Level, compare_levels
 from .modes import Grid, ModalModel, ModelError
 from .plate_geometry import (MATERIALS, SUPPORTS, Hole, Material, Outline, Support, distance_to_edges, in_segments,
-                             near_segments, rectangle_ring)
+                             near_segments)
 from .structures import Piezo
 
 __all__ = ["ELEMENTS", "Material", "MATERIALS", "Support", "SUPPORTS", "Hole", "Outline", "FEPlate", "Level", "Convergence",
@@ -59,6 +59,7 @@ RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimat
 BAND_MARGIN = 1.03  # a band's meshes solve every mode below this much above it: the shape test's 2% window
 BAND_SHIFT = 0.45  # a band's Lanczos shift, times its top eigenvalue: the band [0, top] lies within 0.55 top of it
 NCV_FACTOR = 1.5  # Lanczos vectors per mode sought
+PARTNERS = 4  # modes solved past the N lowest asked: a (near-)degenerate partner of the Nth in each shape test's span
 RESIDUAL_TOLERANCE = 1e-6  # a relative residual r moves a frequency by about r / 2: above this, 20 times under...
 ROUNDOFF = 1e-12  # ...the least tolerance (1e-5), and a backward error above this (sound: 1e-16; a tiny pivot's
 # growth g: g 1e-16), a band's mid-band factors were unsound and it is solved again from below (see _residual)
@@ -117,12 +118,7 @@ class FEPlate:
             if not isinstance(support, Support):
                 raise ModelError(f"plate: the support of {name!r} must be a Support, got {support!r}")
         for i, p in enumerate(self.patches):
-            corners = rectangle_ring(p.xlim, p.ylim)
-            inside = lambda q: (q[:, 0] > p.xlim[0]) & (q[:, 0] < p.xlim[1]) & (q[:, 1] > p.ylim[0]) & (  # noqa: E731
-                q[:, 1] < p.ylim[1])
-            if not (p.xlim[0] < p.xlim[1] and p.ylim[0] < p.ylim[1]) \
-                    or not np.all(self.outline.covers(corners, RIM_TOLERANCE)) \
-                    or any(np.any(inside(h.boundary())) for h in self.outline.holes):
+            if not self.outline.holds_rectangle(p.xlim, p.ylim, RIM_TOLERANCE):
                 raise ModelError(f"plate: patch {p.name or i + 1} {p.xlim} x {p.ylim} m is not wholly on the plate")
         for i, s in enumerate(self.sensors):
             if not self.outline.covers(np.atleast_2d(np.asarray(s, float)), RIM_TOLERANCE)[0]:
@@ -434,7 +430,7 @@ class FEPlate:
                     if progress is not None:
                         progress(each)
                 first, freqs = None, history[-1][0]
-                keep = len(freqs) if band is None else max(1, int(np.count_nonzero(freqs <= band)))
+                keep = min(wanted, len(freqs)) if band is None else max(1, int(np.count_nonzero(freqs <= band)))
                 error, mac = compare_levels(history[-2], history[-1], keep, grid.mass)
                 if error.max() <= tolerance and mac.min() >= SHAPE_TOLERANCE:
                     break
@@ -468,11 +464,14 @@ class FEPlate:
         start = time.perf_counter()
         dofs = mesh.nvertices * ELEMENTS[self.element][1] + mesh.nfacets * ELEMENTS[self.element][2]
         if dofs > DOFS_MAX:
+            edge = self.outline.shortest_edge  # every vertex a node: the rim's elements no longer than its edges
             raise ModelError(f"fe plate: converging {wanted} modes to {tolerance:.2%} needs a mesh above "
-                             f"{DOFS_MAX} degrees of freedom (elements of {size * 1e3:.2g} mm): the band is "
-                             f"too high for this plate, or the tolerance too tight")
+                             f"{DOFS_MAX} degrees of freedom (elements of {size * 1e3:.2g} mm): " + (
+                                 f"the outline's edges as short as {edge * 1e3:.2g} mm make the mesh that fine along "
+                                 f"the rim (each vertex is a node); give fewer vertices" if edge < size / 4 else
+                                 "the band is too high for this plate, or the tolerance too tight"))
         if band is None:
-            freqs, vectors, rigid, basis = self.solve(mesh, wanted)
+            freqs, vectors, rigid, basis = self.solve(mesh, wanted + PARTNERS)  # a pair the cut splits: both
         else:
             freqs, vectors, rigid, basis = self.solve(mesh, below=band * BAND_MARGIN)
             if not len(freqs):  # nothing to converge: the plate's lowest mode named (as this mesh solves it)

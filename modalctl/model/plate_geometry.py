@@ -203,6 +203,24 @@ class Outline:
                 inside &= ~_in_rounded_rectangle(d, width, height, max(hole.corner_radius - tolerance, 0.0))
         return inside
 
+    def holds_rectangle(self, xlim, ylim, tolerance: float) -> bool:
+        """Whether the rectangle ``xlim`` x ``ylim`` (m, (low, high) each) lies wholly on the plate:
+        not empty, its edges on the plate or its rim (:meth:`covers`, within ``tolerance``, m), and
+        no hole's edge inside it."""
+        (x0, x1), (y0, y1) = xlim, ylim
+        if not (x0 < x1 and y0 < y1) or not np.all(self.covers(rectangle_ring(xlim, ylim), tolerance)):
+            return False
+        for hole in self.holes:
+            ring = hole.boundary()
+            if np.any((ring[:, 0] > x0) & (ring[:, 0] < x1) & (ring[:, 1] > y0) & (ring[:, 1] < y1)):
+                return False
+        return True
+
+    @property
+    def shortest_edge(self) -> float:
+        """The outer outline's shortest edge (m); a rectangle's shorter side."""
+        return float(np.min(np.linalg.norm(np.roll(self.vertices, -1, axis=0) - self.vertices, axis=1)))
+
     @property
     def area(self) -> float:
         """Area of the plate (m^2), holes cut out."""
