@@ -15,13 +15,15 @@ import control
 import numpy as np
 from scipy.signal import butter
 
+from modalctl.model.propagate import poles
+
 from .controller import LoopDesign, LoopPlant
 from .pi import PIControl
 
 # python-control loads matplotlib's pyplot when imported (~0.4 s): the controller plugins import
 # this module only when a controller is made, so commands that design no loop do not pay for it
 
-__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "channel_poles", "pi_controller"]
+__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "cluster_poles", "pi_controller"]
 
 
 def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
@@ -118,43 +120,74 @@ def loop_poles(design: LoopDesign, index: int, sigma: float, bandwidth: float, c
     return control.poles(control.feedback(loop, np.eye(2)))
 
 
-def channel_poles(parts, index: int, poles: np.ndarray, paths: np.ndarray, scale: float = 1.0) -> np.ndarray:
-    """Closed-loop poles of loop ``index`` of ``parts`` (:class:`~.runtime.LoopParts`: its PI design,
-    carrier, lock-in corner, rate, leak and lead) on all that its reading holds of a structure's
-    answer to its own drive (a truth's every mode, those the model lacks too: spillover), as
-    ``log(z) * control_rate`` (1/s: a positive real part is a growing loop).
+def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
+    """Closed-loop poles of the loops ``loops`` of ``parts`` (:class:`~.runtime.LoopParts`: their PI
+    designs, carriers, lock-ins, rate, leaks and lead) on all that their readings hold of a
+    structure's answer to their drives: every mode of ``truth`` (a ModalModel with the same actuators
+    and sensors; modes the model lacks too: spillover), as ``log(z) * control_rate`` (1/s: a positive
+    real part is a growing loop). Loops whose carriers lie close (a cluster) read each other's drives,
+    which one loop alone does not see.
 
-    In the carrier's frame the loop's drive reaches mode m of the truth, poles ``p_m`` (1/s, shape
-    (M,)), and comes back through ``paths[m]`` (:func:`~.sensing.through`) as ``r_m / (s - (p_m - j
-    w_c))``, ``r_m = p_m / (p_m - conj(p_m))``; the partner term at ``conj(p_m)``, twice the carrier
-    away, stands as its static gain; less the leak the runtime removes (static). This complex plant,
-    as its real I/Q pair, read through the lock-in's low-pass, is sampled at the control rate with
-    the board's ramp between commands (first-order hold, the command computed from one period's
-    reading ramping in over the next: the lead's periods) under the runtime's discrete PI, its gains
-    times ``scale``. Other loops' drives reach this reading at their own carriers, turning, and are
-    left to the lock-in: not here."""
+    All in the first loop's carrier frame ``w0``: the loops' drives reach mode m of the truth, poles
+    ``p_m``, through its actuator gains as ``r_m / (s - (p_m - j w0))``, ``r_m = p_m / (p_m -
+    conj(p_m))`` (the partner term at ``conj(p_m)``, twice the carrier away, as its static gain), and
+    each loop's reading through its sensor weights, less the leak the runtime removes (static), then
+    its lock-in's low-pass centred on its own carrier. This is sampled at the control rate with the
+    board's ramp between commands (first-order hold; a loop's carrier turns ``(w_k - w0) T`` in a
+    period, little within a cluster), and each loop's discrete PI (as the runtime's, its gains times
+    ``scale``) and the lead's periods of delay act in its own frame: ``z -> z e^{-j (w_k - w0) T}``.
+    Complex systems as their real I/Q pairs: python-control's are real."""
+    loops = np.atleast_1d(np.asarray(loops, int))
     s, design = parts.schedule, parts.design
-    bandwidth, control_rate, latency, leak = s.bandwidths[index], s.control_rate, parts.lead, parts.leak[index]
-    poles, paths = np.asarray(poles, complex), np.asarray(paths, complex)
-    w = 2j * np.pi * s.carriers[index]
-    a, r = poles - w, poles / (poles - poles.conj())
-    static = np.sum(paths * r.conj() / -(poles.conj() - w)) - leak
-    m, c = poles.size, paths * r
-    A, C = np.zeros((2 * m, 2 * m)), np.zeros((2, 2 * m))
-    for row, col, value in ((0, 0, a.real), (0, 1, -a.imag), (1, 0, a.imag), (1, 1, a.real)):
-        A[row::2, col::2][np.diag_indices(m)] = value
-    C[0, 0::2], C[0, 1::2], C[1, 0::2], C[1, 1::2] = c.real, -c.imag, c.imag, c.real
-    D = np.array([[static.real, -static.imag], [static.imag, static.real]])
-    lock = lockin_filter(bandwidth)
-    seen = control.series(control.ss(A, np.tile(np.eye(2), (m, 1)), C, D), control.append(lock, lock))
-    period = 1 / control_rate
-    plant = control.c2d(seen, period, method="foh")  # the command ramps in over the next period
-    late = control.ss(control.tf([1], [1] + [0] * max(1, int(latency)), period))
-    kp, ki = scale * design.kp[index], scale * design.ki[index] * period
-    pi = control.ss(control.tf([kp + ki, -kp], [1, -1], period))  # kp e + the integral of ki e, as the runtime
-    loop = control.series(control.append(pi, pi), control.append(late, late), plant)
-    z = control.poles(control.feedback(loop, np.eye(2)))
-    return np.log(z.astype(complex)) * control_rate
+    period = 1 / s.control_rate
+    offsets = 2 * np.pi * (np.asarray(s.carriers)[loops] - s.carriers[loops[0]])  # rad/s in w0's frame
+    p, w0 = poles(truth), 2j * np.pi * s.carriers[loops[0]]
+    r = p / (p - p.conj())
+    drive = truth.actuator_gains @ np.asarray(s.weights)[:, loops]  # (M, k): each loop's unit force on each mode
+    seen = np.asarray(s.sensors)[loops] @ truth.sensor_gains.T  # (k, M): each loop's reading of each mode
+    static = seen @ ((r.conj() / (w0 - p.conj()))[:, None] * drive) - np.diag(np.asarray(parts.leak)[loops])
+    modes = (np.diag(p - w0), drive, seen * r, static)
+    filters = _stacked([_turned(lockin_filter(s.bandwidths[i]), offset) for i, offset in zip(loops, offsets)])
+    plant = control.c2d(control.ss(*_real(*_series(modes, filters))), period, method="foh")
+    late = control.ss(control.tf([1], [1] + [0] * max(1, int(parts.lead)), period))
+    controllers = []
+    for i, offset in zip(loops, offsets):
+        kp, ki = scale * design.kp[i], scale * design.ki[i] * period
+        pi = control.ss(control.tf([kp + ki, -kp], [1, -1], period))  # kp e + the integral of ki e, as the runtime
+        a, b, c, d = _turned(control.series(pi, late), 0.0)
+        turn = np.exp(1j * offset * period)  # H(z e^{-j theta}) = (A e^{j theta}, B, C e^{j theta}, D)
+        controllers.append((a * turn, b, c * turn, d))
+    loop = control.series(control.ss(*_real(*_stacked(controllers)), period), plant)
+    z = control.poles(control.feedback(loop, np.eye(2 * loops.size)))
+    return np.log(z.astype(complex)) * s.control_rate
+
+
+def _turned(system, offset: float) -> tuple:
+    """A real state-space ``system``'s matrices, complex, moved by ``offset`` (rad/s) in frequency:
+    ``s -> s - j offset`` (its ``A`` plus ``j offset``)."""
+    a, b, c, d = (np.asarray(m, complex) for m in (system.A, system.B, system.C, system.D))
+    return a + 1j * offset * np.eye(a.shape[0]), b, c, d
+
+
+def _stacked(systems: list) -> tuple:
+    """Complex systems side by side: block-diagonal, their inputs and outputs in turn."""
+    from scipy.linalg import block_diag
+
+    return tuple(block_diag(*(x[i] for x in systems)).astype(complex) for i in range(4))
+
+
+def _series(first: tuple, then: tuple) -> tuple:
+    """``then`` after ``first`` (complex state-space matrices)."""
+    a1, b1, c1, d1 = first
+    a2, b2, c2, d2 = then
+    a = np.block([[a1, np.zeros((a1.shape[0], a2.shape[0]))], [b2 @ c1, a2]])
+    return a, np.vstack([b1, b2 @ d1]), np.hstack([d2 @ c1, c2]), d2 @ d1
+
+
+def _real(*matrices) -> tuple:
+    """Complex state-space matrices as real ones on interleaved (real, imaginary) parts."""
+    turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+    return tuple(np.kron(m.real, np.eye(2)) + np.kron(m.imag, turn) for m in matrices)
 
 
 def pi_controller(plant: LoopPlant, phase_margin: float = 50.0, gain_margin: float = 6.0) -> PIControl:

@@ -68,7 +68,7 @@ def leak_ratio(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.n
 def through(model, sensors: np.ndarray, actuators: np.ndarray) -> np.ndarray:
     """How each loop's drive reaches each of ``model``'s modes and that mode its reading, shape (k, all
     modes): ``(b_j . g_i) (w_i . C_j)`` for actuator weights ``actuators[:, i]`` and sensor weights
-    ``sensors[i]`` (a truth's modes through the model's loops: :func:`modalctl.loops.design.channel_poles`)."""
+    ``sensors[i]``."""
     return (model.actuator_gains @ actuators).T * (sensors @ model.sensor_gains.T)
 
 
