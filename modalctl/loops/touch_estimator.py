@@ -187,7 +187,7 @@ class TouchEstimator:
         self._weights[..., :k] = np.array([[[*this[0], *last[0]], [*this[1], *last[1]]],  # this period in slot 0
                                            [[*last[0], *this[0]], [*last[1], *this[1]]]]) * read
         self._weights[0, 0, 0, k] = self._weights[1, 0, 2, k] = 1  # e = this period's z = 1
-        self._reads, self._read = float(np.count_nonzero(self.readable)), read
+        self._reads, self._read = float(np.count_nonzero(self.readable)), read  # read: 1 where it learns
         self._keep = self.forget[:, None, None, None]
         self._memory = self.memories.tolist()
         m = self.memories.size  # where each memory's sums at a place land in (m, 2, 2, 4), flattened
@@ -218,14 +218,15 @@ class TouchEstimator:
     def update(self, envelope: np.ndarray, drive: np.ndarray, expected: np.ndarray | None = None) -> None:
         """Learn from one period: each mode's own envelope (k,) and the lock-in envelope of the
         modal force it received (k,), complex, at the period's end; ``expected`` (k,): the residual
-        the plan predicts for this period without a touch (:func:`planned_residuals`), taken away."""
+        the plan predicts for this period without a touch, on the modes it reads
+        (:func:`planned_residuals`), taken away."""
         slot = self._slot
         z, u = self._slots[slot]
         z[:], u[:] = envelope, drive
         if self._started:
             np.einsum("rjk,jk->rk", self._weights[slot], self._inputs, out=self._eh)  # (e, h), (2, k + 1)
             if expected is not None:
-                self._eh[0, :-1] -= expected * self._read
+                self._eh[0, :-1] -= expected
             parts = self._parts
             np.einsum("ikc,jkc->ijk", parts, parts, out=self._products)
             self._sums *= self._keep
@@ -370,10 +371,10 @@ def planned_residuals(estimator: TouchEstimator, own: np.ndarray, drive: np.ndar
     touch explained 15% of it there). Taken away from the measured residuals, what is left is the
     departure from the plan: the touch's work, and the model's error on that departure only."""
     own, drive = np.asarray(own, complex), np.asarray(drive, complex)
-    e = np.zeros(own.shape, complex)
+    e = np.zeros(own.shape, complex)  # zero where the estimator does not read the mode, as its residuals
     e[:, 1:] = own[:, 1:] - estimator.a[:, None] * own[:, :-1] \
         - estimator.r[:, None] * (estimator.g0[:, None] * drive[:, :-1] + estimator.g1[:, None] * drive[:, 1:])
-    return np.ascontiguousarray(e.T)
+    return np.ascontiguousarray(e.T * estimator._read)
 
 
 def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int, float, list]:
