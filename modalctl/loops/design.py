@@ -120,6 +120,9 @@ def loop_poles(design: LoopDesign, index: int, sigma: float, bandwidth: float, c
     return control.poles(control.feedback(loop, np.eye(2)))
 
 
+NEAR = 20  # lock-in corners from a cluster's carriers within which a truth's mode keeps its dynamics (20^-4 beyond)
+
+
 def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     """Closed-loop poles of the loops ``loops`` of ``parts`` (:class:`~.runtime.LoopParts`: their PI
     designs, carriers, lock-ins, rate, leaks and lead) on all that their readings hold of a
@@ -136,7 +139,9 @@ def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     board's ramp between commands (first-order hold; a loop's carrier turns ``(w_k - w0) T`` in a
     period, little within a cluster), and each loop's discrete PI (as the runtime's, its gains times
     ``scale``) and the lead's periods of delay act in its own frame: ``z -> z e^{-j (w_k - w0) T}``.
-    Complex systems as their real I/Q pairs: python-control's are real."""
+    A mode more than :data:`NEAR` lock-in corners from the cluster's carriers stands as its static
+    gain (the lock-ins take its turning away): the cost stays a cluster's, not a truth's. Complex
+    systems as their real I/Q pairs: python-control's are real."""
     loops = np.atleast_1d(np.asarray(loops, int))
     s, design = parts.schedule, parts.design
     period = 1 / s.control_rate
@@ -146,7 +151,12 @@ def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     drive = truth.actuator_gains @ np.asarray(s.weights)[:, loops]  # (M, k): each loop's unit force on each mode
     seen = np.asarray(s.sensors)[loops] @ truth.sensor_gains.T  # (k, M): each loop's reading of each mode
     static = seen @ ((r.conj() / (w0 - p.conj()))[:, None] * drive) - np.diag(np.asarray(parts.leak)[loops])
-    modes = (np.diag(p - w0), drive, seen * r, static)
+    # a mode far from every loop's carrier (beyond NEAR lock-in corners) answers within the loops'
+    # band as its static gain: the state space holds the modes near the cluster, whatever the truth's size
+    reach = np.abs(offsets).max() + 2 * np.pi * NEAR * np.max(np.asarray(s.bandwidths)[loops])
+    near = np.abs((p - w0).imag) <= reach
+    static = static + seen[:, ~near] @ ((r[~near] / (w0 - p[~near]))[:, None] * drive[~near])
+    modes = (np.diag(p[near] - w0), drive[near], seen[:, near] * r[near], static)
     filters = _stacked([_turned(lockin_filter(s.bandwidths[i]), offset) for i, offset in zip(loops, offsets)])
     plant = control.c2d(control.ss(*_real(*_series(modes, filters))), period, method="foh")
     late = control.ss(control.tf([1], [1] + [0] * max(1, int(parts.lead)), period))
