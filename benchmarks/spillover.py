@@ -203,7 +203,8 @@ def one_case(case: str) -> list[dict]:
         sigma = closed_plan.focus_peak / 10 ** (SNR / 20)
         erred = perturb(truth, Perturbation(gain_error=gain_error))  # the truth the board plays (seed 0)
         row = {"case": case, "truth": label, "model_modes": model.n_modes, "truth_modes": truth.n_modes,
-               "gain_error": gain_error, "missing_mode": missing, "kept": [int(model.labels[k]) for k in closed_plan.modes],
+               "gain_error": gain_error, "missing_mode": missing,
+               "kept": [int(model.labels[k]) for k in closed_plan.modes],
                "open": _shot(model, target, truth, perturbation, plans[False], False),
                "closed": _shot(model, target, truth, perturbation, plans[True], True)}
         tic = time.perf_counter()
@@ -246,10 +247,12 @@ def report(data: dict, path) -> None:
     rows = data["rows"]
     md = ["# Spillover: the loops on a truth richer than their model", "",
           "`python benchmarks/spillover.py`: each truth played by the plan made on the model, open loop and under the "
-          f"default loops (PI), {data['snr_db']:g} dB of noise, T_F {1e3 * data['focus_time_s']:g} ms, through `sim://` "
+          f"default loops (PI), {data['snr_db']:g} dB of noise, T_F {1e3 * data['focus_time_s']:g} ms, "
+          "through `sim://` "
           "(tau and margin on every grid point with the vibrometer's noise). Stability: the PI gain scale at which the "
           "loops go unstable, predicted from each active loop's closed-loop poles on the truth's whole answer in its "
-          "carrier frame, alone and in pairs whose lock-ins pass each other's carrier (`cluster_poles`), observed on the "
+          "carrier frame, alone and in pairs whose lock-ins pass each other's carrier (`cluster_poles`), observed "
+          "on the "
           "HIL board (the supervisor stops the shot) at scales 1, 2, "
           "4, ... 256 then bisected, the loops' authority unbounded (linear: the default authority, twice the planned "
           "drive, clamps a growing loop). The designed loops run at scale 1: a boundary above it is their margin. A "
@@ -261,7 +264,8 @@ def report(data: dict, path) -> None:
     for r in rows:
         o, c, p = r["open"], r["closed"], r["predicted"]
         ended = c["fault"] or c["state"] or "-"
-        md.append(f"| {r['case']} | {r['truth']} | {r['model_modes']} / {r['truth_modes']} | {_f(r['missing_mode'], '{}')} | "
+        md.append(f"| {r['case']} | {r['truth']} | {r['model_modes']} / {r['truth_modes']} | "
+                  f"{_f(r['missing_mode'], '{}')} | "
                   f"{o['tau']:.3f} | {o['margin_ratio']:.3f} | {c['tau']:.3f} | {c['margin_ratio']:.3f} | {ended} | "
                   f"{_f(p['scale'], '{:.2f}')} ({_f(p['mode'], 'modes {}')}) | {_bracket(r)} | "
                   f"{'yes' if _agrees(r) else 'no'} |")

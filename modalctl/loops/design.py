@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import control
 import numpy as np
+from scipy.linalg import block_diag
 from scipy.signal import butter
 
 from modalctl.model.propagate import poles
@@ -23,7 +24,8 @@ from .pi import PIControl
 # python-control loads matplotlib's pyplot when imported (~0.4 s): the controller plugins import
 # this module only when a controller is made, so commands that design no loop do not pay for it
 
-__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "cluster_poles", "pi_controller"]
+__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "cluster_poles",
+           "pi_controller"]
 
 
 def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
@@ -181,8 +183,6 @@ def _turned(system, offset: float) -> tuple:
 
 def _stacked(systems: list) -> tuple:
     """Complex systems side by side: block-diagonal, their inputs and outputs in turn."""
-    from scipy.linalg import block_diag
-
     return tuple(block_diag(*(x[i] for x in systems)).astype(complex) for i in range(4))
 
 

@@ -43,7 +43,8 @@ import numpy as np
 from modalctl.model.propagate import hold_coefficients
 from modalctl.model.touch import velocity_residues
 
-__all__ = ["TouchEstimate", "TouchEstimator", "candidate_places", "planned_residuals", "CANDIDATES", "SURE", "TOUCH_MAX", "TOUCH_MIN",
+__all__ = ["TouchEstimate", "TouchEstimator", "candidate_places", "planned_residuals", "CANDIDATES", "SURE",
+           "TOUCH_MAX", "TOUCH_MIN",
            "SETTLE", "MEMORIES", "AGREE", "PLACE_MEMORY", "PLACE_EVIDENCE", "FIT_MIN"]
 
 CANDIDATES = 512  # candidate places searched each period at most (spread over the points' patterns)
