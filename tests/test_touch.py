@@ -322,3 +322,19 @@ def test_the_estimator_reads_the_departure_from_the_plan_what_its_model_misses_o
     run_focus(model, plan, target, LoopOptions(controller="touch"), Bench(snr_db=None))
     without = left()
     assert without > 1e3 and with_plan < 1e-6 * without, (with_plan, without)
+
+
+def test_the_estimator_learns_from_the_modes_read_cleanly_and_the_loops_keep_their_own_limit(bump):
+    """The touch estimator learns from the loops it may read (``readable``) whose readings see the other modes'
+    answer at most LEAK_MAX of their own; the loops' trust keeps its own limit (a loop reading 20% of the
+    others still acts, it only does not teach the estimator)."""
+    from dataclasses import replace
+
+    from modalctl.loops.controller import LoopPlant
+    from modalctl.loops.touch import LEAK_MAX, learned_from
+
+    plant = LoopPlant(np.ones(4), np.full(4, 0.01), np.ones(4), 20e3, readable=np.array([True, True, True, False]),
+                      leaks=np.array([0.0, 0.8 * LEAK_MAX, 4 * LEAK_MAX, 0.0]))
+    assert learned_from(plant).tolist() == [True, True, False, False]
+    assert learned_from(replace(plant, leaks=None)).tolist() == [True, True, True, False]
+    assert learned_from(replace(plant, readable=None)).tolist() == [True, True, False, True]

@@ -46,6 +46,11 @@ class LoopPlant:
     points : ndarray, shape (n, d), optional
     touch_at : int or None
         Grid point where a touch sensor says a finger rests (None: unknown).
+    readable : ndarray of bool, shape (k,), optional
+        The loops whose readings are trusted (the others rest).
+    leaks : ndarray, shape (k,), optional
+        How much more each loop's reading sees of the other modes' answer to its drive than of its own
+        mode's (:func:`~modalctl.loops.sensing.leak_ratio`).
     """
 
     frequencies: np.ndarray
@@ -62,6 +67,7 @@ class LoopPlant:
     points: np.ndarray | None = None
     touch_at: int | None = None
     readable: np.ndarray | None = None
+    leaks: np.ndarray | None = None
 
 
 class Controller(ABC):

@@ -70,11 +70,13 @@ def parts_for(s: Schedule, model: ModalModel, modes, options: LoopOptions, sigma
     modes = np.asarray(modes, int)
     noise = envelope_noise(sigma, s.sensors, s.bandwidths, s.control_rate * s.decimation)
     level = np.abs(s.reference).max(axis=1)
-    readable = leak_ratio(model, modes, s.sensors, s.weights) <= options.leak_limit
+    leaks = leak_ratio(model, modes, s.sensors, s.weights)
+    readable = leaks <= options.leak_limit
     sensed = None if options.touch_at is None else touch_at(model, options.touch_at).index
     plant = LoopPlant(model.frequencies[modes], model.damping[modes], s.bandwidths, s.control_rate,
                       1 + options.latency, noise, level, options.drift, schedule=s, shapes=model.shapes[modes],
-                      points=model.grid.points, touch_at=sensed, readable=readable)
+                      points=model.grid.points, touch_at=sensed, readable=readable,
+                      leaks=leaks)
     loops = pick("controller", options.controller).create(plant)
     excess, spread = np.abs(s.own) - 3 * noise[:, None], 7 * noise[:, None]
     trust = np.clip(np.divide(excess, spread, out=(excess > 0).astype(float), where=spread > 0), 0, 1)  # no noise: 1
