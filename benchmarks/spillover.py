@@ -100,7 +100,7 @@ def _lacking(model, target, which: str):
 
 def _boundary(stable, low: float = 1.0, high: float = 256.0, refine: int = REFINE) -> float | None:
     """The smallest scale in [low, high] where ``stable(scale)`` first fails (doubling, then
-    bisection in the log); None when stable all the way (inf) and 0 when already unstable at ``low``."""
+    bisection in the log); None when stable all the way, ``low`` when already unstable there."""
     if not stable(low):
         return low
     scale = low
@@ -116,11 +116,10 @@ def _boundary(stable, low: float = 1.0, high: float = 256.0, refine: int = REFIN
 
 
 def _clusters(parts, active: np.ndarray) -> list:
-    """Each active loop alone, and each pair of neighbouring carriers whose lock-ins pass the other's
-    carrier above -40 dB (a fourth-order Butterworth: closer than 3.16 corners)."""
+    """Each active loop alone, and each pair of loops whose lock-ins pass the other's carrier above
+    -40 dB (a fourth-order Butterworth: closer than 3.16 corners)."""
     s = parts.schedule
-    order = active[np.argsort(np.asarray(s.carriers)[active])]
-    near = [(int(a), int(b)) for a, b in zip(order, order[1:])
+    near = [(int(a), int(b)) for n, a in enumerate(active) for b in active[n + 1:]
             if abs(s.carriers[b] - s.carriers[a]) <= 10 ** 0.5 * max(s.bandwidths[a], s.bandwidths[b])]
     return [(int(i),) for i in active] + near
 

@@ -372,10 +372,10 @@ def plot_learning(learned, labels, path) -> Path:
     return _save(fig, path)
 
 
-def write_run_report(shot, out, names=None) -> dict:
-    """The pictures of a run (a :class:`modalctl.run.ShotResult`), or those of ``names``, into
-    directory ``out`` (the loop's from its ``log.json`` there); returns {name: path}. A finger the
-    device says rests on the structure is drawn where it rests."""
+def write_run_report(shot, out, chosen=None) -> dict:
+    """The pictures of a run (a :class:`modalctl.run.ShotResult`), or those whose name ``chosen(name)``
+    accepts, into directory ``out`` (the loop's from its ``log.json`` there); returns {name: path}. A
+    finger the device says rests on the structure is drawn where it rests."""
     out, finger = Path(out), shot.metrics.device_info.get("finger_at_m")
     where = float(shot.decomposition.model.grid.points[shot.focus_point, 0])
     draw = {"spacetime": lambda: plot_spacetime(shot, out / "spacetime.png", finger),
@@ -386,7 +386,7 @@ def write_run_report(shot, out, names=None) -> dict:
             "learning": lambda: plot_learning(shot.learning, shot.decomposition.model.labels, out / "learning.png"),
             "loop": lambda: plot_loop(out / "log", out / "loop.png")}
     drawn = {"learning": shot.learning is not None, "loop": shot.loop is not None and (out / "log.json").exists()}
-    return {k: str(f()) for k, f in draw.items() if drawn.get(k, True) and (names is None or k in names)}
+    return {k: str(f()) for k, f in draw.items() if drawn.get(k, True) and (chosen is None or chosen(k))}
 
 
 def plot_loop(log, path) -> Path:

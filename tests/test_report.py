@@ -83,7 +83,7 @@ def test_a_run_draws_its_pictures_beside_its_fields_and_says_what_stopped_them(c
     assert all((tmp_path / "drawn" / f"{name}.png").stat().st_size > 10_000 for name in metrics["pictures"])
     assert set(metrics["pictures"]) == {"spacetime", "modal_bars", "voltages", "spectrogram"}  # both children's
 
-    def broken(shot, out, names=None):
+    def broken(shot, out, chosen=None):
         raise ValueError("out of ink")
 
     monkeypatch.setattr(report, "write_run_report", broken)

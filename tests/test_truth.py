@@ -180,3 +180,16 @@ def test_a_close_pair_of_loops_holds_less_together_than_either_alone_as_the_hil_
     assert run_focus(model, plan, target, unclamped, Bench(snr_db=40, gain_scale=0.8)).result.state != State.ERROR
     lost = run_focus(model, plan, target, unclamped, Bench(snr_db=40, gain_scale=1.4)).result
     assert lost.state == State.ERROR and any(f"slot {i} " in lost.reason for i in pair), lost.reason
+
+
+def test_a_finger_rests_on_the_targets_peak_when_the_truth_lies_on_another_grid(tmp_path):
+    """The target lies on the model's grid: the finger goes where its peak is, not to the truth's point of the
+    same index (a 105-point model of the beam, the scene's 1051 points as the truth: +24 mm, not -45 mm)."""
+    coarse = load_scene("thesis-al-cc", 105)
+    coarse.save(tmp_path / "coarse.npz")
+    argv = ["run", "--model", str(tmp_path / "coarse.npz"), "--truth", "thesis-al-cc", "--shape", "sinc", "--param",
+            "width=18mm", "--param", "center=24mm", "--focus-time", "25ms", "--finger", "1Ns/m", "--quiet",
+            "--no-plots", "--out", str(tmp_path / "run")]
+    assert main(argv) == 0
+    at = json.loads((tmp_path / "run" / "metrics.json").read_text())["device_info"]["finger_at_m"][0]
+    assert abs(at - 0.024) < 1.5e-3, at

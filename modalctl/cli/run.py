@@ -282,8 +282,8 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
                "params": dict(args.param), "truth": device.info.get("truth", device.url), "out": str(out),
                "model": {"modes": model.n_modes, "band_hz": float(model.frequencies.max()),
                          "grown": None if growth is None else growth.to_dict()}, **_voltage_said(args, model)}
-    pictures = [] if args.no_plots else [beside(functools.partial(_draw, shot, out, time.perf_counter(), names))
-                                         for names in PICTURE_GROUPS]
+    pictures = [] if args.no_plots else [beside(functools.partial(_draw, shot, out, time.perf_counter(), first))
+                                         for first in (True, False)]
     try:
         _write_fields(model, shot, out, device)
     except BaseException:
@@ -313,8 +313,8 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     return DEVICE if fault else 0
 
 
-#: The run's pictures, drawn by two forked children at once (on a plate each group takes about half)
-PICTURE_GROUPS = (("spacetime", "voltages"), ("modal_bars", "spectrogram", "learning", "loop"))
+#: The run's pictures, drawn by two forked children at once: these, and every other (on a plate each takes about half)
+FIRST_PICTURES = ("spacetime", "voltages")
 
 
 def _pictures_drawn(pictures: list, metrics: dict, out: Path) -> float | None:
@@ -347,10 +347,10 @@ def _pictures_drawn(pictures: list, metrics: dict, out: Path) -> float | None:
     return None
 
 
-def _draw(shot, out: Path, started: float, names=None) -> dict:
-    """The pictures ``names`` (:func:`modalctl.report.write_run_report`; default all) and the seconds
-    since ``started``, or the traceback of what stopped them: drawn in a forked child while the run
-    writes its fields (it shares the shot without a copy and imports matplotlib itself)."""
+def _draw(shot, out: Path, started: float, first: bool) -> dict:
+    """The pictures of :data:`FIRST_PICTURES` (``first``) or every other (:func:`modalctl.report.write_run_report`)
+    and the seconds since ``started``, or the traceback of what stopped them: drawn in a forked child while
+    the run writes its fields (it shares the shot without a copy and imports matplotlib itself)."""
     import gc
     import time
     import traceback
@@ -359,7 +359,8 @@ def _draw(shot, out: Path, started: float, names=None) -> dict:
     try:
         from modalctl.report import write_run_report
 
-        return {"pictures": write_run_report(shot, out, names), "seconds": time.perf_counter() - started}
+        drawn = write_run_report(shot, out, lambda name: (name in FIRST_PICTURES) == first)
+        return {"pictures": drawn, "seconds": time.perf_counter() - started}
     except Exception:  # noqa: BLE001 (told to the parent, which raises it)
         return {"error": traceback.format_exc()}
     finally:
@@ -369,8 +370,8 @@ def _draw(shot, out: Path, started: float, names=None) -> dict:
 def _write_fields(model, shot, out: Path, device) -> None:
     """fields.npz: the measured field (a :class:`~modalctl.model.records.FieldRecord`: the model's
     modes on the grid as its basis plus what they leave, every sample within 2^-16 of the peak, or
-    of an eighth of the noise; a simulated vibrometer's noise stored as its generator's key), the
-    target, the capture and the modal coefficients."""
+    of an eighth of the noise; a simulator's field stored as the modes it made it of and its noise as
+    its generator's key), the target, the capture and the modal coefficients."""
     import numpy as np
 
     from modalctl.io.device import scan_indices

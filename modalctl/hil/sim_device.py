@@ -77,7 +77,8 @@ class SimDevice(Device):
         except ValueError:
             raise DeviceError(f"{url}: tol must be a number, got {query['tol']!r}") from None
         structure = _structure(context)
-        perturbation = Perturbation.from_options(context.options, structure, context.target)
+        # the target lies on the model's grid: its peak is placed by position, whatever the truth's grid
+        perturbation = Perturbation.from_options(context.options, context.model or structure, context.target)
         device = cls(structure, perturbation, query.get("hold", "zoh"), tol, url)
         if structure is not context.model:  # say which structure stands for the truth
             named = context.options.get("truth") or structure.meta.get("name", "the model")

@@ -69,7 +69,7 @@ class PIControl(Controller):
         np.multiply(trial, live, out=trial)
         np.add(proportional, trial, out=command)
         np.abs(command, out=size)
-        over = size > limit  # never a resting loop: its command is zero
+        over = (size > limit) & live  # never a resting loop: its command is zero
         held = np.conj(command)
         np.multiply(held, error, out=held)
         held = over & (held.real > 0)

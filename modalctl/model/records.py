@@ -43,6 +43,11 @@ rounding of the sums, ``2^-20`` of the peak) whatever it holds:
   does not have is refused (a :class:`ModelError`), never silently read without its noise. A
   description that does not match the samples costs size, not accuracy: the residual keeps
   what it missed.
+* A simulator's field with the modes it made it of (``modes``, :meth:`Device.scan_modes
+  <modalctl.io.device.Device.scan_modes>`): stored as that description (no pass over the field, the
+  residual zero), once blocks of points drawn across it are within the step of it; the guarantee then
+  rests on the device's description, checked on those blocks only (the header says
+  ``made_by_device``).
 * A real vibrometer's field (no description: its noise is in its samples): white noise has no
   structure, so the residual keeps it in about five bits a sample (a step of an eighth of its RMS)
   and zlib gets little of that: about 60-95 MB for the panel's hundred million samples at 40 dB.
@@ -287,8 +292,9 @@ def write_field_record(path, times, points, values, extra: dict | None = None, n
     would coarsen the step, the range finder finds what they lack (two passes a round), and what
     is left after that is kept too, in the residual. ``modes`` ``(shapes (n, k), velocities (k,
     nt))``: the field less its noise as a simulator made it (:meth:`Device.scan_modes
-    <modalctl.io.device.Device.scan_modes>`), stored as they are, without the passes, once rows
-    across the field are found within half the finest step of them (else as without it)."""
+    <modalctl.io.device.Device.scan_modes>`), trusted as the noise's key is and stored as it is,
+    without the passes, once blocks of points drawn across the field are found within half the finest
+    step of it (else as without it; see :func:`_as_made`)."""
     field = np.ascontiguousarray(values, np.float32)
     times, points = np.asarray(times, float), _columns(points, len(field), float)
     if field.ndim != 2 or field.shape[1] != times.size:
@@ -304,13 +310,14 @@ def write_field_record(path, times, points, values, extra: dict | None = None, n
         given = None if modes is None else _as_made(field, noise, modes, RESOLUTION)
         if given is not None:
             basis, coefficients, step = given
-            residual = np.zeros(field.shape, np.int8)
+            residual = np.zeros(field.shape, np.int8)  # as the device made it: its description, spot-checked
         else:
             stored, basis, coefficients, left, peak = _low_rank(field, noise, basis, RESOLUTION)
             step = max(peak * RESOLUTION, min(left / NOISE_STEPS, peak * COARSEST)) if peak > 0 else 1.0
             residual = _residual(stored, basis, coefficients, step) if field.size else np.zeros(field.shape, np.int8)
     header = {"format": FORMAT, "version": VERSION, "step_m_per_s": step, "resolution": RESOLUTION,
               "field": "basis @ coefficients + step * residual" + (" + noise" if noise else ""),
+              "made_by_device": given is not None,  # basis and coefficients the device's own, spot-checked
               "noise": None if noise is None else {
                   "generator": noise.generator, "version": noise.version, "key": list(noise.key),
                   "sigma_m_per_s": noise.sigma, "samples": "noise_samples", "rows": "noise_rows"},
@@ -329,20 +336,25 @@ def write_field_record(path, times, points, values, extra: dict | None = None, n
 
 
 def _as_made(field: np.ndarray, noise: NoiseStream | None, modes, resolution: float):
-    """``(basis, coefficients, step)`` of a field made as ``shapes @ velocities`` (+ ``noise``), the
-    finest step; None when rows spread over the field (:data:`CHECKED` blocks of :data:`_BLOCK`
-    points, noise taken away) are not all within half of it, or the field is empty."""
+    """``(basis, coefficients, step)`` of a field a device says it made as ``shapes @ velocities`` (+
+    ``noise``), the finest step. The description is the device's own (a simulator's), trusted as its
+    noise's key is, and checked on :data:`CHECKED` blocks of :data:`_BLOCK` points drawn across the
+    field (noise taken away): a description wrong on many points is caught, one wrong on a few
+    unchecked points is not. None (the passes instead) when a checked sample is off by more than
+    half the step, the field is empty, or the modes are as many as the points or instants (no smaller)."""
     shapes, velocity = (np.ascontiguousarray(a, np.float32) for a in modes)
     n, nt = field.shape
     if shapes.shape[0] != n or velocity.shape != (shapes.shape[1], nt):
         raise ModelError(f"field record: modes {shapes.shape} x {velocity.shape} for a field {field.shape}")
+    if shapes.shape[1] >= min(n, nt):
+        return None
     peak = max(float(field.max(initial=0.0)), -float(field.min(initial=0.0)))
     if not np.isfinite(peak):
         raise ModelError("field record: the field holds NaN or infinite samples")
     if not (n and nt and peak > 0):
         return None
     step = peak * resolution
-    for first in np.unique(np.linspace(0, max(n - _BLOCK, 0), CHECKED).astype(int)):
+    for first in np.unique(np.random.default_rng(n).integers(0, max(n - _BLOCK, 0) + 1, CHECKED)):
         rows = slice(first, min(first + _BLOCK, n))
         left = field[rows] - shapes[rows] @ velocity
         if noise is not None:
