@@ -37,7 +37,7 @@ from modalctl.model.propagate import Plant
 
 from .block import BlockLockIn, BlockPlant
 from .lifted import PeriodMap
-from .vibrometer import scan_field, scan_noise_stream
+from .vibrometer import scan_field, scan_modes, scan_noise_stream
 
 __all__ = ["HILBoard", "BoardSetup"]
 
@@ -287,9 +287,7 @@ class HILBoard(PhasorBoard):
     def scan_modes(self, times: np.ndarray, points=None) -> tuple[np.ndarray, np.ndarray]:
         """The modes' shapes on the points ``scan(times, points)`` reads (n, k) and their velocities
         then (k, nt): the scan less its noise, as made."""
-        shapes = self.plant.model.shapes
-        rows = np.arange(shapes.shape[1]) if points is None else np.arange(shapes.shape[1])[points]
-        return shapes[:, rows].T, self.velocity[:, self._samples(times)]
+        return scan_modes(self.plant.model.shapes, self.velocity[:, self._samples(times)], points)
 
     def scan_noise_stream(self, times: np.ndarray, points=None):
         """The vibrometer's noise in ``scan(times, points)``, described (a

@@ -18,7 +18,7 @@ from modalctl.model.shape import ParamError
 from .finger import FingerPlant
 from .plant import HOLDS, Plant, truncation
 from .scenario import Perturbation, perturb
-from .vibrometer import scan_field, scan_noise_stream
+from .vibrometer import scan_field, scan_modes, scan_noise_stream
 
 __all__ = ["SimDevice"]
 
@@ -197,9 +197,7 @@ class SimDevice(Device):
         velocities then (k, nt): the scan less its noise, as made."""
         if self._board is not None:
             return self._board.scan_modes(times, points)
-        shapes = self.truth.shapes[self._kept]
-        rows = np.arange(shapes.shape[1]) if points is None else np.arange(shapes.shape[1])[points]
-        return shapes[:, rows].T, self._modal[:, self._samples(times)]
+        return scan_modes(self.truth.shapes[self._kept], self._modal[:, self._samples(times)], points)
 
     def _samples(self, times: np.ndarray) -> np.ndarray:
         """The last open-loop shot's sample indices nearest to ``times``."""

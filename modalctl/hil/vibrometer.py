@@ -24,7 +24,7 @@ import numpy as np
 
 from modalctl.model.noise_stream import NOISE_BLOCK, SAMPLES_MAX, NoiseStream, add_noise, shot_key
 
-__all__ = ["NOISE_BLOCK", "scan_noise", "scan_field", "scan_noise_stream"]
+__all__ = ["NOISE_BLOCK", "scan_noise", "scan_field", "scan_modes", "scan_noise_stream"]
 
 
 def scan_noise(key: tuple[int, ...], samples: np.ndarray, points: int, sigma: float, rows=None) -> np.ndarray:
@@ -32,7 +32,7 @@ def scan_noise(key: tuple[int, ...], samples: np.ndarray, points: int, sigma: fl
     sample indices (m/s, standard deviation ``sigma``), at grid points ``rows`` (default all
     ``points``): the streams keyed by ``key`` (the shot), the point and the block of
     ``NOISE_BLOCK`` samples (see the module)."""
-    return _scan(None, None, samples, np.arange(points) if rows is None else np.arange(points)[rows], sigma, key)
+    return _scan(None, None, samples, _rows(points, rows), sigma, key)
 
 
 def scan_field(shapes: np.ndarray, velocity: np.ndarray, samples: np.ndarray, rows=None, sigma: float = 0.0,
@@ -51,8 +51,7 @@ def scan_field(shapes: np.ndarray, velocity: np.ndarray, samples: np.ndarray, ro
     rows : index, optional
         Grid points (default all n).
     """
-    rows = np.arange(shapes.shape[1]) if rows is None else np.arange(shapes.shape[1])[rows]
-    return _scan(shapes, velocity, samples, rows, sigma, key)
+    return _scan(shapes, velocity, samples, _rows(shapes.shape[1], rows), sigma, key)
 
 
 def scan_noise_stream(key: tuple[int, ...], samples: np.ndarray, points: int, sigma: float,
@@ -61,8 +60,18 @@ def scan_noise_stream(key: tuple[int, ...], samples: np.ndarray, points: int, si
     (None when ``sigma`` is 0: it adds none)."""
     if not sigma:
         return None
-    return NoiseStream(key, sigma, samples, np.atleast_1d(np.arange(points) if rows is None else
-                                                          np.arange(points)[rows]))
+    return NoiseStream(key, sigma, samples, np.atleast_1d(_rows(points, rows)))
+
+
+def scan_modes(shapes: np.ndarray, velocity: np.ndarray, rows=None) -> tuple[np.ndarray, np.ndarray]:
+    """What :func:`scan_field` reads, less its noise, as made: the modes' shapes on the points ``rows``
+    (default all) reads, shape (n, k), and their ``velocity`` at the instants scanned (k, nt)."""
+    return shapes[:, _rows(shapes.shape[1], rows)].T, velocity
+
+
+def _rows(points: int, rows) -> np.ndarray:
+    """The grid indices a scan of ``rows`` (an index into the ``points`` grid points; None: all) reads."""
+    return np.arange(points) if rows is None else np.arange(points)[rows]
 
 
 def _scan(shapes, velocity, samples, rows, sigma: float, key) -> np.ndarray:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["sensor_weights", "feedthrough", "leak_ratio", "through"]
+__all__ = ["sensor_weights", "feedthrough", "leak_ratio"]
 
 
 def sensor_weights(model, modes, nulls: int = 0) -> np.ndarray:
@@ -65,13 +65,6 @@ def leak_ratio(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.n
     return np.divide(leak, own, out=np.full(own.shape, np.inf), where=own > 0)
 
 
-def through(model, sensors: np.ndarray, actuators: np.ndarray) -> np.ndarray:
-    """How each loop's drive reaches each of ``model``'s modes and that mode its reading, shape (k, all
-    modes): ``(b_j . g_i) (w_i . C_j)`` for actuator weights ``actuators[:, i]`` and sensor weights
-    ``sensors[i]``."""
-    return (model.actuator_gains @ actuators).T * (sensors @ model.sensor_gains.T)
-
-
 def _paths(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.ndarray:
     """Reading of mode ``modes[i]`` per unit of its drive envelope through each mode j, shape (k, all modes):
     ``H_j(j w_i) (b_j . g_i) (w_i . C_j)``, the mode's own path at ``j = modes[i]``."""
@@ -79,4 +72,6 @@ def _paths(model, modes, sensors: np.ndarray, actuators: np.ndarray) -> np.ndarr
     s = 2j * np.pi * model.frequencies[modes]  # (k,)
     w, z = model.omega, model.damping
     h = s[:, None] / (s[:, None] ** 2 + 2 * z * w * s[:, None] + w**2)  # (k, all modes): H_j(j w_i)
-    return h * through(model, sensors, actuators)
+    drive = (model.actuator_gains @ actuators).T  # (k, all): b_j . g_i
+    seen = sensors @ model.sensor_gains.T  # (k, all): w_i . C_j
+    return h * drive * seen
