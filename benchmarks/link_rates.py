@@ -97,7 +97,7 @@ def main() -> None:
            f"{r['sim_shot']['tau']:.4f} | {r['link_shot']['margin_ratio']:.3f} / {r['sim_shot']['margin_ratio']:.3f} | "
            f"{1e6 * r['link_shot']['seconds_per_period']:.0f} us / {1e6 * r['sim_shot']['seconds_per_period']:.0f} us |"
            for r in rows]
-    md += ["", f"Loops on the board: the host loads the PI loops with parametric references (Program) and the "
+    md += ["", f"Loops on the board: the host loads the PI loops and their reference tables (Program, Reference) and the "
            f"board closes them itself, so only the set-up and the log cross the link; the same loops run by the "
            f"host on sim:// at {ON_BOARD / 1e3:g} kHz measure tau {host['tau']:.4f}. The wall time per period of a "
            "shot on the board is the emulated board's whole shot divided by its periods.",

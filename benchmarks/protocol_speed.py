@@ -29,9 +29,9 @@ def messages() -> dict:
             "Upload (4000 samples)": p.Upload(channel=1, offset=0, samples=rng.standard_normal(4000)),
             "Heartbeat": p.Heartbeat(state=2),
             "Field (8000 values)": p.Field(first=0, rows=4, offset=0, values=rng.standard_normal(8000)),
-            "Program (21 modes)": p.Program(focus_time=0.025, **{f: rng.standard_normal(K * K if f == "reading" else K)
-                                                               for f in ("damping", "targets", "kappa", "brake",
-                                                                         "reading", "kp", "ki", "limit")}, leak=c)}
+            "Program (21 modes)": p.Program(periods=580, **{f: rng.standard_normal(K) for f in ("kp", "ki", "limit")},
+                                            leak=c),
+            "Reference (2000 values)": p.Reference(mode=1, offset=0, values=np.resize(c, 2000))}
 
 
 def payload(message) -> np.ndarray:

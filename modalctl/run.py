@@ -21,7 +21,7 @@ import numpy as np
 from modalctl.identify.trackers import updated_model
 from modalctl.identify.updating import update
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError, scan_indices
-from modalctl.loops.onboard import board_loop
+from modalctl.loops.onboard import board_loop, check_table
 from modalctl.loops.runtime import LoopParts, PhasorBoard, RunResult, State
 from modalctl.loops.schedule import HOLD
 from modalctl.loops.shot import closed_shot, loop_log, loop_parts
@@ -148,6 +148,8 @@ class LoopMetrics:
     learned : dict or None
         What the controller learned during the shot (:meth:`~modalctl.loops.controller.Controller.summary`:
         the ``touch`` controller's estimate of the touch).
+    note : str or None
+        What the run chose in the options' place (a lower control rate the link sustains).
     """
 
     controller: str
@@ -168,6 +170,7 @@ class LoopMetrics:
     real_time_factor: float
     scan_seconds: float
     learned: dict | None = None
+    note: str | None = None
 
 
 @dataclass(frozen=True)
@@ -292,6 +295,8 @@ class _Played:
     result: RunResult | None = None
     parts: LoopParts | None = None
     design_seconds: float = 0.0
+    loop: LoopOptions | None = None  # the loops' options as played (their rate the link's)
+    note: str | None = None
 
 
 def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
@@ -320,6 +325,11 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
                          "(an identified model: identify measures the actuators' gains, not the sensors'): run it "
                          "open loop (--loop open), or plan on a model with its sensors")
     caps, voltage_limit = _configure(device, options)
+    if options.closed and options.loop.on_board:  # the shortest table the shot needs, before planning
+        check_table(1, _periods(options.focus_time + options.plan.after, options), caps.table_values,
+                    f"the board at {device.url}")
+    elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
+        _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
     plan_options = options.planned.but(voltage_limit=voltage_limit)
     dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     learning = None
@@ -367,7 +377,12 @@ def _play(the_plan: Plan, device: Device, options: RunOptions, voltage_limit, lo
         finally:
             device.deactivate()
         return _Played(capture, _time.perf_counter() - start)
-    loop = options.loop
+    loop, note = options.loop, None
+    if loop.on_board:
+        check_table(the_plan.modes.size, _periods(the_plan.duration, options), device.capabilities.table_values,
+                    f"the board at {device.url}")
+    else:
+        loop, note = _sustained(loop, device, the_plan.modes.size, the_plan.sample_rate, the_plan.focus_time)
     board = device.phasor_board(the_plan.focus_peak, loop.control_rate, loop.latency)
     start = _time.perf_counter()
     parts = loop_parts(the_plan, loop, board.noise, voltage_limit)
@@ -381,7 +396,40 @@ def _play(the_plan: Plan, device: Device, options: RunOptions, voltage_limit, lo
         capture = Capture(the_plan.times, board.sensed, board.applied)
     except DeviceError as exc:
         raise _stopped(result, log, exc) from None
-    return _Played(capture, _time.perf_counter() - designed, board, result, parts, designed - start)
+    return _Played(capture, _time.perf_counter() - designed, board, result, parts, designed - start, loop, note)
+
+
+def _periods(duration: float, options: RunOptions) -> int:
+    """Control periods in a shot of ``duration`` (s) at the options' rates."""
+    decimation = int(round(options.plan.sample_rate / options.loop.control_rate))
+    return int(round(duration * options.plan.sample_rate)) // max(decimation, 1)
+
+
+#: Control periods before the focus below which host loops over a link are refused: they could
+#: correct the drive a handful of times at most before the focus.
+LINK_PERIODS_MIN = 10
+
+
+def _sustained(loop: LoopOptions, device: Device, modes: int, fs: float,
+               focus_time: float) -> tuple[LoopOptions, str | None]:
+    """The host's loops at the highest rate the link carries with ``modes`` modes (one exchange a
+    period), at most the one asked, dividing the DAC rate ``fs`` (Hz); and a note when it is lower.
+    ValueError (bad input) when that rate leaves fewer than :data:`LINK_PERIODS_MIN` periods before
+    the focus time (s)."""
+    budget = device.budget(modes)
+    if loop.control_rate <= budget:
+        return loop, None
+    decimation = int(np.ceil(fs / budget))
+    rate = fs / decimation
+    if rate * focus_time < LINK_PERIODS_MIN:
+        raise ValueError(f"{device.url}: the link carries {budget:.0f} control periods/s with {modes} mode(s) "
+                         f"({device.link_description()}), {int(rate * focus_time)} before the {1e3 * focus_time:g} ms "
+                         f"focus; loops on the host need {LINK_PERIODS_MIN}: run them on the board (--loop board), "
+                         "or use a faster link")
+    return loop.but(control_rate=rate), (
+        f"control at {rate:.6g} Hz, not {loop.control_rate:.6g}: the link carries {budget:.0f} periods/s with "
+        f"{modes} modes ({device.link_description()}, one exchange a period); --loop board runs the loops on "
+        "the board at any rate")
 
 
 def _stopped(result: RunResult, log, exc: DeviceError) -> DeviceError:
@@ -413,7 +461,7 @@ def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device
     sim_seconds = _time.perf_counter() - start
     metrics = replace(_metrics(dec, the_plan, played.capture, (times, field), device, options, sim_seconds),
                       play_seconds=played.seconds + played.design_seconds, scan_seconds=scan_seconds)
-    loop = None if played.result is None else _loop_metrics(played, the_plan, options.loop, sim_seconds)
+    loop = None if played.result is None else _loop_metrics(played, the_plan, sim_seconds)
     return ShotResult(dec, the_plan, played.capture, times, field, focus, point, focus_velocity, metrics, loop)
 
 
@@ -451,8 +499,8 @@ def _listed(values) -> list | None:
     return None if values is None else np.asarray(values).tolist()
 
 
-def _loop_metrics(played: _Played, the_plan: Plan, loop: LoopOptions, sim_seconds: float) -> LoopMetrics:
-    result, design = played.result, played.parts.design
+def _loop_metrics(played: _Played, the_plan: Plan, sim_seconds: float) -> LoopMetrics:
+    result, design, loop = played.result, played.parts.design, played.loop
     return LoopMetrics(
         controller=name_of(loop.controller), on_board=loop.on_board, state=result.state.name.lower(), fault=result.reason,
         periods=result.periods, loop_seconds=result.loop_seconds, configure_seconds=result.configure_seconds,
@@ -461,7 +509,8 @@ def _loop_metrics(played: _Played, the_plan: Plan, loop: LoopOptions, sim_second
         crossover_hz=design.crossover_hz.tolist(), phase_margin_deg=design.phase_margin_deg.tolist(),
         gain_margin_db=design.gain_margin_db.tolist(), design_seconds=played.design_seconds,
         shot_seconds=played.seconds, real_time_factor=played.seconds / the_plan.duration,
-        scan_seconds=sim_seconds - played.design_seconds - played.seconds, learned=played.parts.controller.summary())
+        scan_seconds=sim_seconds - played.design_seconds - played.seconds, learned=played.parts.controller.summary(),
+        note=played.note)
 
 
 def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):
@@ -511,7 +560,7 @@ def _loops_on_board(the_plan: Plan, board: PhasorBoard, parts: LoopParts, device
     configured = _time.perf_counter()
     board.configure(s)
     start = _time.perf_counter()
-    record = board.run_loops(board_loop(the_plan, parts))
+    record = board.run_loops(board_loop(parts))
     seconds = _time.perf_counter() - start
     if log is not None:
         with loop_log(the_plan, s, log, closed=True, on_board=True) as recorder:

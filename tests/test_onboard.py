@@ -1,4 +1,5 @@
-"""Loops loaded into the board (``--loop board``): parametric references, PI on the board, no link budget."""
+"""Loops loaded into the board (``--loop board``): reference tables for any plan, PI on the board, no link
+budget; the tables within the board's memory."""
 
 import json
 import warnings
@@ -23,7 +24,7 @@ from modalctl.plugin.manager import get_shape
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
        "--param", "center=24mm", "--focus-time", "25ms", "--sample-rate", "500kHz", "--quiet", "--no-plots",
-       "--json", "--planner", "envelope", "--margin", "none"]  # the board recomputes envelope references
+       "--json"]  # the default plan: convex, under the margin
 TRUTH = ["--drift", "1%", "--damping-error", "20%", "--snr", "40"]  # sim://'s own; the boards' emulators take it
 PERTURBATION = Perturbation(drift=0.01, damping_error=0.2, snr_db=40.0)
 
@@ -57,31 +58,20 @@ def on_board_sim(tmp_path_factory):
     return out
 
 
-def test_parametric_references_follow_the_whole_model_within_the_unplanned_modes_share(shot):
-    """The board's references, from the plan's parameters alone, against the host's (the whole
-    model through the same lock-in): close on the low modes, never more than the modes the plan
-    left out can add."""
+def test_the_board_follows_the_host_s_references_as_tables_and_any_plan(shot):
+    """The board's table is the host's references (the whole model through each lock-in), whatever
+    the plan; Program and Reference messages carry it to complex64's precision, and a Program whose
+    arrays do not fit is refused."""
     the_plan, parts = shot
-    s = parts.schedule
-    loops = board_loop(the_plan, parts)
-    ours = loops.references(s.carriers, s.bandwidths, the_plan.sample_rate, s.decimation, s.periods)
-    error = np.abs(ours - s.reference).max(axis=1) / np.abs(s.reference).max(axis=1)
-    assert np.all(error[:3] < 0.01)
-    assert np.all(error < 0.2)
-    # without the reading matrix's cross terms (each mode alone) the error is larger: they matter
-    alone = board_loop(the_plan, parts)
-    alone.reading = np.diag(np.diag(alone.reading))
-    worse = np.abs(alone.references(s.carriers, s.bandwidths, the_plan.sample_rate, s.decimation, s.periods)
-                   - s.reference).max(axis=1) / np.abs(s.reference).max(axis=1)
-    assert worse.max() > error.max() + 0.01
-
-
-def test_program_messages_round_trip_and_bad_ones_are_refused(shot):
-    the_plan, parts = shot
-    loops = board_loop(the_plan, parts)
+    loops = board_loop(parts)
+    assert np.array_equal(loops.reference, parts.schedule.reference)
     back = p.from_program(p.decode(p.encode(p.to_program(loops))))
-    assert np.allclose(back.targets, loops.targets, rtol=1e-6) and np.allclose(back.reading, loops.reading, rtol=1e-6)
-    assert np.allclose(back.leak, loops.leak, rtol=1e-6, atol=1e-12) and back.focus_time == pytest.approx(0.025)
+    assert np.all(np.isnan(back.reference)) and back.reference.shape == loops.reference.shape
+    for block in p.references(loops, 100):
+        block = p.decode(p.encode(block))
+        back.reference[block.mode, block.offset:block.offset + block.values.size] = block.values
+    assert np.allclose(back.reference, loops.reference, rtol=1e-6, atol=1e-7 * np.abs(loops.reference).max())
+    assert np.allclose(back.leak, loops.leak, rtol=1e-6, atol=1e-12) and np.allclose(back.kp, loops.kp, rtol=1e-6)
     message = p.to_program(loops)
     message.kp = message.kp[:-1]
     with pytest.raises(ValueError, match="arrays of sizes"):
@@ -90,7 +80,7 @@ def test_program_messages_round_trip_and_bad_ones_are_refused(shot):
 
 def test_loops_on_the_board_measure_what_the_host_loops_measure(on_board_sim, tmp_path, capsys):
     """sim://: the same PI loops at 20 kHz, once exchanging every period with the host, once loaded
-    into the board with parametric references; both far above open loop."""
+    into the board with the same references as tables; both far above open loop."""
     assert main([*RUN, *TRUTH, "--loop", "closed", "--control-rate", "20kHz", "--out", str(tmp_path / "host")]) == 0
     assert main([*RUN, *TRUTH, "--loop", "open", "--out", str(tmp_path / "open")]) == 0
     host, board, open_ = (_metrics(path) for path in (tmp_path / "host", on_board_sim, tmp_path / "open"))
@@ -105,19 +95,26 @@ def test_loops_on_the_board_measure_what_the_host_loops_measure(on_board_sim, tm
 
 @pytest.mark.parametrize("link", ["serial", "can"])
 def test_loops_on_a_board_over_the_wire_run_above_the_link_budget(model, on_board_sim, tmp_path, capsys, link):
-    """20 kHz is ten times what the link carries period by period; loaded into the board, the
-    loops run there and the wire only carries the set-up and the log: the metrics are sim://'s."""
+    """20 kHz is ten times what the link carries period by period; loaded into the board (the
+    convex plan's reference tables), the loops run there and the wire only carries the set-up and
+    the log: over the serial line tau and the margin are sim://'s to the digits `run` prints (as
+    the thesis's envelope plan's are). The same rate exchanging every period runs at the rate the
+    link carries, with a note."""
     run = [*RUN, "--loop", "board", "--control-rate", "20kHz"]
     emulator = (SerialBoardEmulator(model, PERTURBATION) if link == "serial"
                 else CanBoardEmulator(model, PERTURBATION, channel=f"onboard-{tmp_path.name}"))
     with emulator as board:
         url = f"serial://{board.path}" if link == "serial" else board.url
         assert main([*run, "--transport", url, "--out", str(tmp_path / link)]) == 0
-        # the same rate exchanging every period is refused: the link cannot carry it
         assert main([*RUN, "--loop", "closed", "--control-rate", "20kHz", "--transport", url,
-                     "--out", str(tmp_path / "refused")]) == 3
+                     "--out", str(tmp_path / "host")]) == 0
+    host = _metrics(tmp_path / "host")["loop"]
+    assert host["control_rate_hz"] < 3000 and "the link carries" in host["note"]
     sim, wire = _metrics(on_board_sim), _metrics(tmp_path / link)
-    assert abs(wire["tau"] - sim["tau"]) < 2e-3  # float32 parameters on the wire; CAN's scan noise differs
+    assert sim["planner"] == wire["planner"] == "convex" and wire["margin_ok"] and sim["margin_ok"]
+    if link == "serial":
+        assert f"{wire['tau']:.4f}" == f"{sim['tau']:.4f}" and f"{wire['margin_ratio']:.3f}" == f"{sim['margin_ratio']:.3f}"
+    assert abs(wire["tau"] - sim["tau"]) < 2e-3  # float32 feed-forward on the wire; CAN's scan noise differs
     (sim_log, _), (wire_log, _) = read_log(on_board_sim / "log"), read_log(tmp_path / link / "log")
     assert np.allclose(wire_log["command"], sim_log["command"], rtol=1e-3, atol=1e-3 * np.abs(sim_log["command"]).max())
 
@@ -148,8 +145,53 @@ def test_a_board_that_dies_during_its_own_shot_is_noticed_at_once(model, tmp_pat
     assert "stopped answering during its shot" in err or "no heartbeat" in err
 
 
-def test_loops_on_the_board_refuse_a_convex_plan_before_the_shot(tmp_path, capsys):
-    """The board recomputes envelope references from their parameters; a convex plan has none to send."""
-    default = [a for a in RUN if a not in ("--planner", "envelope", "--margin", "none")]
-    code = main([*default, "--loop", "board", "--control-rate", "20kHz", "--out", str(tmp_path)])
-    assert code == 2 and "--planner envelope" in capsys.readouterr().err
+def test_tables_beyond_the_board_s_memory_are_refused_with_the_budget(monkeypatch, tmp_path, capsys):
+    """modes x periods within the board's table memory: one mode's table longer than it is refused
+    before planning, 8 modes' after it, both exit 2 saying the budget; over the serial line the
+    board's own Info says it."""
+    import modalctl.hil.emulator as emulator
+    import modalctl.hil.sim_device as sim_device
+
+    board = [*RUN, "--loop", "board", "--control-rate", "20kHz"]
+    monkeypatch.setattr(sim_device, "TABLE_VALUES", 500)  # fewer than the shot's 580 periods
+    assert main([*board, "--out", str(tmp_path / "short")]) == 2
+    err = capsys.readouterr().err
+    assert "1 x 580 = 580 values" in err and "holds 500" in err
+    monkeypatch.setattr(sim_device, "TABLE_VALUES", 2000)
+    assert main([*board, "--out", str(tmp_path / "eight")]) == 2
+    err = capsys.readouterr().err
+    assert "8 x 580 = 4,640 values" in err and "at most 3 modes at this rate" in err
+    monkeypatch.setattr(emulator, "TABLE_VALUES", 2000)
+    with SerialBoardEmulator(load_scene("thesis-al-cc", 211), PERTURBATION) as serial:
+        assert main([*board, "--transport", f"serial://{serial.path}", "--out", str(tmp_path / "serial")]) == 2
+    assert f"the board at serial://{serial.path} holds 2,000" in capsys.readouterr().err
+
+
+def test_a_board_refuses_a_program_beyond_its_memory_or_its_shot():
+    """The board checks what it is sent, before it makes a table: a Program whose tables exceed its
+    memory, or do not match the configured shot, is refused (error 4); a Start before the tables are
+    all loaded too (error 3)."""
+    model = load_scene("thesis-al-cc", 211)
+    board = SerialBoardEmulator(model, PERTURBATION)
+    sent = []
+    board._send = sent.append
+    a, s = model.actuator_gains.shape[1], model.sensor_gains.shape[1]
+
+    def configure(seq, control_rate, samples):
+        board._receive(p.Configure(seq=seq, sample_rate=500e3, control_rate=control_rate, modes=2,
+                                   carriers=np.array([300., 900.]), bandwidths=np.array([100., 300.]),
+                                   weights=np.ones(2 * a), sensors=np.ones(2 * s), samples=samples, level=1e-3))
+    gains = dict(kp=np.ones(2), ki=np.ones(2), limit=np.ones(2), leak=np.zeros(2, complex))
+    configure(1, 500e3, 200_000)  # a period a sample: 2 x 200,000 values, beyond 2^18
+    board._receive(p.Program(seq=2, periods=4_000_000_000, **gains))
+    board._receive(p.Program(seq=3, periods=200_000, **gains))
+    configure(4, 20e3, 14_500)
+    board._receive(p.Program(seq=5, periods=580, **gains))
+    board._receive(p.Reference(seq=6, mode=1, offset=0, values=np.ones(580, np.complex64)))
+    board._receive(p.Start(seq=7))
+    kinds = [(type(m).__name__, getattr(m, "code", None)) for m in sent]
+    assert kinds == [("Ack", None), ("Error", 4), ("Error", 4), ("Ack", None), ("Ack", None), ("Ack", None),
+                     ("Error", 3)]
+    assert "the shot has 2 x 200000" in sent[1].text and "the board holds 262144" in sent[2].text
+    assert "580 reference values still to load" in sent[6].text
+    board.close()

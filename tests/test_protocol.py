@@ -12,7 +12,7 @@ from modalctl.io import protocol as p
 EXAMPLES = [
     p.Hello(seq=1),
     p.Info(seq=2, channels=8, sensors=4, max_sample_rate=1e6, voltage_limit=150.0, max_modes=32, scans=211,
-           name="modalctl emulator"),
+           table=1 << 18, name="modalctl emulator"),
     p.Configure(seq=3, sample_rate=5e5, control_rate=2e4, modes=2, carriers=np.array([963.0, 2253.0]),
                 bandwidths=np.array([400.0, 900.0]), weights=np.arange(16.0), sensors=np.arange(8.0), samples=14500),
     p.Upload(seq=4, channel=3, offset=4096, samples=np.linspace(-1, 1, 1000)),
@@ -24,10 +24,9 @@ EXAMPLES = [
     p.Field(seq=12, first=0, rows=2, offset=8000, values=np.array([1.0, 2.0])),
     p.Capture(seq=15, what=1, rows=np.array([0.0, 3.0]), offset=8000, count=8000),
     p.Ack(seq=13, of=0x02, ack_seq=3), p.Error(seq=14, code=3, text="watchdog: no command for 3 periods"),
-    p.Program(seq=16, focus_time=0.025, damping=np.array([0.004, 0.003]), targets=np.array([1e-3, -2e-4]),
-              kappa=np.array([1.0, 2.5]), brake=np.array([1.0, 4.0]), reading=np.array([1.0, 0.1, -0.2, 1.0]),
-              kp=np.array([30.0, 80.0]), ki=np.array([2e4, 9e4]), limit=np.array([0.5, 0.2]),
+    p.Program(seq=16, periods=580, kp=np.array([30.0, 80.0]), ki=np.array([2e4, 9e4]), limit=np.array([0.5, 0.2]),
               leak=np.array([1e-3 + 2e-3j, -4e-4j])),
+    p.Reference(seq=17, mode=1, offset=2000, values=np.array([1e-4 + 2e-5j, -3e-5j, 0.0])),
 ]
 
 

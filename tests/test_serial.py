@@ -103,12 +103,32 @@ def test_a_board_that_stops_answering_ends_the_shot_with_the_log_on_disk(model, 
     assert records["state"][-1] == 3 and records.size >= 20  # every period up to the silence, then the fault
 
 
-def test_the_link_budget_refuses_a_rate_the_line_cannot_carry(model, tmp_path, capsys):
+def test_host_loops_run_at_the_rate_the_line_carries_with_a_note(model, tmp_path, capsys):
+    """20 kHz asked over 3 Mbaud: the loops run at the highest rate dividing the DAC's that the line
+    carries with the plan's modes, and say so (issue 39: not refused after planning)."""
+    assert 2000 < link_budget(3_000_000, 7) < 2200  # two 75-byte frames per period, 10 bits a byte
+    with SerialBoardEmulator(model, PERTURBATION) as board:
+        assert main([*RUN, "--control-rate", "20kHz", "--transport", f"serial://{board.path}",
+                     "--out", str(tmp_path / "fast")]) == 0
+    loop = _metrics(tmp_path / "fast")["loop"]
+    modes = len(_metrics(tmp_path / "fast")["modes_used"])
+    rate = 500e3 / np.ceil(500e3 / link_budget(3_000_000, modes))
+    assert loop["control_rate_hz"] == pytest.approx(rate) and rate <= link_budget(3_000_000, modes)
+    assert f"not 20000: the link carries {link_budget(3_000_000, modes):.0f} periods/s" in loop["note"]
+    capsys.readouterr()
+
+
+def test_a_line_too_slow_for_host_loops_is_refused_before_planning(model, tmp_path, capsys, monkeypatch):
+    """115,200 baud carries 200 periods a second with one mode, 5 before a 25 ms focus: refused as
+    bad input before the planner runs, pointing to the loops on the board."""
+    import modalctl.run
+
+    monkeypatch.setattr(modalctl.run, "plan_shot", lambda *a, **k: pytest.fail("planned"))
     with SerialBoardEmulator(model, PERTURBATION) as board:
         code = main([*(a for a in RUN if a != "--json"), "--control-rate", "20kHz",
                      "--transport", f"serial://{board.path}?baud=115200", "--out", str(tmp_path)])
-    assert code == 3 and "sustains" in capsys.readouterr().err
-    assert 2000 < link_budget(3_000_000, 7) < 2200  # two 75-byte frames per period, 10 bits a byte
+    err = capsys.readouterr().err
+    assert code == 2 and "before the 25 ms focus" in err and "--loop board" in err
 
 
 def test_bad_serial_urls_say_what_is_wrong():

@@ -73,8 +73,9 @@ def _add_plan_arguments(p) -> None:
 def _add_loop_arguments(loop) -> None:
     loop.add_argument("--loop", choices=("open", "closed", "board"), default="open",
                       help="open: feed-forward only (the thesis); closed: per-mode feedback on top, one "
-                           "exchange with the board per period; board: the same PI loops loaded into the board, "
-                           "which closes them itself (no link budget)")
+                           "exchange with the board per period (at most the rate the link carries); board: the same "
+                           "PI loops and their reference tables loaded into the board, which closes them itself (no "
+                           "link budget; modes x periods within its memory)")
     loop.add_argument("--control-rate", type=quantity_type("Hz", "control-rate", low=0), default=LOOP.control_rate,
                       help=f"loop rate, a divisor of the sample rate ({LOOP.control_rate / 1e3:g}kHz)")
     loop.add_argument("--authority", type=number_type(float, "authority", low=0, low_open=False),
@@ -428,6 +429,8 @@ def _print_loop(m: dict, shot, out: Path) -> None:
               f"{min(lp['crossover_hz']):.0f}-{max(lp['crossover_hz']):.0f} Hz; log: {out}/log.json + log.bin")
         print(f"the shot took {lp['real_time_factor']:.2f}x its played time (set-up, loop, log, records; "
               f"design {lp['design_seconds']:.2f} s and the field's scan {lp['scan_seconds']:.2f} s besides)")
+        if lp.get("note"):
+            print("note: " + lp["note"])
     if shot.learning is not None:
         ls = shot.learning
         how = (f"fit {ls.update_seconds:.1f} s, misfit {100 * ls.misfit:.1f}%" if ls.source == "record"

@@ -26,6 +26,7 @@ import threading
 import numpy as np
 
 from modalctl.io import protocol as p
+from modalctl.loops.onboard import TABLE_VALUES
 from modalctl.model.modes import ModalModel
 
 from .emulator import ERRORS, BoardEmulator
@@ -171,7 +172,8 @@ class CanBoardEmulator(BoardEmulator):
         self._send(p.Info(channels=channels.size, sensors=sensors.size, max_sample_rate=self.MAX_SAMPLE_RATE,
                           voltage_limit=float("nan") if limit is None else limit, max_modes=self.MAX_MODES,
                           scans=self.model.grid.points.shape[0] if self._node == self.sensing else 0,
-                          snr_db=float("nan") if snr is None else snr, name=self._named(f", node {self._node}")))
+                          snr_db=float("nan") if snr is None else snr, table=TABLE_VALUES,
+                          name=self._named(f", node {self._node}")))
 
     def _on_configure(self, message: p.Configure) -> None:
         channels, sensors = self.layout[self._node]

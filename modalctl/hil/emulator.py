@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from modalctl.io import protocol as p
+from modalctl.loops.onboard import TABLE_VALUES
 from modalctl.loops.schedule import Schedule
 from modalctl.model.modes import ModalModel
 
@@ -142,7 +143,7 @@ class BoardEmulator:
         self._send(p.Info(channels=self.model.actuator_gains.shape[1], sensors=self.model.sensor_gains.shape[1],
                           max_sample_rate=self.MAX_SAMPLE_RATE, voltage_limit=float("nan") if limit is None else limit,
                           max_modes=self.MAX_MODES, scans=self.model.grid.points.shape[0],
-                          snr_db=float("nan") if snr is None else snr, name=self._named()))
+                          snr_db=float("nan") if snr is None else snr, table=TABLE_VALUES, name=self._named()))
 
     MAX_SAMPLES = 1 << 19  # feed-forward samples per channel the board holds (1 s at 500 kHz)
     MAX_SAMPLE_RATE = 10e6  # Hz, as its Info says
@@ -153,7 +154,8 @@ class BoardEmulator:
         rate, control = float(message.sample_rate), float(message.control_rate)
         if not (np.isfinite(rate) and 0 < rate <= self.MAX_SAMPLE_RATE):
             return f"sample rate {rate:g} Hz outside (0, {self.MAX_SAMPLE_RATE:g}]"
-        if not (np.isfinite(control) and 0 < control <= rate) or abs(rate / control - round(rate / control)) > 1e-6:
+        ratio = rate / control if np.isfinite(control) and control > 0 else 0.0
+        if not 0 < control <= rate or abs(ratio - round(ratio)) > 1e-6 * ratio:  # to float32's precision: 500 kHz / 274
             return f"control rate {control:g} Hz must divide the sample rate {rate:g} Hz"
         if message.samples > self.MAX_SAMPLES:
             return f"{message.samples} samples per channel, the board holds {self.MAX_SAMPLES}"
@@ -187,18 +189,35 @@ class BoardEmulator:
         if c is None or c.modes == 0:
             self._refuse("state", "program before a configuration with modes")
             return
+        periods = self.feedforward.shape[1] // int(round(c.sample_rate / c.control_rate))
+        why = None
+        if message.kp.size != c.modes or message.periods != periods:
+            why = f"tables of {message.kp.size} modes x {message.periods} periods, the shot has {c.modes} x {periods}"
+        elif message.kp.size * message.periods > TABLE_VALUES:  # before any table is made
+            why = f"{message.kp.size} x {message.periods} reference values, the board holds {TABLE_VALUES}"
+        elif not all(np.all(np.isfinite(getattr(message, name))) for name in p.PROGRAM_ARRAYS):
+            why = "non-finite values"
         try:
-            loops = p.from_program(message)
+            loops = None if why else p.from_program(message)
         except ValueError as exc:
-            self._refuse("config", f"program: {exc}")
-            return
-        if not all(np.all(np.isfinite(getattr(message, name))) for name in p.PROGRAM_ARRAYS + ("focus_time",)):
-            self._refuse("config", "program: non-finite values")
-            return
-        if loops.modes != c.modes:
-            self._refuse("config", f"program for {loops.modes} modes, the shot has {c.modes}")
+            why = str(exc)
+        if why:
+            self._refuse("config", f"program: {why}")
             return
         self.loops = loops
+        self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
+
+    def _on_reference(self, message: p.Reference) -> None:
+        if self.loops is None:
+            self._refuse("state", "reference table before its program")
+            return
+        table = self.loops.reference
+        end = message.offset + message.values.size
+        if message.mode >= table.shape[0] or end > table.shape[1] or not np.all(np.isfinite(message.values)):
+            self._refuse("config", f"reference: mode {message.mode} periods {message.offset}-{end} outside the "
+                                   f"{table.shape[0]} x {table.shape[1]} tables, or non-finite")
+            return
+        table[message.mode, message.offset:end] = message.values
         self._send(p.Ack(of=message.TYPE, ack_seq=message.seq))
 
     def _on_upload(self, message: p.Upload) -> None:
@@ -222,6 +241,10 @@ class BoardEmulator:
             self._refuse("state", "start before configure")
             return
         self.loop_log = None
+        if self.loops is not None and not np.all(np.isfinite(self.loops.reference)):
+            self._refuse("state", f"start with {int(np.sum(np.isnan(self.loops.reference)))} reference values "
+                                  "still to load")
+            return
         if c.modes == 0:  # an open-loop shot: the whole waveform, then the record
             self.board = None
             self.sim.configure(float(c.sample_rate))
@@ -257,9 +280,9 @@ class BoardEmulator:
         return silent is not None and getattr(self.board, "period", -1) >= silent  # no period before Start
 
     def _alive(self, period: int) -> None:
-        """During a shot the board runs by itself: a Heartbeat every ``BEAT`` seconds, so the host
-        knows it is at work (and notices when it stops)."""
-        if time.perf_counter() - self._beat_at >= self.BEAT and not self._silent():
+        """During a shot the board runs by itself: a Heartbeat once armed (its first period) and every
+        ``BEAT`` seconds, so the host knows it is at work (and notices when it stops)."""
+        if (period == 0 or time.perf_counter() - self._beat_at >= self.BEAT) and not self._silent():
             self._beat_at = time.perf_counter()
             self._send(p.Heartbeat(state=2))
 

@@ -29,7 +29,7 @@ from typing import Callable
 import numpy as np
 
 from modalctl.loops.lockin import Oscillators
-from modalctl.loops.onboard import BoardLog, BoardLoop
+from modalctl.loops.onboard import TABLE_VALUES, BoardLog, BoardLoop, check_table
 from modalctl.loops.runtime import PhasorBoard
 from modalctl.loops.schedule import HOLD, Schedule, ramp_in
 from modalctl.model.modes import ModalModel
@@ -251,14 +251,19 @@ class HILBoard(PhasorBoard):
         self.idle = 0
 
     def run_loops(self, loops: BoardLoop, each_period=None) -> BoardLog:
-        """Start the shot and close its loops on the board itself (:class:`modalctl.loops.onboard.BoardLoop`),
-        every period (``each_period(n)`` after each); returns the loops' :class:`~modalctl.loops.onboard.BoardLog`."""
+        """Start the shot and close its loops on the board itself (:class:`modalctl.loops.onboard.BoardLoop`,
+        held as the protocol carries it: float32), every period (``each_period(n)`` after each);
+        returns the loops' :class:`~modalctl.loops.onboard.BoardLog`. ValueError when their reference
+        tables are not the shot's or exceed the board's :data:`~modalctl.loops.onboard.TABLE_VALUES`."""
         s = self.schedule
         if s is None:
             raise RuntimeError("board: run_loops before configure")
-        references = loops.references(s.carriers, s.bandwidths, self.sample_rate, s.decimation, s.periods)
+        if loops.modes != s.carriers.size or loops.periods != s.periods:
+            raise ValueError(f"board: tables of {loops.modes} modes x {loops.periods} periods for a shot of "
+                             f"{s.carriers.size} x {s.periods}")
+        check_table(loops.modes, loops.periods, TABLE_VALUES)
         self.start()
-        return loops.run(self, references, s.control_rate, each_period)
+        return loops.on_the_wire().run(self, s.control_rate, each_period)
 
     def ramp_down(self, seconds: float) -> None:
         if self.ramp is None:

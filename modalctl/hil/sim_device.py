@@ -10,6 +10,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError
+from modalctl.loops.onboard import TABLE_VALUES
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.noise_stream import NoiseStream
 from modalctl.model.scenes import continued, load_scene
@@ -93,7 +94,7 @@ class SimDevice(Device):
         self.capabilities = Capabilities("modalctl HIL board", self.model.actuator_gains.shape[1],
                                          self.model.sensor_gains.shape[1], self.max_sample_rate,
                                          self.perturbation.voltage_limit, True, self.model.grid.points,
-                                         phasor_mode=True)
+                                         phasor_mode=True, table_values=TABLE_VALUES)
         return self.capabilities
 
     def upload(self, voltages: np.ndarray) -> None:

@@ -59,6 +59,9 @@ class Capabilities:
         Coordinates (m) of the points ``scan`` can measure, by index.
     phasor_mode : bool
         True when the device has a phasor board for closed loops (:meth:`Device.phasor_board`).
+    table_values : int or None
+        Complex reference values (modes x control periods) the board holds for loops it runs itself
+        (:mod:`modalctl.loops.onboard`); None: no limit said.
     """
 
     name: str
@@ -69,6 +72,7 @@ class Capabilities:
     can_scan: bool
     scan_points: np.ndarray | None = None
     phasor_mode: bool = False
+    table_values: int | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,6 +149,15 @@ class Device(ABC):
         """The board in phasor mode for one closed-loop shot whose field peaks near ``level`` (m/s),
         at ``control_rate`` (Hz), its commands used ``latency`` periods late."""
         raise DeviceError(f"{self.url}: this device has no phasor mode, so it cannot run a closed loop")
+
+    def budget(self, modes: int) -> float:
+        """Control periods per second the link to the device sustains exchanging ``modes`` modes'
+        commands and envelopes each period (host-side loops); no link, no bound (the default)."""
+        return float("inf")
+
+    def link_description(self) -> str:
+        """What carries the exchanges (a serial line's baud rate, a bus's bit rates)."""
+        return self.url
 
     def deactivate(self) -> None:
         """Outputs off until the next activate."""

@@ -27,12 +27,13 @@ from cobs import cobs
 from modalctl.loops.onboard import BoardLoop
 
 __all__ = ["VERSION", "ProtocolError", "Message", "Hello", "Info", "Configure", "Upload", "Start", "Commands",
-           "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Program", "Field", "Error", "Ack", "encode", "decode",
+           "Envelopes", "Heartbeat", "RampDown", "Stop", "Scan", "Capture", "Program", "Reference", "Field", "Error", "Ack",
+           "encode", "decode",
            "frame", "Deframer", "MAX_FRAME", "CAN_DATA", "SYNC_ID", "to_board", "to_host", "segments", "Reassembler",
            "NMT_ID", "NMT_COMMANDS", "NMT_STATES", "heartbeat_id", "nmt",
-           "ERRORS", "WARNINGS", "REPLIES", "PROGRAM_ARRAYS", "to_program", "from_program"]
+           "ERRORS", "WARNINGS", "REPLIES", "PROGRAM_ARRAYS", "to_program", "from_program", "references"]
 
-VERSION = 1
+VERSION = 2  # 2: reference tables for the board's loops (Program's body, Reference, Info's table)
 MAX_FRAME = 1 << 16  # bytes of one encoded message, at most
 _HEADER = struct.Struct("<BBH")
 
@@ -74,6 +75,7 @@ class Info(Message):
     max_modes: int = 0
     scans: int = 0  # grid points a vibrometer on the bench can measure (0: none)
     snr_db: float = float("nan")  # a simulated board's sensor noise below the shot's peak (NaN: a real board)
+    table: int = 0  # complex reference values (modes x periods) the board holds for loops it runs (0: none)
     name: str = ""
 
 
@@ -179,20 +181,27 @@ class Capture(Message):
 @dataclass
 class Program(Message):
     """Host -> board: loops the board closes itself in the configured shot (k modes; see
-    :class:`modalctl.loops.onboard.BoardLoop`): each mode's planned trajectory, the reading matrix
-    (k x k, row-major), PI gains, authority and leak. The next Start runs the whole shot."""
+    :class:`modalctl.loops.onboard.BoardLoop`): PI gains, authority and leak, and the length of
+    each mode's reference table (``periods``), which :class:`Reference` messages then fill. The
+    next Start runs the whole shot."""
 
     TYPE = 0x0B
-    focus_time: float = 0.0
-    damping: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    targets: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    kappa: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    brake: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
-    reading: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
+    periods: int = 0
     kp: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     ki: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     limit: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))
     leak: np.ndarray = field(default_factory=lambda: np.zeros(0, np.complex64))
+
+
+@dataclass
+class Reference(Message):
+    """Host -> board: mode ``mode``'s reference table from period ``offset`` (m/s, complex: each
+    period's expected reading at its end), after the Program that sized it."""
+
+    TYPE = 0x0C
+    mode: int = 0
+    offset: int = 0
+    values: np.ndarray = field(default_factory=lambda: np.zeros(0, np.complex64))
 
 
 @dataclass
@@ -236,9 +245,9 @@ class Error(Message):
 REPLIES = (Info, Field, Ack, Error)
 
 _TYPES = {cls.TYPE: cls for cls in (Hello, Info, Configure, Upload, Start, Commands, Envelopes, Heartbeat,
-                                    RampDown, Stop, Scan, Capture, Program, Field, Ack, Error)}
+                                    RampDown, Stop, Scan, Capture, Program, Reference, Field, Ack, Error)}
 _LAYOUT = {
-    Info: ("u8", "u8", "f32", "f32", "u8", "u32", "f32", "str"),
+    Info: ("u8", "u8", "f32", "f32", "u8", "u32", "f32", "u32", "str"),
     Configure: ("f32", "f32", "u8", "f32[]", "f32[]", "f32[]", "f32[]", "u32", "f32"),
     Upload: ("u8", "u32", "f32[]"),
     Commands: ("u32", "c64[]"),
@@ -247,7 +256,8 @@ _LAYOUT = {
     RampDown: ("f32",),
     Scan: ("f64[]", "f32[]"),
     Capture: ("u8", "f32[]", "u32", "u32"),
-    Program: ("f32",) + ("f32[]",) * 8 + ("c64[]",),
+    Program: ("u32", "f32[]", "f32[]", "f32[]", "c64[]"),
+    Reference: ("u8", "u32", "c64[]"),
     Field: ("u32", "u32", "u32", "f32[]"),
     Ack: ("u8", "u16"),
     Error: ("u16", "str"),
@@ -455,20 +465,27 @@ class Reassembler:
 
 # -- loops loaded into a board (Program) ------------------------------------------------------------
 
-PROGRAM_ARRAYS = ("damping", "targets", "kappa", "brake", "reading", "kp", "ki", "limit", "leak")
+PROGRAM_ARRAYS = ("kp", "ki", "limit", "leak")
 
 
 def to_program(loops: BoardLoop) -> Program:
-    """The protocol's Program message that loads ``loops`` into a board."""
-    return Program(focus_time=loops.focus_time, **{name: np.ravel(getattr(loops, name)) for name in PROGRAM_ARRAYS})
+    """The protocol's Program message that loads ``loops`` into a board (their tables follow in
+    :func:`references`)."""
+    return Program(periods=loops.periods, **{name: np.ravel(getattr(loops, name)) for name in PROGRAM_ARRAYS})
+
+
+def references(loops: BoardLoop, size: int) -> list[Reference]:
+    """The Reference messages that carry ``loops``' tables, ``size`` values each at most."""
+    return [Reference(mode=mode, offset=offset, values=row[offset:offset + size])
+            for mode, row in enumerate(loops.reference) for offset in range(0, row.size, size)]
 
 
 def from_program(message: Program) -> BoardLoop:
-    """The loops a Program message describes; ValueError if its arrays do not fit one another."""
-    k = message.targets.size
+    """The loops a Program message describes, their tables not yet filled (NaN); ValueError if its
+    arrays do not fit one another."""
+    k = message.kp.size
     sizes = {name: getattr(message, name).size for name in PROGRAM_ARRAYS}
-    if any(size != (k * k if name == "reading" else k) for name, size in sizes.items()):
+    if any(size != k for size in sizes.values()):
         raise ValueError(f"program for {k} modes with arrays of sizes {sizes}")
     values = {name: getattr(message, name).astype(complex if name == "leak" else float) for name in PROGRAM_ARRAYS}
-    values["reading"] = values["reading"].reshape(k, k)
-    return BoardLoop(float(message.focus_time), **values)
+    return BoardLoop(np.full((k, int(message.periods)), np.nan + 0j), **values)

@@ -1,16 +1,17 @@
-"""Loops that run on the board for one shot: parametric references and per-mode PI.
+"""Loops that run on the board for one shot: reference tables and per-mode PI.
 
 Instead of one exchange per control period, the host loads the board with what it needs to close
-the loops itself (the protocol's ``Program`` message): each kept mode's planned trajectory in the
-planner's own parameters (target, rise and brake rates, focus time, as
-:func:`modalctl.plan.reference.modal_response`), how each mode's reading sees the other kept modes (the
-reading matrix), and each loop's PI gains, authority and leak. The board derives the references
-through its own lock-in and runs the loops at the control rate; the link carries only the shot's
-set-up and its record, so the control rate is bounded by the board, not by the link.
+the loops itself (the protocol's ``Program`` and ``Reference`` messages): each kept mode's
+reference at the end of every control period, as a table (the host's own references,
+:func:`modalctl.loops.schedule.schedule`: the whole model driven by the plan's feed-forward, read
+through each mode's lock-in, so any plan, envelope or convex, and the answer of the modes the plan
+left out), and each loop's PI gains, authority and leak. The board runs the loops at the control
+rate; the link carries only the shot's set-up and its record, so the control rate is bounded by
+the board, not by the link.
 
-What the board cannot know is how the modes the plan left out answer the drive: on thesis-al-cc
-(sinc 18 mm, 9 modes) the parametric references differ from the host's (:mod:`modalctl.loops.schedule`,
-the whole model) by under 1% on most modes and up to 12% on the highest ones.
+The table is what bounds a shot on the board: ``modes x periods`` complex values within the
+board's memory (:func:`check_table`; the emulators hold :data:`TABLE_VALUES`, 2 MiB of complex64:
+8 modes for 32,768 periods, 1.6 s at 20 kHz).
 
 Core computation: the board emulator runs :meth:`BoardLoop.run`; firmware implements the same
 equations (docs/protocol.md).
@@ -22,13 +23,23 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from modalctl.plan.drive import EnvelopeDrive
-from modalctl.plan.reference import modal_response
-
-from .lockin import LockIn, Oscillators
 from .pi import PIControl
 
-__all__ = ["BoardLoop", "BoardLog", "board_loop"]
+__all__ = ["BoardLoop", "BoardLog", "board_loop", "check_table", "TABLE_VALUES"]
+
+TABLE_VALUES = 1 << 18  # complex reference values (modes x periods) an emulated board holds: 2 MiB of complex64
+
+
+def check_table(modes: int, periods: int, capacity: int | None, where: str = "the board") -> None:
+    """Raise ValueError (bad input: the shot asks more than the board holds) when ``modes``
+    reference tables of ``periods`` control periods exceed ``capacity`` complex values (None: no
+    limit), saying the budget and what to change."""
+    if capacity is None or modes * periods <= capacity:
+        return
+    raise ValueError(f"loops on the board follow a reference table of modes x control periods: {modes} x {periods} "
+                     f"= {modes * periods:,} values, and {where} holds {capacity:,} (at most {capacity // max(periods, 1)} "
+                     f"modes at this rate, or {capacity // max(modes, 1)} periods with {modes}): lower --control-rate, "
+                     "shorten the shot, keep fewer modes, or run the loops on the host (--loop closed)")
 
 
 @dataclass
@@ -58,17 +69,13 @@ class BoardLog:
 
 @dataclass
 class BoardLoop:
-    """Everything a board needs to run one shot's loops (k kept modes).
+    """Everything a board needs to run one shot's loops (k kept modes, n control periods).
 
     Attributes
     ----------
-    focus_time : float
-        s from the start of the shot.
-    damping, targets, kappa, brake : ndarray, shape (k,)
-        The planned trajectory of each mode (:class:`modalctl.plan.planner.Plan`'s; targets in modal
-        velocity units, rates in units of ``zeta w``); the carriers are the configured ones.
-    reading : ndarray, shape (k, k)
-        ``reading[i, j]``: how much of mode j's velocity mode i's sensor combination reads.
+    reference : ndarray, shape (k, n), complex
+        Each mode's expected reading at the end of each control period (m/s): the reference table
+        (:attr:`modalctl.loops.schedule.Schedule.reference`).
     kp, ki : ndarray, shape (k,)
         PI gains per mode (command per m/s, and per m/s and second).
     limit : ndarray, shape (k,)
@@ -77,12 +84,7 @@ class BoardLoop:
         Each loop's command leaking into its own reading (removed from the error).
     """
 
-    focus_time: float
-    damping: np.ndarray
-    targets: np.ndarray
-    kappa: np.ndarray
-    brake: np.ndarray
-    reading: np.ndarray
+    reference: np.ndarray
     kp: np.ndarray
     ki: np.ndarray
     limit: np.ndarray
@@ -90,22 +92,17 @@ class BoardLoop:
 
     @property
     def modes(self) -> int:
-        return self.targets.size
+        return self.reference.shape[0]
 
-    def references(self, carriers, bandwidths, sample_rate: float, decimation: int, periods: int) -> np.ndarray:
-        """Each mode's expected reading at the end of each period (k, periods), complex m/s: the
-        kept modes' planned velocities, read by each mode's sensor combination, through its lock-in."""
-        carriers = np.asarray(carriers, float)
-        t = np.arange(periods * decimation) / sample_rate
-        velocity, _ = modal_response(t, self.targets, 2 * np.pi * carriers, self.damping, self.kappa, self.brake,
-                                     self.focus_time)
-        phasors = Oscillators(carriers, sample_rate).phasors(t.size)
-        return LockIn(bandwidths, sample_rate, decimation, closing=True).demodulate(self.reading @ velocity, phasors)
+    @property
+    def periods(self) -> int:
+        return self.reference.shape[1]
 
-    def run(self, board, references: np.ndarray, control_rate: float, each_period=None) -> BoardLog:
+    def run(self, board, control_rate: float, each_period=None) -> BoardLog:
         """Close the loops on ``board`` (``read()`` plays a period and returns its envelopes or None,
-        ``write(commands)`` sets the next period's) for every period of ``references``;
-        ``each_period(n)`` is called after each (a board's heartbeat to its host)."""
+        ``write(commands)`` sets the next period's) for every period of the table, at
+        ``control_rate`` (Hz); ``each_period(n)`` is called after each (a board's heartbeat to its host)."""
+        references = self.reference
         pi = PIControl.from_gains(self.kp, self.ki, control_rate)
         scale = np.abs(references) / np.maximum(np.abs(references).max(axis=1, keepdims=True), 1e-300)
         limits = np.ascontiguousarray((self.limit[:, None] * scale).T)
@@ -122,22 +119,20 @@ class BoardLoop:
                 each_period(n)
         return log
 
+    def on_the_wire(self) -> "BoardLoop":
+        """These loops as a board holds them: float32 gains and limits, complex64 table and leak
+        (the protocol's), so that a simulated board runs what a board over a link runs."""
+        def held(values, kind):
+            return np.asarray(values).astype(kind).astype(complex if kind is np.complex64 else float)
+        return BoardLoop(held(self.reference, np.complex64), held(self.kp, np.float32), held(self.ki, np.float32),
+                         held(self.limit, np.float32), held(self.leak, np.complex64))
 
-def board_loop(plan, parts) -> BoardLoop:
-    """The board-side loops of ``plan`` with the gains, authority and leak of ``parts``
-    (:class:`modalctl.loops.shot.LoopParts`, PI controller)."""
+
+def board_loop(parts) -> BoardLoop:
+    """The board-side loops of a shot's ``parts`` (:class:`modalctl.loops.shot.LoopParts`, PI
+    controller): the schedule's references as the table, the design's gains, the authority and leak."""
     if not hasattr(parts.design, "kp") or parts.controller.observes:
         raise ValueError("a board runs PI loops: design the shot with the pi controller, or run the others on the "
                          "host (--loop closed)")
-    drive = plan.drive
-    if not isinstance(drive, EnvelopeDrive):
-        raise ValueError(f"loops on the board follow envelope plans (the board recomputes each reference from its "
-                         f"target, rate and brake), not a {plan.report.planner or 'this'} plan: plan with "
-                         f"--planner envelope, or run the loops on the host (--loop closed)")
-    sensing = parts.schedule.sensors @ plan.model.sensor_gains[plan.modes].T
-    return BoardLoop(float(plan.focus_time), plan.model.damping[plan.modes].astype(float),
-                     np.asarray(drive.targets, float), np.asarray(drive.kappa, float), np.asarray(drive.brake, float),
-                     sensing, np.asarray(parts.design.kp, float), np.asarray(parts.design.ki, float),
-                     parts.authority.max(axis=1), np.asarray(parts.leak, complex))
-
-
+    return BoardLoop(np.asarray(parts.schedule.reference, complex), np.asarray(parts.design.kp, float),
+                     np.asarray(parts.design.ki, float), parts.authority.max(axis=1), np.asarray(parts.leak, complex))

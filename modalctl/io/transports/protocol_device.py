@@ -21,7 +21,7 @@ import numpy as np
 
 from modalctl.io import protocol as p
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError
-from modalctl.loops.onboard import BoardLog, BoardLoop
+from modalctl.loops.onboard import BoardLog, BoardLoop, check_table
 from modalctl.loops.runtime import PhasorBoard
 from modalctl.loops.schedule import Schedule
 
@@ -78,9 +78,6 @@ class ProtocolDevice(Device):
     def budget(self, modes: int) -> float:
         """Control periods per second the link sustains with ``modes`` modes."""
         raise NotImplementedError
-
-    def link_description(self) -> str:
-        return self.url
 
     def close(self) -> None:
         """Release the port or bus."""
@@ -166,7 +163,7 @@ class ProtocolDevice(Device):
                      "snr_db": None if np.isnan(first.snr_db) else float(first.snr_db),
                      "link": self.link_description()}
         self.capabilities = Capabilities(first.name, channels, sensors, fastest, min(limits) if limits else None,
-                                         first.scans > 0, phasor_mode=True)
+                                         first.scans > 0, phasor_mode=True, table_values=int(first.table))
         self._snr = None if np.isnan(first.snr_db) else float(first.snr_db)
         self.scans = first.scans
         return self.capabilities
@@ -313,6 +310,8 @@ class ProtocolPhasorBoard(PhasorBoard):
     """The runtime's board (:class:`modalctl.loops.runtime.PhasorBoard`) over a :class:`ProtocolDevice`."""
 
     runs_loops = True
+    ARMING = 10.0  # s a board may take to arm a shot of its own loops before its first heartbeat (an emulator's
+    # first shot in a fresh process: its set-up and imports, 0.5-1 s; more on a loaded machine)
 
     def __init__(self, device: "ProtocolDevice", level: float):
         self.device, self.level = device, float(level)
@@ -364,21 +363,28 @@ class ProtocolPhasorBoard(PhasorBoard):
         return total
 
     def run_loops(self, loops: BoardLoop) -> BoardLog:
-        """Load the shot's loops into the board (Program), start it, wait for the whole shot and
-        bring back the loops' log (:class:`modalctl.loops.onboard.BoardLog`)."""
+        """Load the shot's loops into the board (Program, then their reference tables in Reference
+        blocks of half an upload's bytes), start it, wait for the whole shot and bring back the
+        loops' log (:class:`modalctl.loops.onboard.BoardLog`); ValueError (bad input) when the tables
+        exceed the board's memory."""
         d = self.device
         if len(d.nodes) > 1:
             raise DeviceError(f"{d.url}: loops on the board need one board with every channel and sensor")
+        check_table(loops.modes, loops.periods, d.capabilities.table_values, f"the board at {d.url}")
         d.request(p.to_program(loops), (p.Ack,))
+        for block in p.references(loops, d.upload_samples // 2):  # complex64: two float32 a value
+            d.request(block, (p.Ack,))
         d._operational(True)
         start = p.Start()
         d.send(start)
+        wait = max(d.timeout, self.ARMING)  # its first beat once the shot is armed
         while True:  # the board beats while it runs the shot; it is done when it acknowledges
-            answer = d.receive((p.Ack, p.Heartbeat), reply_to=start.seq)
+            answer = d.receive((p.Ack, p.Heartbeat), timeout=wait, reply_to=start.seq)
             if answer is None:
                 self.ramp_down(1 / self.control_rate)  # outputs to zero, should it hear
                 raise DeviceError(f"{d.url}: the board stopped answering during its shot (no heartbeat "
-                                  f"for {d.timeout:g} s)")
+                                  f"for {wait:g} s)")
+            wait = d.timeout
             if isinstance(answer, p.Ack):
                 break
         d._operational(False)
