@@ -116,9 +116,11 @@ class Supervisor:
         slope = slope.reshape(per_period.shape).max(axis=2, initial=0.0) * self.sample_rate
         slope_room = np.inf if limits.slew is None else limits.slew - _with_next(slope)
         room = np.broadcast_arrays(limits.voltage - _with_next(peak), slope_room)
-        self.room = np.ascontiguousarray(np.stack(room, axis=2).transpose(1, 0, 2))  # (n, a, 2)
-        # with u = max(|old|, |new|), |new - old| <= 2 u: both slopes are at most sum (w + 2/T) u
-        self.quick = np.column_stack([np.ones(self.omega.size), self.omega + 2 / self.period])
+        self.room = np.ascontiguousarray(np.stack(room, axis=1).transpose(2, 1, 0).reshape(-1, 2 * room[0].shape[0]))
+        # (n, 2 a): each period's voltage room on every channel, then its slope room
+        # with u = max(|old|, |new|), |new - old| <= 2 u: the voltages are at most gains @ u and both
+        # slopes at most (gains (w + 2/T)) @ u: one product, (2 a, k) @ (k,)
+        self.quick = np.vstack([self.gains, self.gains * (self.omega + 2 / self.period)])
         # the exact test's window: the sample before the period the commands play in, that period
         # and the next; the feed-forward with zeros before and after the shot (commands written in
         # its last period play up to lead periods after it); the carriers' phases
@@ -158,7 +160,7 @@ class Supervisor:
             return 1.0
         played = period + self.lead
         size_new = np.abs(new)
-        bound = self.gains @ (np.maximum(self._size_old, size_new)[:, None] * self.quick)
+        bound = self.quick @ np.maximum(self._size_old, size_new)
         if not np.count_nonzero(bound > self.room[min(played, self.room.shape[0] - 1)]):
             self._size_old = size_new
             return 1.0
