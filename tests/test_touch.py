@@ -151,6 +151,32 @@ def test_with_nothing_sure_the_touch_controller_is_its_inner_controller(bump):
         assert np.array_equal(touch.update(error, parts.authority[:, n] + 1), pi.update(error, parts.authority[:, n] + 1))
 
 
+def test_a_lost_reading_moves_the_commands_filter_on_with_the_held_command_and_restarts_the_pairs(bump):
+    """Unit: readings lost at periods 5 and 6 (the runtime holds its command through them): the commands'
+    filter steps through them with the held command, as it would have with the readings, and the
+    estimator's next residual is not paired across the gap."""
+    from modalctl.loops.shot import loop_parts
+    from modalctl.options import LoopOptions
+
+    plan = bump[2][True][1]
+    touch, twin = (loop_parts(plan, LoopOptions(controller="touch")).controller for _ in range(2))
+    touch.reset(), twin.reset()
+    rng = np.random.default_rng(1)
+    k = plan.modes.size
+    restarts = []
+    touch.estimator.restart = lambda: restarts.append(touch.period)
+    sent = np.zeros(k, complex)
+    for n in range(10):
+        reading = rng.standard_normal(k) + 1j * rng.standard_normal(k)
+        if n not in (5, 6):
+            touch.observe(n, reading, sent)
+        twin.observe(n, reading, sent)
+        if n not in (5, 6):  # no update in a lost period: the command written after period 4 is held to 7
+            sent = rng.standard_normal(k) + 1j * rng.standard_normal(k)
+    assert restarts == [7]  # once, at the first reading after the gap, before it is learned from
+    assert np.allclose(touch.filter.state, twin.filter.state, rtol=0, atol=1e-12)
+
+
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "bump", "--param", "width=25mm",
        "--focus-time", "25ms", "--quiet", "--no-plots", "--json"]
 

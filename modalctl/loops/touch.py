@@ -33,6 +33,7 @@ from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
 
 __all__ = ["TouchControl", "CommandFilter", "learned_from", "LEAK_MAX"]
 
+RETUNE = 8  # periods between two readings of the modes' detunings (a drift moves over milliseconds)
 LEAK_MAX = 0.05  # the most a reading the touch estimator learns from may see of the other modes (see learned_from)
 
 
@@ -118,52 +119,101 @@ class TouchControl(Controller):
             raise ValueError("the touch controller needs the shot's schedule (with its planned velocities) and the "
                              "modes' shapes on the grid")
         self.inner, self.design = inner, inner.design
-        self.estimator = TouchEstimator(plant.frequencies, plant.damping, plant.shapes, plant.control_rate, memories,
-                                        plant.touch_at, learned_from(plant))
-        self.filter = CommandFilter(plant.bandwidths, plant.control_rate)
+        # the estimator and the commands' filter work on the modes it learns from only: the others
+        # carry no weight in its sums (a third of panel-rounded's 53), and each array op costs less
+        learned = learned_from(plant)
+        self.learned = np.arange(plant.frequencies.size) if learned is None else np.flatnonzero(learned)
+        use = self._use = slice(None) if self.learned.size == plant.frequencies.size else self.learned
+        self.shapes = np.asarray(plant.shapes, float)
+        self.estimator = None if not use.size else TouchEstimator(
+            np.asarray(plant.frequencies)[use], np.asarray(plant.damping)[use], self.shapes[use],
+            plant.control_rate, memories, plant.touch_at)
+        self.filter = CommandFilter(np.asarray(plant.bandwidths)[use], plant.control_rate)
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
         self.residues = velocity_residues(plant.frequencies, plant.damping)
-        self.held = hold_gain(s.carriers, s.control_rate * s.decimation, HOLD)
+        self._omega = 2 * np.pi * np.asarray(plant.frequencies, float)
+        self._jomega = -1j * self._omega
+        self.held = hold_gain(s.carriers, s.control_rate * s.decimation, HOLD)[use]
         self.lead = max(1, int(round(plant.latency)))  # periods from a measurement to its command's playing
         self.points, self.rate = plant.points, float(plant.control_rate)
-        # one contiguous row per period, read period by period: the planned drive, and the force per
-        # unit of added decay on the planned motion when the command plays (velocity / residue)
-        self._drive_rows = np.ascontiguousarray(self.drive.T)
+        # one contiguous row per period, read period by period: the planned drive of the modes learned
+        # from, and the force per unit of added decay on the planned motion when the command plays
+        # (velocity / residue)
+        self._drive_rows = np.ascontiguousarray(self.drive[use].T)
         self._give_rows = np.ascontiguousarray((self.velocity / self.residues[:, None]).T)
-        self._expected = planned_residuals(self.estimator, s.own, s.drive)  # what the model misses on the plan
+        self._expected = None if self.estimator is None else \
+            planned_residuals(self.estimator, np.asarray(s.own)[use], self.drive[use])  # the model's miss on the plan
         self.reset()
 
     def reset(self) -> None:
         self.inner.reset()
-        self.estimator.reset()
+        if self.estimator is not None:
+            self.estimator.reset()
         self.filter.reset()
-        k = self.residues.size
-        self._sent = deque([np.zeros(k, complex)] * (self.lead - 1))  # commands on their way to the board
-        self.period = -1
+        self._sent = deque([np.zeros(self.learned.size, complex)] * (self.lead - 1))  # commands on their way
+        self._pattern = (None, None)  # (grid index, q over every kept mode there)
+        self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
+        self.period = self._last = -1
         self.history: list[tuple] = []  # (damping, stderr, sure, fit, memory) per period
 
     def scale(self, factor: float) -> None:
         self.inner.scale(factor)
 
     def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
-        self._sent.append(np.asarray(sent, complex))
+        self.period = period
+        if self.estimator is None:  # no mode read cleanly enough to learn a touch from
+            return
+        use = self._use
+        sent = np.asarray(sent, complex)[use]
+        if period > self._last + 1:  # readings lost since the last: the board played the held command
+            self._skip(period - self._last - 1, sent)
+        self._last = period
+        self._sent.append(sent)
         playing = self._sent.popleft()  # the command whose ramp ends with this period
         rows = self._drive_rows
         n = min(period, rows.shape[0] - 1)
-        self.estimator.update(envelope, rows[n] + self.held * self.filter.step(playing), self._expected[n])
-        self.period = period
+        self.estimator.update(envelope[use], rows[n] + self.held * self.filter.step(playing), self._expected[n])
         e = self.estimator.estimate
         self.history.append((e.damping, e.stderr, e.sure, e.fit, e.memory))
 
+    def _skip(self, periods: int, held: np.ndarray) -> None:
+        """``periods`` periods without a reading: the runtime held its command ``held`` through them,
+        so the commands' filter moves on with it, and the estimator pairs the next reading with none
+        (its residual needs the period before, which was lost)."""
+        for _ in range(periods):
+            self._sent.append(held)
+            self.filter.step(self._sent.popleft())
+        self.estimator.restart()
+
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         feedback = self.inner.update(error, limit)
-        if self.period < 0:
+        if self.period < 0 or self.estimator is None:
             return feedback
-        sure = self.estimator.estimate.sure
-        if not sure > 0:  # nothing sure: the inner controller's command as it is
-            return feedback
+        if self.period % RETUNE == 0:
+            self._retune()
+        estimate = self.estimator.estimate
+        give = self._detuned if not estimate.sure > 0 else \
+            estimate.sure * self._pattern_at(estimate.index) + self._detuned
         rows = self._give_rows
-        return feedback + sure * self.estimator.place_pattern * rows[min(self.period + self.lead, rows.shape[0] - 1)]
+        return feedback + give * rows[min(self.period + self.lead, rows.shape[0] - 1)]
+
+    def _retune(self) -> None:
+        """Each mode's detuning as the estimator is sure of it; a mode it does not learn from (read partly
+        through the others) shifted by the median relative shift of those it learns from (a drift in
+        temperature moves every resonance by about the same share)."""
+        sure = self.estimator.detuning()
+        shares = np.sort(sure / self._omega[self.learned]).tolist()
+        middle = len(shares) // 2
+        shared = shares[middle] if len(shares) % 2 else (shares[middle - 1] + shares[middle]) / 2
+        np.multiply(self._jomega, shared, out=self._detuned)
+        self._detuned[self._use] = -1j * sure
+
+    def _pattern_at(self, index: int) -> np.ndarray:
+        """``q_k = phi_k(x0)^2 / 2`` over every kept mode at grid point ``index`` (k,): the touch drains
+        the modes the estimator does not learn from as well."""
+        if self._pattern[0] != index:
+            self._pattern = index, self.shapes[:, index] ** 2 / 2
+        return self._pattern[1]
 
     def summary(self) -> dict | None:
         """The touch as estimated at the end of the shot and every period's estimate."""

@@ -184,37 +184,47 @@ class TouchEstimator:
         one, none, half = np.ones(k), np.zeros(k), self.period / 2
         last = [-self.a, -self.r * self.g0], [half * self.a, none]  # (e, h) weights of (z, u) last period
         this = [one, -self.r * self.g1], [half * one, none]  # and this period
-        self._weights = np.zeros((2, 2, 4, k + 1), complex)  # (slot, (e, h), input, mode)
-        self._weights[..., :k] = np.array([[[*this[0], *last[0]], [*this[1], *last[1]]],  # this period in slot 0
-                                           [[*last[0], *this[0]], [*last[1], *this[1]]]]) * read
+        self._weights = np.zeros((2, 3, 5, k + 1), complex)  # (slot, (e, h, -j e), input, mode)
+        self._weights[:, :2, :4, :k] = np.array([[[*this[0], *last[0]], [*this[1], *last[1]]],  # this period in slot 0
+                                                 [[*last[0], *this[0]], [*last[1], *this[1]]]]) * read
+        self._weights[:, 0, 4, :k] = -read  # the residual the plan predicts, taken away
+        self._weights[:, 2] = -1j * self._weights[:, 0]  # -j e: Re(h* (-j e)) = Im(h* e), a detuning's work
         self._weights[0, 0, 0, k] = self._weights[1, 0, 2, k] = 1  # e = this period's z = 1
         self._reads, self._read = float(np.count_nonzero(self.readable)), read  # read: 1 where it learns
         self._keep = self.forget[:, None, None, None]
         self._memory = self.memories.tolist()
-        m = self.memories.size  # where each memory's sums at a place land in (m, 2, 2, 4), flattened
-        self._picks = np.concatenate([np.ravel_multi_index((np.arange(m), a, b, np.full(m, c)), (m, 2, 2, 4))
+        m = self.memories.size  # where each memory's sums at a place land in (m, 2, 3, 4), flattened
+        self._picks = np.concatenate([np.ravel_multi_index((np.arange(m), a, b, np.full(m, c)), (m, 2, 3, 4))
                                       for a, b, c in ((0, 1, 0), (1, 1, 1), (0, 0, 2), (0, 0, 3))])
         self.reset()
 
     def reset(self) -> None:
         m, k = self.memories.size, self.a.size
-        # per memory and mode, the forgotten sums of the products of (e, h): [[|e|^2, Re(h* e)], [., |h|^2]];
-        # the last column's |e|^2: the weighted count of periods
-        self._sums = np.zeros((m, 2, 2, k + 1))
+        # per memory and mode, the forgotten sums of the products of (e, h) and of h with -j e:
+        # [[|e|^2, Re(h* e), .], [., |h|^2, Im(h* e)]]; the last column's |e|^2: the weighted count of periods
+        self._sums = np.zeros((m, 2, 3, k + 1))
         self._table = self._sums.reshape(-1, k + 1)  # the same, a row per memory and product
         self._losses = [self._sums[j, :, 1, :k] for j in range(m)]  # Re(h* e), |h|^2: (2, k) views
+        self._ratio = np.empty((m, k))  # Re(h* e) / |h|^2 per memory and mode, and Re(h* e) and its losing part
+        self._rr = np.empty((2, m, k))
         self._periods = 0
-        x = self._inputs = np.ones((4, k + 1), complex)  # two slots of (z, U): the last period's and this one's
+        x = self._inputs = np.ones((5, k + 1), complex)  # two slots of (z, U): the last period's and this one's,
+        x[4] = 0  # and the residual the plan predicts for this one
         self._slots = [(x[0, :k], x[1, :k]), (x[2, :k], x[3, :k])]
-        self._eh = np.empty((2, k + 1), complex)  # this period's (e, h)
-        self._parts = self._eh.view(float).reshape(2, k + 1, 2)  # their real and imaginary parts
-        self._products = np.empty((2, 2, k + 1))
+        self._eh = np.empty((3, k + 1), complex)  # this period's (e, h, -j e)
+        self._parts = self._eh.view(float).reshape(3, k + 1, 2)  # their real and imaginary parts
+        self._products = np.empty((2, 3, k + 1))
         self._slot = 1  # this period's
         self._started = False
         self._best = None
         self._row = None  # the place's pattern q over the modes (k,)
         self._chosen = 0  # the memory the last estimate was read with
         self._place = None  # (grid index, q, the weights of the per-memory sums at it (k + 1, 4))
+
+    def restart(self) -> None:
+        """Readings were lost: the next one starts a new pair (its residual needs the period before);
+        the sums so far are kept."""
+        self._started = False
 
     def update(self, envelope: np.ndarray, drive: np.ndarray, expected: np.ndarray | None = None) -> None:
         """Learn from one period: each mode's own envelope (k,) and the lock-in envelope of the
@@ -225,11 +235,10 @@ class TouchEstimator:
         z, u = self._slots[slot]
         z[:], u[:] = envelope, drive
         if self._started:
-            np.einsum("rjk,jk->rk", self._weights[slot], self._inputs, out=self._eh)  # (e, h), (2, k + 1)
-            if expected is not None:
-                self._eh[0, :-1] -= expected
+            self._inputs[4, :-1] = 0.0 if expected is None else expected
+            np.einsum("rjk,jk->rk", self._weights[slot], self._inputs, out=self._eh)  # (e, h, -j e), (3, k + 1)
             parts = self._parts
-            np.einsum("ikc,jkc->ijk", parts, parts, out=self._products)
+            np.einsum("ikc,jkc->ijk", parts[:2], parts, out=self._products)
             self._sums *= self._keep
             self._sums += self._products
             self._periods += 1
@@ -257,7 +266,8 @@ class TouchEstimator:
         else:
             per = self._at(place)
             held = _explained_one(per[0][j], per[1][j])
-            each, losses = self._each(j)
+            every = self._each()
+            each, losses = every[0][j], every[1][j]
             # a place explains at most what the modes that lose would if each lost on its own
             # (Cauchy-Schwarz on them; a pattern q = phi^2 / 2 is never negative): when even that
             # would not move the place, no candidate can, and the search is skipped
@@ -275,7 +285,7 @@ class TouchEstimator:
             return TouchEstimate(0.0, _stderr(energies[j], counts[j], den, 0.0), index, 0.0, memory=memory)
         c = min(-num / den, TOUCH_MAX)
         explained = num * num / den
-        each = each if j == placed_by and each is not None else self._each(j)[0]
+        each = each if j == placed_by and each is not None else self._each()[0][j]
         fit = min(explained / each, 1.0) if each > 0 else 0.0
         trusted = c >= TOUCH_MIN and fit >= FIT_MIN and self._periods >= self.settle
         sure = min(c - SURE * errors[j], floor) if trusted else 0.0
@@ -289,15 +299,20 @@ class TouchEstimator:
         m = self.memories.size
         return per[:m], per[m:2 * m], per[2 * m:3 * m], per[3 * m:]
 
-    def _each(self, j: int) -> tuple[float, float]:
-        """What a decay of each mode's own would take out of memory ``j``'s residual energy:
+    def _each(self) -> tuple[list, list]:
+        """Per memory, what a decay of each mode's own would take out of its residual energy:
         ``sum_k Re(h_k* e_k)^2 / |h_k|^2`` (the fit's denominator), and the part of it the modes
         that lose (``Re(h_k* e_k) < 0``) take: at least what any one touch takes (Cauchy-Schwarz).
-        A mode never driven has ``|h| = Re(h* e) = 0``: it adds nothing."""
-        rr, s = self._losses[j]
-        ratio = s + TINY
-        np.divide(rr, ratio, out=ratio)
-        return float(rr @ ratio), float(np.minimum(rr, 0.0) @ ratio)
+        A mode never driven has ``|h| = Re(h* e) = 0``: it adds nothing. Every memory in five array
+        operations: one memory's took four, and a period asks for one or two."""
+        k = self.a.size
+        ratio, rr = self._ratio, self._rr
+        np.add(self._sums[:, 1, 1, :k], TINY, out=ratio)
+        np.divide(self._sums[:, 0, 1, :k], ratio, out=ratio)
+        np.copyto(rr[0], self._sums[:, 0, 1, :k])
+        np.minimum(rr[0], 0.0, out=rr[1])
+        every, losses = np.einsum("imk,mk->im", rr, ratio).tolist()
+        return every, losses
 
     def _locate(self, j: int, last, held: float, energy: float, count: float):
         """The place, ``(grid index, q, weights)``, read with memory ``j``; None before any data.
@@ -348,6 +363,32 @@ class TouchEstimator:
             if there[best] > explained:
                 return int(self._members[first + best]), float(there[best])
         return int(self.candidates[row]), explained
+
+    def detuning(self) -> np.ndarray:
+        """Each mode's resonance offset from its carrier that the estimator is sure of (rad/s), shape (k,):
+        the per-mode least squares ``theta_k = sum h* e / sum |h|^2`` on the longest memory (a drift
+        stays through a shot), whose imaginary part is the offset (``e ~ (j dw - c q) h``: a touch
+        moves the real part only), shrunk towards zero by ``SURE`` standard errors (residual variance
+        per complex sample over twice ``|h|^2``) and zero on the modes it does not read or before
+        ``SETTLE`` shortest memories of data."""
+        k = self.a.size
+        ee, re = self._sums[-1, 0, :2, :k]
+        hh, im = self._sums[-1, 1, 1:, :k]
+        count = self._sums[-1, 0, 0, k]
+        if self._periods * self.period < self.memories[-1] or not count > 2:  # a memory's worth of data first
+            return np.zeros(k)
+        hh = hh + TINY  # a mode never driven: im = re = 0 there, and so its offset
+        offset = im / hh
+        left = re * re
+        left += im * im
+        left /= hh
+        np.subtract(ee, left, out=left)  # the residual energy the mode's own fit leaves
+        hh *= 2 * (count - 1)
+        left /= hh
+        error = np.sqrt(np.maximum(left, 0.0, out=left), out=left)
+        error *= -SURE
+        error += np.abs(offset)
+        return np.copysign(np.maximum(error, 0.0, out=error), offset, out=error)
 
     @property
     def place_pattern(self) -> np.ndarray | None:
