@@ -14,7 +14,8 @@ exponential forgetting (a few sums per mode per period), over several memories a
 0.25 to 8 ms); each period reads the longest memory whose estimate lies within every shorter one's
 confidence interval (Lepski's rule), so a touch that stays is read from all its data and a landing,
 a press or a lift from the last fraction of a millisecond. A resonance drift adds ``j dw T z`` to
-``e_k``, at right angles to ``h_k``: it does not bias ``c``. Where the touch rests is the candidate
+``e_k``, at right angles to ``h_k``: it does not bias ``c``, and each mode's ``Im(h* e) / |h|^2`` reads
+its detuning (:meth:`TouchEstimator.detuning`). Where the touch rests is the candidate
 point whose pattern ``q(x)`` over the modes explains the most of the residuals (a beam's symmetric
 points look alike; so does their damping of every mode, which is all a controller needs).
 The place is searched in the modes' coordinates, not the grid's: on a plate's thousands of points
