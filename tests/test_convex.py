@@ -65,6 +65,21 @@ def test_the_plans_field_on_the_plant_is_its_prediction(case, margin_plan):
                                                                             abs=1e-9)
 
 
+def test_the_rows_at_points_are_the_shapes_times_the_modal_velocities(case):
+    """The margin rows, contracted over the modes before they are spread over the columns, are the
+    points' shapes times every mode's velocity per column, to round-off: on the nominal model and a
+    drifted copy, before, within and after the late bumps' and the hats' support."""
+    model, shape, dec = case
+    program = Program(model, dec.modes_used, dec.coefficients[dec.modes_used], shape.target_mask, TF,
+                      convex(robust_drift=0.01))
+    points = program.model.shapes[:, program.outside[[0, 17, 90]]].T  # (3, K)
+    for responses in (program.responses[0], program.responses[-1]):
+        for n in (0, 100, 6000, program.focus - 37, program.focus, program.focus + 211, program.samples - 1):
+            want = points @ responses.velocity(n)
+            got = responses.rows(n, points)
+            assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
+
+
 def test_the_focus_state_is_the_decompositions(case, margin_plan):
     """At T_F every kept mode moves at its coefficient, at its velocity peak (displacement zero),
     and every other mode of the model is still: the field there is the reduced field."""

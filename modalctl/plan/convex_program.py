@@ -149,6 +149,7 @@ class Program:
         self.limit_offsets = {}
         self.certified = None  # what the last smallest_ratio did and proved
         self._multipliers = None  # the last optimal round's DAQP multipliers: equalities, and by row key
+        self._carriers = None  # the kept modes' carriers on the shot's samples (m, N)
 
     # -- rows ------------------------------------------------------------------------------------
     def equality(self) -> tuple[np.ndarray, np.ndarray]:
@@ -196,7 +197,7 @@ class Program:
         sign = np.sign(self.focus_field[self.peak_point])
         for s, responses in enumerate(self.responses[1:], start=1):
             weights = sign * self.model.shapes[:, self.peak_point] / (opts.robust_focus * self.peak)
-            row = weights @ responses.velocity(self.focus)
+            row = responses.rows(self.focus, weights[None, :])[0]
             rows.add(("floor", s), row, 1.0 - self._offset(s, weights, self.focus), np.inf)
 
     def _margin_bound(self, plant: int, margin: float) -> float:
@@ -226,7 +227,10 @@ class Program:
         adds to its offset."""
         drive = self.basis.drive(x, self.focus_time, self.fs)
         t = np.arange(self.samples) / self.fs + 0.5 / self.fs
-        return self.basis.weights @ drive.forces(t) + drive.channels(t, self.basis.weights.shape[0])
+        if self._carriers is None:  # the same every round: kept
+            self._carriers = drive.carriers(t)
+        forces = np.real(drive.envelopes(t) * self._carriers)
+        return self.basis.weights @ forces + drive.channels(t, self.basis.weights.shape[0])
 
     def off_target(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
         """The largest off-target |w| at every sample, shape (N,), exactly wherever it exceeds
@@ -271,7 +275,7 @@ class Program:
         if not new:
             return 0
         shapes = self.model.shapes[:, self.outside[new]]  # (K, l)
-        cuts = shapes.T @ self.responses[s].velocity(n) / self._margin_bound(s, 1.0)
+        cuts = self.responses[s].rows(n, shapes.T) / self._margin_bound(s, 1.0)
         for i, weights, cut in zip(new, shapes.T, cuts):
             key = (s, i, n)
             if key not in self.cuts:

@@ -159,19 +159,29 @@ class SplineDrive(Drive):
     volts: np.ndarray | None = None
 
     def forces(self, t):
+        return np.real(self.envelopes(t) * self.carriers(t))
+
+    def carriers(self, t) -> np.ndarray:
+        """``exp(j w_m (t - T_F))``, shape (m, t): each kept mode's carrier (a caller forming many
+        drives on the same instants keeps it: it is half of :meth:`forces`' time)."""
+        return np.exp(1j * self.omega[:, None] * (np.asarray(t, float)[None, :] - self.focus_time))
+
+    def envelopes(self, t) -> np.ndarray:
+        """Each kept mode's complex envelope at ``t``, shape (m, t): the sum of its bumps."""
         t = np.asarray(t, float)
-        envelope = np.zeros((self.omega.size, t.size), complex)  # each mode's complex envelope at t
-        order = np.argsort(t, kind="stable")
+        envelope = np.zeros((self.omega.size, t.size), complex)
+        rising = t.size < 2 or bool(np.all(np.diff(t) >= 0))  # the instants in order: each bump a slice
+        order = np.arange(t.size) if rising else np.argsort(t, kind="stable")
         ts = t[order]
         for family, coefficients in zip(self.bumps, self.envelope):
             span = family.width / self.sample_rate
             starts = family.offsets / self.sample_rate
             first, last = np.searchsorted(ts, starts), np.searchsorted(ts, starts + span)
             for j in range(starts.size):  # each bump where it lives only
-                where = order[first[j]:last[j]]
+                where = slice(first[j], last[j]) if rising else order[first[j]:last[j]]
                 bump = np.sin(np.pi * (t[where] - starts[j]) / span) ** 2
                 envelope[:, where] += coefficients[:, j:j + 1] * bump[None, :]
-        return np.real(envelope * np.exp(1j * self.omega[:, None] * (t[None, :] - self.focus_time)))
+        return envelope
 
     def channels(self, t, count):
         if self.hats is None:
