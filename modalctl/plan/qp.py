@@ -1,8 +1,8 @@
 """The QP solver adapters: one dense quadratic program (:class:`QP`) and :func:`solve_qp`, which
-hands it to DAQP (the default: dual active set, warm-started from the last round's multipliers),
-Clarabel or OSQP (:data:`SOLVERS`, ``ConvexOptions.solver``). Each solver is imported when asked
-for. HiGHS's QP solver was tried and dropped: it stops on the free columns ("Non-convex") and
-takes over ten minutes once they are boxed."""
+hands it to DAQP (the default: dual active set, warm-started from the last round's multipliers, on
+a working set of the rows), Clarabel or OSQP (:data:`SOLVERS`, ``ConvexOptions.solver``). Each
+solver is imported when asked for. HiGHS's QP solver was tried and dropped: it stops on the free
+columns ("Non-convex") and takes over ten minutes once they are boxed."""
 
 from __future__ import annotations
 
@@ -19,6 +19,10 @@ if TYPE_CHECKING:
 __all__ = ["QP", "solve_qp", "SOLVERS"]
 
 SOLVERS = ("daqp", "clarabel", "osqp")  # HiGHS's QP: "Non-convex" on free columns, >10 min when boxed
+PRIMAL_TOL = 1e-6  # DAQP's primal tolerance (its default), on the rows outside its working set too
+NEAR = 0.02  # once a row outside the working set breaks, those within this of their bound join it too (the rows
+# are scaled to a bound of one): each DAQP call starts by factoring the active set again, and the panel's closed-loop
+# rounds took 3-4 calls where they take 2 (its solves 1.5 -> 1.1 s)
 
 
 @dataclass
@@ -80,18 +84,48 @@ def solve_qp(solver: str, qp: QP, energy_bound: float = np.inf, duals=None) -> t
 
 
 def _daqp(qp: QP, a, lower, upper, energy_bound, duals):
-    import daqp
-
-    neq = qp.a_eq.shape[0]
-    sense = np.r_[np.full(neq, 5), np.zeros(len(qp.rows))].astype(np.int32)
-    start = None if duals is None else np.r_[duals, np.zeros(a.shape[0] - duals.size)]
-    x, _, flag, info = daqp.solve(qp.dense_hessian(), qp.linear, a, np.where(np.isfinite(upper), upper, 1e30),
-                                  np.where(np.isfinite(lower), lower, -1e30), sense,
-                                  fval_bound=min(energy_bound, 1e30), dual_start=start)
+    """DAQP on a working set of the rows: the equalities, the rows the warm start holds active and
+    the rows it does not know (the round's new ones); every other row is checked at the solution,
+    and those it breaks join the set until none does. The optimum is the whole program's (its
+    other rows hold with zero multipliers; a working set's infeasibility or dual bound proves the
+    whole program's), and each DAQP iteration, which prices every row it is given, prices a few
+    hundred, not every row found so far (the panel's closed-loop plan: 240 of 1,650 rows active;
+    its solves 1.8-1.9 -> 1.2-1.3 s)."""
+    neq, m = qp.a_eq.shape[0], a.shape[0]
+    upper, lower = np.where(np.isfinite(upper), upper, 1e30), np.where(np.isfinite(lower), lower, -1e30)
+    known = 0 if duals is None else duals.size
+    work = np.ones(m, bool)
+    if duals is not None:
+        work[neq:known] = duals[neq:] != 0
+    start = None if duals is None else np.r_[duals, np.zeros(m - known)]
+    while True:
+        rows = np.flatnonzero(work)
+        x, flag, lam = _daqp_once(qp, a[rows], lower[rows], upper[rows], energy_bound,
+                                  None if start is None else start[rows], neq)
+        if flag not in (1, 2):
+            break
+        out = np.flatnonzero(~work)
+        value = a[out] @ x
+        if not np.any((value > upper[out] + PRIMAL_TOL) | (value < lower[out] - PRIMAL_TOL)):
+            break
+        work[out[(value > upper[out] - NEAR) | (value < lower[out] + NEAR)]] = True  # broken, or nearly
+        start = np.zeros(m)
+        start[rows] = lam
+    multipliers = np.zeros(m)
+    multipliers[rows] = lam
     words = {1: "optimal", 2: "optimal",
              -1: "infeasible" if not np.isfinite(energy_bound) else "infeasible or past the energy bound",
              -6: "more equalities than the basis's columns can meet (DAQP: overdetermined)"}
-    return np.asarray(x), words.get(flag, f"daqp exit flag {flag}"), np.asarray(info["lam"])
+    return x, words.get(flag, f"daqp exit flag {flag}"), multipliers
+
+
+def _daqp_once(qp: QP, a, lower, upper, energy_bound, start, neq):
+    import daqp
+
+    sense = np.r_[np.full(neq, 5), np.zeros(a.shape[0] - neq)].astype(np.int32)
+    x, _, flag, info = daqp.solve(qp.dense_hessian(), qp.linear, a, upper, lower, sense,
+                                  fval_bound=min(energy_bound, 1e30), dual_start=start, primal_tol=PRIMAL_TOL)
+    return np.asarray(x), flag, np.asarray(info["lam"])
 
 
 def _clarabel(hessian, linear, a, lower, upper, neq):
