@@ -348,7 +348,7 @@ def resolved(options: RunOptions, manager=None) -> RunOptions:
     plan = options.plan.but(planner=pick("planner", options.plan.planner, manager))
     loop = options.loop
     if loop is not None:
-        loop = loop.but(controller=pick("controller", loop.controller, manager))
+        loop = loop.but(controller=pick("controller", loop.chosen_controller, manager))
     tracker = pick("tracker", options.tracker, manager) if options.learn == "tracker" else options.tracker
     return options.but(plan=plan, loop=loop, tracker=tracker)
 
@@ -502,7 +502,7 @@ def _listed(values) -> list | None:
 def _loop_metrics(played: _Played, the_plan: Plan, sim_seconds: float) -> LoopMetrics:
     result, design, loop = played.result, played.parts.design, played.loop
     return LoopMetrics(
-        controller=name_of(loop.controller), on_board=loop.on_board, state=result.state.name.lower(), fault=result.reason,
+        controller=name_of(loop.chosen_controller), on_board=loop.on_board, state=result.state.name.lower(), fault=result.reason,
         periods=result.periods, loop_seconds=result.loop_seconds, configure_seconds=result.configure_seconds,
         control_rate_hz=loop.control_rate, limited_periods=result.limited,
         step_seconds_median=float(np.median(result.step_seconds)) if result.step_seconds.size else None,

@@ -42,7 +42,7 @@ def shot(model):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         the_plan = plan(decompose(model, field, 9), 0.025, THESIS_PLAN.but(sample_rate=500e3))
-    return the_plan, loop_parts(the_plan, LoopOptions(control_rate=20e3), 1e-4)
+    return the_plan, loop_parts(the_plan, LoopOptions(control_rate=20e3, on_board=True), 1e-4)
 
 
 def _metrics(path):
@@ -81,7 +81,8 @@ def test_the_board_follows_the_host_s_references_as_tables_and_any_plan(shot):
 def test_loops_on_the_board_measure_what_the_host_loops_measure(on_board_sim, tmp_path, capsys):
     """sim://: the same PI loops at 20 kHz, once exchanging every period with the host, once loaded
     into the board with the same references as tables; both far above open loop."""
-    assert main([*RUN, *TRUTH, "--loop", "closed", "--control-rate", "20kHz", "--out", str(tmp_path / "host")]) == 0
+    assert main([*RUN, *TRUTH, "--loop", "closed", "--controller", "pi", "--control-rate", "20kHz",
+                 "--out", str(tmp_path / "host")]) == 0  # the law the board runs, on the host
     assert main([*RUN, *TRUTH, "--loop", "open", "--out", str(tmp_path / "open")]) == 0
     host, board, open_ = (_metrics(path) for path in (tmp_path / "host", on_board_sim, tmp_path / "open"))
     assert board["loop"]["on_board"] and board["loop"]["periods"] == host["loop"]["periods"]

@@ -8,7 +8,7 @@ import signal
 import sys
 from pathlib import Path
 
-from modalctl.options import LEARN_FROM, ROBUST_DRIFT_MAX, LoopOptions, PlanOptions
+from modalctl.options import BOARD_CONTROLLER, HOST_CONTROLLER, LEARN_FROM, ROBUST_DRIFT_MAX, LoopOptions, PlanOptions
 from modalctl.units import number_type, quantity_type
 
 from .common import DEVICE, add_target, identity, identity_defaults, interruptible, jsonable, model_and_shape, \
@@ -84,8 +84,8 @@ def _add_loop_arguments(loop) -> None:
     loop.add_argument("--latency", type=number_type(int, "latency", low=0, high=1000, low_open=False),
                       default=LOOP.latency, help=f"extra periods the board takes to use a command ({LOOP.latency})")
     loop.add_argument("--controller", default=LOOP.controller,
-                      help=f"per-mode controller plugin: pi, lqg, or touch (pi plus the force a finger takes, "
-                           f"estimated during the shot) ({LOOP.controller})")
+                      help=f"per-mode controller plugin: pi, lqg, or touch (pi plus the force a finger and a drift "
+                           f"take, estimated during the shot) ({HOST_CONTROLLER}; {BOARD_CONTROLLER} on a board)")
     loop.add_argument("--touch-at", type=quantity_type("m", "touch-at", point=True), metavar="POINT",
                       help="touch controller: where a touch sensor says the finger rests, e.g. 0mm (default: "
                            "the controller finds it)")
@@ -180,8 +180,8 @@ def _applying(args) -> list[tuple[bool, bool, str]]:
     closed, convex = args.loop != "open", args.planner == "convex"
     return [
         (bool(args.learn), closed, "--learn needs a closed loop (--loop closed or board)"),
-        (args.touch_at is not None, closed and args.controller == "touch",
-         "--touch-at tells the touch controller where the finger rests: it needs --loop closed --controller touch"),
+        (args.touch_at is not None, args.loop == "closed" and (args.controller or HOST_CONTROLLER) == "touch",
+         "--touch-at tells the touch controller where the finger rests: it needs --loop closed and that controller"),
         (args.robust_drift > 0, convex and args.margin is not None,
          "--robust-drift holds the convex planner's margin on drifted truths: it needs --planner convex and a "
          "--margin (not none)"),

@@ -13,6 +13,7 @@ import argparse
 import json
 from pathlib import Path
 
+from modalctl.options import LoopOptions
 from modalctl.units import number_type, quantity_type
 
 from .common import identity, identity_defaults, jsonable, out_dir, parse_param, points, progress_bars, stage, \
@@ -56,7 +57,7 @@ def add_arguments(p) -> None:
     p.add_argument("--sample-rate", type=quantity_type("Hz", "sample-rate", low=0), default=case.sample_rate,
                    help=f"DAC rate ({case.sample_rate / 1e3:g}kHz)")
     p.add_argument("--controller", default=case.controller,
-                   help=f"per-mode controller plugin of the closed loops ({case.controller})")
+                   help=f"per-mode controller plugin of the closed loops ({LoopOptions().chosen_controller})")
     p.add_argument("--scheduler", help="dask.distributed scheduler address (default: a local process pool)")
     p.add_argument("--workers", type=number_type(int, "workers", low=1, high=256, low_open=False),
                    help="local processes (default: every core)")
@@ -120,7 +121,7 @@ def _cases(args, axes: list, methods: list) -> list:
     base = Case(args.scene, args.shape, tuple(args.param) or Case.params, args.focus_time, "open", planner=args.planner,
                 margin=args.margin, points=args.points, control_rate=args.control_rate,
                 sample_rate=args.sample_rate, controller=args.controller, **truth)
-    get_controller(args.controller)
+    get_controller(LoopOptions(controller=args.controller).chosen_controller)
     return [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
             for m in methods for values in itertools.product(*[v for _, v in axes])]
 

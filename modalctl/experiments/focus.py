@@ -182,7 +182,8 @@ def step_runtime(model, mode: int, truth=None, loop: LoopOptions = LoopOptions()
     decimation = int(round(sample_rate / loop.control_rate))
     schedule = Schedule(loop.control_rate, decimation, model.frequencies[modes], bands, sensors, reference, drive,
                         reference, np.zeros((weights.shape[0], periods * decimation)), weights)
-    parts = parts_for(schedule, model, modes, loop.but(authority=100.0))
+    # no planned motion for the touch controller to give back on: unless one is named, the PI loop
+    parts = parts_for(schedule, model, modes, loop.but(authority=100.0, controller=loop.controller or "pi"))
     supervisor = Supervisor(parts.limits, schedule, np.full(1, size))
     recorder = None if log is None else Recorder(log, log_fields(1, weights.shape[0]))
     board = HILBoard(model if truth is None else truth, sample_rate, BoardSetup(latency=latency))

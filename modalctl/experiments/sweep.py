@@ -70,8 +70,8 @@ class Case:
         Grid points of a beam scene.
     control_rate, sample_rate : float
         Hz.
-    controller : str
-        Controller plugin of the closed loops.
+    controller : str or None
+        Controller plugin of the closed loops (None: :attr:`LoopOptions.chosen_controller`).
     authority : float
         Largest feedback command of a mode, as a fraction of its planned drive at that moment.
     seed : int
@@ -93,7 +93,7 @@ class Case:
     points: int | None = 211
     control_rate: float = 20e3
     sample_rate: float = 500e3
-    controller: str = "pi"
+    controller: str | None = LoopOptions.controller
     authority: float = LoopOptions.authority
     seed: int = 0
 

@@ -61,8 +61,8 @@ class PIControl(Controller):
         trial += self.integral
         command = proportional + trial
         size = np.abs(command)
-        within = size <= limit
-        if np.count_nonzero(within) == within.size:  # the usual case when every loop has authority
+        inside = size <= limit
+        if np.count_nonzero(inside) == inside.size:  # the usual case when every loop has authority
             self.integral = trial
             return command
         # those over their limit and pushing further hold their integral (anti-windup), then every
@@ -72,7 +72,7 @@ class PIControl(Controller):
         held = np.conjugate(command)
         held *= error
         held = held.real > 0
-        held &= np.logical_not(within, out=within)
+        held &= np.logical_not(inside, out=inside)
         np.copyto(trial, self.integral, where=held)
         np.add(proportional, trial, out=command)
         np.abs(command, out=size)
@@ -106,3 +106,4 @@ class PIControl(Controller):
             command.append(c)
         self.integral = np.array(integral, complex)
         return np.array(command, complex)
+

@@ -130,7 +130,8 @@ class TouchControl(Controller):
         self.estimator = None if not use.size else TouchEstimator(
             np.asarray(plant.frequencies)[use], np.asarray(plant.damping)[use], self.shapes[use],
             plant.control_rate, memories, plant.touch_at)
-        self.filter = CommandFilter(np.asarray(plant.bandwidths)[use], plant.control_rate)
+        self.filter = None if self.estimator is None else CommandFilter(np.asarray(plant.bandwidths)[use],
+                                                                        plant.control_rate)
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
         self.residues = velocity_residues(plant.frequencies, plant.damping)
         omega = 2 * np.pi * np.asarray(plant.frequencies, float)
@@ -151,10 +152,11 @@ class TouchControl(Controller):
         self.inner.reset()
         if self.estimator is not None:
             self.estimator.reset()
-        self.filter.reset()
+            self.filter.reset()
         self._sent = deque([np.zeros(self.learned.size, complex)] * (self.lead - 1))  # commands on their way
         self._pattern = (None, None)  # (grid index, q over every kept mode there)
         self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
+        self._shared = 0.0  # the relative shift of every resonance it is sure of
         self.period = self._last = -1
         self.history: list[tuple] = []  # (damping, stderr, sure, fit, memory) per period
 
@@ -194,10 +196,15 @@ class TouchControl(Controller):
         if self.period % RETUNE == 0:
             self._retune()
         estimate = self.estimator.estimate
+        if not estimate.sure > 0 and self._shared == 0.0:  # nothing sure: the inner controller's command
+            return feedback
         give = self._detuned if not estimate.sure > 0 else \
             estimate.sure * self._pattern_at(estimate.index) + self._detuned
         rows = self._give_rows
-        return feedback + give * rows[min(self.period + self.lead, rows.shape[0] - 1)]
+        command = give * rows[min(self.period + self.lead, rows.shape[0] - 1)]
+        command *= limit > 0  # a resting loop is given nothing (its authority bounds the feedback only: a
+        command += feedback  # finger of 1 N s/m takes five times a mode's planned drive at the focus)
+        return command
 
     def _retune(self) -> None:
         """Every mode shifted by the median relative shift the estimator is sure of on the modes it learns
@@ -211,6 +218,7 @@ class TouchControl(Controller):
         middle = len(shares) // 2
         shared = shares[middle] if len(shares) % 2 else (shares[middle - 1] + shares[middle]) / 2
         np.multiply(self._jomega, shared, out=self._detuned)
+        self._shared = shared
 
     def _pattern_at(self, index: int) -> np.ndarray:
         """``q_k = phi_k(x0)^2 / 2`` over every kept mode at grid point ``index`` (k,): the touch drains
