@@ -177,6 +177,21 @@ def test_a_lost_reading_moves_the_commands_filter_on_with_the_held_command_and_r
     assert np.allclose(touch.filter.state, twin.filter.state, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("snr", [None, 40.0])
+def test_the_default_closed_loop_is_the_pi_loops_on_an_untouched_structure(bump, snr):
+    """No finger, no drift (with 40 dB of noise or none): the default controller (touch) plays the PI loops'
+    shot exactly, nothing sure to give back."""
+    from modalctl.options import LoopOptions
+
+    assert LoopOptions().chosen_controller == "touch" and LoopOptions(on_board=True).chosen_controller == "pi"
+    model, target, plans = bump
+    shots = [run(model, target, SimDevice(model, Perturbation(snr_db=snr)),
+                 RunOptions(FOCUS, PlanOptions(), LoopOptions(controller=name)), planned=plans[True])
+             for name in (None, "pi")]
+    assert shots[0].loop.controller == "touch" and shots[1].loop.controller == "pi"
+    assert np.array_equal(shots[0].focus_field, shots[1].focus_field)
+
+
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "bump", "--param", "width=25mm",
        "--focus-time", "25ms", "--quiet", "--no-plots", "--json"]
 
