@@ -20,6 +20,10 @@ __all__ = ["QP", "solve_qp", "SOLVERS"]
 
 SOLVERS = ("daqp", "clarabel", "osqp")  # HiGHS's QP: "Non-convex" on free columns, >10 min when boxed
 PRIMAL_TOL = 1e-6  # DAQP's primal tolerance (its default), on the rows outside its working set too
+WORKING_SET = 400  # rows active at the warm start (equalities included) up to which DAQP gets a working set: each
+# call factors its warm start again, about (rows active)^2 x columns, and past this the calls a working set adds
+# cost more than the rows it leaves out save (the panel's closed loop, 210-350 active: solves 1.8-1.9 -> 1.2-1.3 s;
+# a tablet's 30 mm bump, 480-725 active on 3,776 columns: 40 -> 63 s with one, 57 s with its second call on all)
 NEAR = 0.02  # once a row outside the working set breaks, those within this of their bound join it too (the rows
 # are scaled to a bound of one): each DAQP call starts by factoring the active set again, and the panel's closed-loop
 # rounds took 3-4 calls where they take 2 (its solves 1.5 -> 1.1 s)
@@ -84,7 +88,8 @@ def solve_qp(solver: str, qp: QP, energy_bound: float = np.inf, duals=None) -> t
 
 
 def _daqp(qp: QP, a, lower, upper, energy_bound, duals):
-    """DAQP on a working set of the rows: the equalities, the rows the warm start holds active and
+    """DAQP on a working set of the rows (while the warm start holds at most :data:`WORKING_SET` rows
+    active; else on every row): the equalities, the rows the warm start holds active and
     the rows it does not know (the round's new ones); every other row is checked at the solution,
     and those it breaks join the set until none does. The optimum is the whole program's (its
     other rows hold with zero multipliers; a working set's infeasibility or dual bound proves the
@@ -95,7 +100,7 @@ def _daqp(qp: QP, a, lower, upper, energy_bound, duals):
     upper, lower = np.where(np.isfinite(upper), upper, 1e30), np.where(np.isfinite(lower), lower, -1e30)
     known = 0 if duals is None else duals.size
     work = np.ones(m, bool)
-    if duals is not None:
+    if duals is not None and neq + np.count_nonzero(duals[neq:]) <= WORKING_SET:
         work[neq:known] = duals[neq:] != 0
     start = None if duals is None else np.r_[duals, np.zeros(m - known)]
     while True:
