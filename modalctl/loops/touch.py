@@ -158,7 +158,7 @@ class TouchControl(Controller):
         self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
         self._shared = 0.0  # the relative shift of every resonance it is sure of
         self.period = self._last = -1
-        self.history: list[tuple] = []  # (damping, stderr, sure, fit, memory) per period
+        self.history: list = []  # the estimate (TouchEstimate) per period
 
     def scale(self, factor: float) -> None:
         self.inner.scale(factor)
@@ -177,8 +177,7 @@ class TouchControl(Controller):
         rows = self._drive_rows
         n = min(period, rows.shape[0] - 1)
         self.estimator.update(envelope[use], rows[n] + self.held * self.filter.step(playing), self._expected[n])
-        e = self.estimator.estimate
-        self.history.append((e.damping, e.stderr, e.sure, e.fit, e.memory))
+        self.history.append(self.estimator.estimate)
 
     def _skip(self, periods: int, held: np.ndarray) -> None:
         """``periods`` periods without a reading: the runtime held its command ``held`` through them,
@@ -235,7 +234,8 @@ class TouchControl(Controller):
         if not self.history:
             return None
         e = self.estimator.estimate
-        damping, stderr, sure, fit, memory = (np.array(v) for v in zip(*self.history))
+        damping, stderr, sure, fit, memory = (np.array([getattr(h, name) for h in self.history])
+                                              for name in ("damping", "stderr", "sure", "fit", "memory"))
         sensed = np.flatnonzero(sure > 0)
         return {"damping_n_s_per_m": e.damping, "stderr_n_s_per_m": e.stderr if np.isfinite(e.stderr) else None,
                 "sure_n_s_per_m": e.sure, "sensed": e.sensed,

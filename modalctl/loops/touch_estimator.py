@@ -263,12 +263,12 @@ class TouchEstimator:
                 self._row = None
                 return TouchEstimate(0.0, np.inf, None, 0.0)
             per = self._at(place)
-            each = None
+            every = None
         else:
             per = self._at(place)
             held = _explained_one(per[0][j], per[1][j])
             every = self._each()
-            each, losses = every[0][j], every[1][j]
+            losses = every[1][j]
             # a place explains at most what the modes that lose would if each lost on its own
             # (Cauchy-Schwarz on them; a pattern q = phi^2 / 2 is never negative): when even that
             # would not move the place, no candidate can, and the search is skipped
@@ -279,14 +279,14 @@ class TouchEstimator:
         index, q = place[0], place[1]
         self._row = q
         nums, dens, energies, counts = per
-        placed_by, (j, floor, errors) = j, _agreeing(nums, dens, energies, counts)
+        j, floor, errors = _agreeing(nums, dens, energies, counts)
         self._chosen = j
         num, den, memory = nums[j], dens[j], self._memory[j]
         if not (den > 0 and num < 0):  # nothing damps the modes there now
             return TouchEstimate(0.0, _stderr(energies[j], counts[j], den, 0.0), index, 0.0, memory=memory)
         c = min(-num / den, TOUCH_MAX)
         explained = num * num / den
-        each = each if j == placed_by and each is not None else self._each()[0][j]
+        each = (every or self._each())[0][j]
         fit = min(explained / each, 1.0) if each > 0 else 0.0
         trusted = c >= TOUCH_MIN and fit >= FIT_MIN and self._periods >= self.settle
         sure = min(c - SURE * errors[j], floor) if trusted else 0.0
