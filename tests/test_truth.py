@@ -193,3 +193,15 @@ def test_a_finger_rests_on_the_targets_peak_when_the_truth_lies_on_another_grid(
     assert main(argv) == 0
     at = json.loads((tmp_path / "run" / "metrics.json").read_text())["device_info"]["finger_at_m"][0]
     assert abs(at - 0.024) < 1.5e-3, at
+
+
+def test_a_scene_name_is_the_scene_even_beside_a_file_of_that_name(tmp_path, monkeypatch):
+    """``--truth plate-glass`` run from a folder holding a file named ``plate-glass``: the scene (review finding:
+    the file was read as a model first)."""
+    from modalctl.hil.sim_device import _named_truth
+    from modalctl.model.scenes import load_scene
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "thesis-al-cc").write_bytes(b"not a model")
+    truth = _named_truth("thesis-al-cc")
+    assert np.array_equal(truth.frequencies, load_scene("thesis-al-cc").frequencies)

@@ -13,7 +13,7 @@ from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, Dev
 from modalctl.loops.onboard import TABLE_VALUES
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.noise_stream import NoiseStream
-from modalctl.model.scenes import continued, load_scene
+from modalctl.model.scenes import SCENES, continued, load_scene
 from modalctl.model.shape import ParamError
 
 from .finger import FingerPlant
@@ -247,10 +247,13 @@ def _structure(context: DeviceContext) -> ModalModel:
 
 
 def _named_truth(name: str) -> ModalModel:
-    """A scene by name, or a model file (``.npz``) by path."""
+    """A scene by name, or a model file (``.npz``) by path: a scene's name is the scene, even where a
+    file of that name lies in the working directory."""
+    if name in SCENES:
+        return load_scene(name)
     if name.endswith(".npz") or Path(name).is_file():
         return ModalModel.load(name)
-    return load_scene(name)
+    return load_scene(name)  # an unknown name: the scenes' own error lists them
 
 
 def _same_structure(model: ModalModel, truth: ModalModel, name: str) -> None:
