@@ -22,9 +22,9 @@ The place is searched in the modes' coordinates, not the grid's: on a plate's th
 the candidates are a few hundred patterns spread over all the points' (:func:`candidate_places`),
 each standing for the points whose pattern is nearest or second nearest its own, among which the
 best candidate's place is refined; and a period skips the search when no pattern at all could move
-the place (a bound from the residuals alone). A period costs ``O(modes x candidates)``: with the
-lock-in filter of the commands about 24 us of CPU on panel-rounded (8591 points, 21 modes; 90 us
-before, with 512 candidates by index and per-memory Python) and 21 us on thesis-al-cc.
+the place (a bound from the residuals alone). A period costs ``O(modes x candidates)``, the modes being
+those it learns from (16 of panel-rounded's 53, 256 candidates for its 8591 points); the period's
+whole loop update is measured by ``benchmarks/plate_speed.py`` (the touch controller's case).
 The estimate's standard error comes from the residuals left; :attr:`TouchEstimate.sure` is the
 damping the estimate is confident of (``c - SURE * stderr``, and no more than any shorter memory is
 sure of: a lift shows in the shortest first; zero below ``TOUCH_MIN``, before
