@@ -101,7 +101,7 @@ def learned_from(plant: LoopPlant) -> np.ndarray | None:
 
 
 class TouchControl(Controller):
-    """An inner per-mode controller plus the force a touch estimated during the shot takes.
+    """An inner per-mode controller plus the force a touch and a drift estimated during the shot take.
 
     Parameters
     ----------
@@ -197,15 +197,15 @@ class TouchControl(Controller):
         estimate = self.estimator.estimate
         if not estimate.sure > 0 and self._shared == 0.0:  # nothing sure: the inner controller's command
             return feedback
-        give = self._detuned if not estimate.sure > 0 else \
-            estimate.sure * self._pattern_at(estimate.index) + self._detuned
-        rows = self._give_rows
         if not np.count_nonzero(limit):  # no loop has authority (a shot played open through the loops):
             return feedback  # nothing given back either
         # to every mode, a resting loop's too: the give-back is a feed-forward on the planned motion, and
         # not bounded by the authority, which bounds the feedback (a finger of 1 N s/m takes five times
         # a mode's planned drive at the focus; only to loops with authority: plate-glass's landing finger
         # given back 80 -> 77%, the panel's 76 -> 72%)
+        give = self._detuned if not estimate.sure > 0 else \
+            estimate.sure * self._pattern_at(estimate.index) + self._detuned
+        rows = self._give_rows
         return feedback + give * rows[min(self.period + self.lead, rows.shape[0] - 1)]
 
     def _retune(self) -> None:
