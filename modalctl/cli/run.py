@@ -72,10 +72,11 @@ def _add_plan_arguments(p) -> None:
 
 def _add_loop_arguments(loop) -> None:
     loop.add_argument("--loop", choices=("open", "closed", "board"), default="open",
-                      help="open: feed-forward only (the thesis); closed: per-mode feedback on top, one "
-                           "exchange with the board per period (at most the rate the link carries); board: the same "
-                           "PI loops and their reference tables loaded into the board, which closes them itself (no "
-                           "link budget; modes x periods within its memory)")
+                      help="open: feed-forward only (the thesis); closed: per-mode feedback on top (the touch "
+                           "controller: PI plus what a finger and a drift take), one exchange with the board per "
+                           "period (at most the rate the link carries); board: PI loops and their reference tables "
+                           "loaded into the board, which closes them itself (no link budget; modes x periods within "
+                           "its memory)")
     loop.add_argument("--control-rate", type=quantity_type("Hz", "control-rate", low=0), default=LOOP.control_rate,
                       help=f"loop rate, a divisor of the sample rate ({LOOP.control_rate / 1e3:g}kHz)")
     loop.add_argument("--authority", type=number_type(float, "authority", low=0, low_open=False),
