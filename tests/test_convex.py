@@ -282,3 +282,22 @@ def test_a_least_energy_program_that_fails_is_a_refusal_not_a_traceback(case, mo
             plan(dec, TF, convex(margin=None))
         assert refused.value.certificate["status"] == ("infeasible" if proven else "not certified")
         assert refused.value.certificate["margin"] is None
+
+
+def test_a_daqp_call_stops_at_its_time():
+    """solve_qp's time reaches inside DAQP's call (its time limit): a program DAQP takes tens of
+    seconds over (3,000 rows on 2,000 columns) stops within a fraction of one, out of time."""
+    import time
+
+    from modalctl.plan.convex_program import _Rows
+    from modalctl.plan.qp import OUT_OF_TIME, QP, solve_qp
+
+    rng = np.random.default_rng(0)
+    columns = 2000
+    rows = _Rows()
+    for key, row in enumerate(rng.normal(size=(3000, columns))):
+        rows.add(key, row, -1.0, 1.0)
+    qp = QP(np.ones(columns), 10 * rng.normal(size=columns), np.zeros((0, columns)), np.zeros(0), rows)
+    tic = time.perf_counter()
+    _, status, _ = solve_qp("daqp", qp, seconds=0.05)
+    assert status == OUT_OF_TIME and time.perf_counter() - tic < 2.0

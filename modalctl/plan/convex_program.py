@@ -20,11 +20,10 @@ from modalctl.options import PlanOptions
 
 from .convex_basis import Basis, Cover, Responses
 from .dispatch import dispatch
-from .qp import QP, solve_qp
+from .qp import OUT_OF_TIME, QP, solve_qp
 
 __all__ = ["Program", "Solution", "OUT_OF_TIME", "PROOFS"]
 
-OUT_OF_TIME = "out of time"  # a solve stopped at its deadline
 PROOFS = ("infeasible", "infeasible or past the energy bound", "past the energy bound")  # the solvers' proofs
 FAR = 3.0  # a drive whose field passes this many times the check's floor is far over the margin
 THREADS = 2  # threads checking a robust program's plants at once (a round's checks: benchmarks/plate_speed.py)
@@ -314,7 +313,8 @@ class Program:
         """The least-energy drive under ``margin`` (default: the options'; inf: none) and the
         limits, by constraint generation from every row an earlier solve found. Returns the last
         iterate and how far it got; past ``deadline`` (``time.perf_counter``'s), it stops at the
-        next round with the status :data:`OUT_OF_TIME`. ``progress``: a bar over the rounds with
+        next round, or within a later round's DAQP call, with the status :data:`OUT_OF_TIME` (the
+        last round's iterate, checked). ``progress``: a bar over the rounds with
         the ratio each reached and the rows so far (a tablet panel's plan takes a minute)."""
         opts = self.options.convex
         margin = self.margin if margin is None else float(margin)
@@ -341,8 +341,12 @@ class Program:
                     status = OUT_OF_TIME  # x: the last round's, checked
                     break
                 tic = _time.perf_counter()
-                x, status, duals = solve_qp(opts.solver, qp, bound, duals)
+                left = None if deadline is None or round_ == 1 else deadline - tic  # a first round always ends
+                solved, status, found = solve_qp(opts.solver, qp, bound, duals, left)
                 self.seconds["solve"] += _time.perf_counter() - tic
+                if status == OUT_OF_TIME:
+                    break  # x: the last round's, checked
+                x, duals = solved, found
                 if status != "optimal":
                     break
                 if duals is not None:

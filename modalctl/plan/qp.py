@@ -9,6 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+import time as _time
+
 import numpy as np
 
 from .planner import PlanError
@@ -16,9 +18,10 @@ from .planner import PlanError
 if TYPE_CHECKING:
     from .convex_program import _Rows
 
-__all__ = ["QP", "solve_qp", "SOLVERS"]
+__all__ = ["QP", "solve_qp", "SOLVERS", "OUT_OF_TIME"]
 
 SOLVERS = ("daqp", "clarabel", "osqp")  # HiGHS's QP: "Non-convex" on free columns, >10 min when boxed
+OUT_OF_TIME = "out of time"  # a solve stopped at its deadline
 PRIMAL_TOL = 1e-6  # DAQP's primal tolerance (its default), on the rows outside its working set too
 WORKING_SET = 400  # rows active at the warm start (equalities included) up to which DAQP gets a working set: each
 # call factors its warm start again, about (rows active)^2 x columns, and past this the calls a working set adds
@@ -64,14 +67,17 @@ class QP:
         return float(0.5 * self.b_eq @ np.linalg.pinv(gram, hermitian=True) @ self.b_eq)
 
 
-def solve_qp(solver: str, qp: QP, energy_bound: float = np.inf, duals=None) -> tuple[np.ndarray, str, object]:
+def solve_qp(solver: str, qp: QP, energy_bound: float = np.inf, duals=None,
+             seconds: float | None = None) -> tuple[np.ndarray, str, object]:
     """Solve ``qp``; returns ``(x, status, duals)``, status ``optimal``, ``infeasible``, ``past the
-    energy bound`` or the solver's word. ``duals`` (DAQP's multipliers) warm-start the next round,
-    whose rows extend this one's."""
+    energy bound``, :data:`OUT_OF_TIME` or the solver's word. ``duals`` (DAQP's multipliers)
+    warm-start the next round, whose rows extend this one's. ``seconds``: the time DAQP may take
+    (its own time limit, inside a call: a tablet's call took 147 s); the other solvers take theirs."""
     a, lower, upper = qp.matrices()
     neq = qp.a_eq.shape[0]
     if solver == "daqp":
-        return _daqp(qp, a, lower, upper, energy_bound, duals)
+        deadline = None if seconds is None else _time.perf_counter() + seconds
+        return _daqp(qp, a, lower, upper, energy_bound, duals, deadline)
     try:
         if solver == "clarabel":
             x, status = _clarabel(qp.hessian, qp.linear, a, lower, upper, neq)
@@ -87,7 +93,7 @@ def solve_qp(solver: str, qp: QP, energy_bound: float = np.inf, duals=None) -> t
     return x, status, None
 
 
-def _daqp(qp: QP, a, lower, upper, energy_bound, duals):
+def _daqp(qp: QP, a, lower, upper, energy_bound, duals, deadline=None):
     """DAQP on a working set of the rows (while the warm start holds at most :data:`WORKING_SET` rows
     active; else on every row): the equalities, the rows the warm start holds active and
     the rows it does not know (the round's new ones); every other row is checked at the solution,
@@ -105,8 +111,9 @@ def _daqp(qp: QP, a, lower, upper, energy_bound, duals):
     start = None if duals is None else np.r_[duals, np.zeros(m - known)]
     while True:
         rows = np.flatnonzero(work)
+        left = 0.0 if deadline is None else max(deadline - _time.perf_counter(), 1e-3)  # DAQP: 0 is no limit
         x, flag, lam = _daqp_once(qp, a[rows], lower[rows], upper[rows], energy_bound,
-                                  None if start is None else start[rows], neq)
+                                  None if start is None else start[rows], neq, left)
         if flag not in (1, 2):
             break
         out = np.flatnonzero(~work)
@@ -120,16 +127,17 @@ def _daqp(qp: QP, a, lower, upper, energy_bound, duals):
     multipliers[rows] = lam
     words = {1: "optimal", 2: "optimal",
              -1: "infeasible" if not np.isfinite(energy_bound) else "infeasible or past the energy bound",
-             -6: "more equalities than the basis's columns can meet (DAQP: overdetermined)"}
+             -6: "more equalities than the basis's columns can meet (DAQP: overdetermined)", -7: OUT_OF_TIME}
     return x, words.get(flag, f"daqp exit flag {flag}"), multipliers
 
 
-def _daqp_once(qp: QP, a, lower, upper, energy_bound, start, neq):
+def _daqp_once(qp: QP, a, lower, upper, energy_bound, start, neq, seconds):
     import daqp
 
     sense = np.r_[np.full(neq, 5), np.zeros(a.shape[0] - neq)].astype(np.int32)
     x, _, flag, info = daqp.solve(qp.dense_hessian(), qp.linear, a, upper, lower, sense,
-                                  fval_bound=min(energy_bound, 1e30), dual_start=start, primal_tol=PRIMAL_TOL)
+                                  fval_bound=min(energy_bound, 1e30), dual_start=start, primal_tol=PRIMAL_TOL,
+                                  time_limit=seconds)
     return np.asarray(x), flag, np.asarray(info["lam"])
 
 
