@@ -143,8 +143,8 @@ HOW = {
     "--out DIR": ("drop", lambda tmp, out: _serial_shot(out, "note: control at 1824.82 Hz, not 2000: the link carries "
                                                        "1829 periods/s with 8 modes")),
     ".venv/bin/modalctl sweep --vary drift=0,1%,2%,3% --vary finger=0,0.1,0.3,1Ns/m --damping-error 20% "
-    "[--methods open,closed,tracked,learned] [--controller pi] [--workers N | --scheduler tcp://host:8786] "
-    "--out DIR": ("drop", None),
+    "[--methods open,closed,tracked,learned] [--controller touch|pi|lqg] [--voltage-limit 70V|none] "
+    "[--workers N | --scheduler tcp://host:8786] --out DIR": ("drop", None),
 }
 #: Blocks of the README run here (by their first command), the slow ones (seconds each) marked.
 FAST = {".venv/bin/modalctl scenes"}

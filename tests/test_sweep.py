@@ -42,6 +42,21 @@ def test_sweep_maps_open_against_closed(capsys, tmp_path):
     assert (tmp_path / "maps.png").stat().st_size > 10_000 and "| drift (%) |" in (tmp_path / "sweep.md").read_text()
 
 
+def test_sweep_plans_within_the_model_s_safe_voltage_as_run_does(capsys, tmp_path):
+    """The scene's actuators' safe voltage (70 V) is a sweep's default limit, as run's (issue 39: a sweep planned
+    without it); --voltage-limit sets another or none."""
+    from modalctl.model.scenes import load_scene
+
+    limits = {}
+    for extra, name in (([], "default"), (["--voltage-limit", "30V"], "30"), (["--voltage-limit", "none"], "none")):
+        out = tmp_path / name
+        assert main(["sweep", "--vary", "drift=0", "--methods", "open", *extra, "--out", str(out), "--json",
+                     "--quiet"]) == 0, capsys.readouterr().err
+        limits[name] = json.loads((out / "sweep.json").read_text())["rows"][0]["voltage_limit"]
+    assert limits == {"default": load_scene("thesis-al-cc").voltage_limit, "30": 30.0, "none": None}
+    assert limits["default"] == 70.0
+
+
 @pytest.mark.slow
 def test_sweep_runs_a_plate_on_its_own_grid(capsys, tmp_path):
     """A plate scene takes its own NxM grid (the beams' 211-point default would not fit it)."""

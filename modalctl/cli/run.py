@@ -50,7 +50,7 @@ def _add_plan_arguments(p) -> None:
                    default=PLAN.robust_drift,
                    help="convex planner: hold the margin on every truth whose resonances lie within this band "
                         "of the model's, e.g. 1%% (0)")
-    p.add_argument("--voltage-limit", type=_voltage_limit,
+    p.add_argument("--voltage-limit", type=voltage_limit,
                    help="largest drive voltage, e.g. 100V, or none; a plan above it is refused (exit 1). Default: "
                         "the model's actuators' safe voltage (its meta's voltage_limit_v: 70 V for the scenes' "
                         "0.2 mm PZT-5A patches), none when the model does not say")
@@ -102,14 +102,14 @@ def _add_loop_arguments(loop) -> None:
 _VOLTS = quantity_type("V", "voltage-limit", low=0)
 
 
-def _voltage_limit(text: str):
+def voltage_limit(text: str):
     """``--voltage-limit``: a voltage (V) above zero, or ``none`` (no limit but the device's rails)."""
     if text.strip().lower() == "none":
         return "none"
     return _VOLTS(text)
 
 
-_voltage_limit.bounds, _voltage_limit.__name__ = _VOLTS.bounds, _VOLTS.__name__  # its range, for the property suite
+voltage_limit.bounds, voltage_limit.__name__ = _VOLTS.bounds, _VOLTS.__name__  # its range, for the property suite
 
 
 def _planned_voltage(args, model, options):

@@ -18,6 +18,7 @@ from modalctl.units import number_type, quantity_type
 
 from .common import identity, identity_defaults, jsonable, out_dir, parse_param, points, progress_bars, stage, \
     write_json
+from .run import voltage_limit
 
 NAME, HELP = "sweep", "run a focus case over a grid of scenarios on the HIL and map where methods fail"
 
@@ -48,6 +49,9 @@ def add_arguments(p) -> None:
                    help=f"planner plugin ({case.planner}: the sweeps measure the loops on the thesis's plan)")
     p.add_argument("--margin", type=quantity_type("1", "margin", low=0, high=1), default=case.margin,
                    help="transient margin to plan for")
+    p.add_argument("--voltage-limit", type=voltage_limit,
+                   help="largest drive voltage, e.g. 100V, or none; default: the model's actuators' safe voltage, "
+                        "as run's")
     p.add_argument("--vary", action="append", default=[], type=parse_param, metavar="NAME=V1,V2,...",
                    help="a swept parameter and its values: " + ", ".join(SWEPT) + " (one or two)")
     p.add_argument("--methods", default=",".join(METHODS[:3]),
@@ -117,11 +121,13 @@ def _cases(args, axes: list, methods: list) -> list:
     get_planner(args.planner)
     if args.points is None and args.scene in SCENES and isinstance(SCENES[args.scene].default_points, int):
         args.points = Case.points  # a beam: a fifth of the scenes' grids draws their modes and runs five times faster
-    load_scene(args.scene, args.points)
+    model = load_scene(args.scene, args.points)
+    volts = None if args.voltage_limit == "none" else args.voltage_limit or model.voltage_limit
     base = Case(args.scene, args.shape, tuple(args.param) or Case.params, args.focus_time, "open", planner=args.planner,
                 margin=args.margin, points=args.points, control_rate=args.control_rate,
-                sample_rate=args.sample_rate, controller=args.controller, **truth)
-    get_controller(LoopOptions(controller=args.controller).chosen_controller)
+                sample_rate=args.sample_rate, controller=LoopOptions(controller=args.controller).chosen_controller,
+                voltage_limit=volts, **truth)
+    get_controller(base.controller)
     return [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
             for m in methods for values in itertools.product(*[v for _, v in axes])]
 

@@ -75,6 +75,9 @@ class Case:
     authority : float
         Largest feedback command of a mode, as a fraction of its planned drive at that moment.
     seed : int
+    voltage_limit : float or None
+        Largest drive voltage the plan may use (V; ``modalctl sweep`` gives the model's actuators' safe
+        voltage unless told otherwise, as ``run`` does).
     """
 
     scene: str = "thesis-al-cc"
@@ -96,6 +99,7 @@ class Case:
     controller: str | None = LoopOptions.controller
     authority: float = LoopOptions.authority
     seed: int = 0
+    voltage_limit: float | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -104,7 +108,7 @@ class Case:
     def options(self) -> RunOptions:
         """The shot's options: the plan's, and the loops' unless open loop."""
         plan = THESIS_PLAN.but(planner=self.planner, modes=self.modes or "auto", margin=self.margin,
-                               sample_rate=self.sample_rate)
+                               sample_rate=self.sample_rate, voltage_limit=self.voltage_limit)
         loop = None if self.method == "open" else LoopOptions(
             control_rate=self.control_rate, controller=self.controller, authority=self.authority, latency=self.latency)
         return RunOptions(self.focus_time, plan, loop, LEARNING[self.method])
