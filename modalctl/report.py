@@ -406,7 +406,8 @@ def plot_loop(log, path) -> Path:
     axes[0].set(ylabel="|envelope| (m/s)", title="per-mode envelopes: reference (solid) and measured (dashed)")
     axes[0].legend(fontsize=7, ncol=4)
     axes[1].set(xlabel="time (ms)", ylabel="|feedback command| (modal force)",
-                title="feedback commands (each at most its authority)")
+                title="feedback commands (the loops', within their authority, and what a touch or a drift is given "
+                      "back)")
     failed = np.flatnonzero(records["state"] == 3)
     for ax in axes:
         for n in failed:
