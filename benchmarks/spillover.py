@@ -217,7 +217,7 @@ def one_case(case: str) -> list[dict]:
 def main() -> None:
     start = time.perf_counter()
     rows = [row for case in CASES for row in one_case(case)]
-    data = {"rows": rows, "snr_db": SNR, "focus_time_s": FOCUS,
+    data = {"rows": rows, "snr_db": SNR, "focus_time_s": FOCUS, "controller": LoopOptions().chosen_controller,
             "wall_seconds": time.perf_counter() - start}
     report(data, write_json("spillover", data))
 
@@ -246,7 +246,8 @@ def report(data: dict, path) -> None:
     rows = data["rows"]
     md = ["# Spillover: the loops on a truth richer than their model", "",
           "`python benchmarks/spillover.py`: each truth played by the plan made on the model, open loop and under the "
-          f"default loops (PI), {data['snr_db']:g} dB of noise, T_F {1e3 * data['focus_time_s']:g} ms, "
+          f"default loops (`{data.get('controller', 'pi')}`; `touch` is the PI loops plus what a touch or a drift "
+          f"it reads is given back), {data['snr_db']:g} dB of noise, T_F {1e3 * data['focus_time_s']:g} ms, "
           "through `sim://` "
           "(tau and margin on every grid point with the vibrometer's noise). Stability: the PI gain scale at which the "
           "loops go unstable, predicted from each active loop's closed-loop poles on the truth's whole answer in its "
@@ -299,7 +300,7 @@ def _chart(rows: list) -> None:
         mine = [r for r in rows if r["case"] == case]
         x = np.arange(len(mine))
         top, bottom = axes[0, col], axes[1, col]
-        for key, style, name in (("open", "o", "open loop"), ("closed", "s", "closed loop (PI)")):
+        for key, style, name in (("open", "o", "open loop"), ("closed", "s", "closed loop (the default)")):
             top.plot(x, [r[key]["tau"] for r in mine], style + "-", label=f"tau, {name}")
             top.plot(x, [r[key]["margin_ratio"] for r in mine], style + "--", label=f"margin ratio, {name}")
         top.axhline(0.5, color="r", lw=0.8, ls=":", label="margin criterion 0.5")
