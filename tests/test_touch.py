@@ -192,6 +192,26 @@ def test_the_default_closed_loop_is_the_pi_loops_on_an_untouched_structure(bump,
     assert np.array_equal(shots[0].focus_field, shots[1].focus_field)
 
 
+def test_the_shift_given_back_is_the_clean_modes_median_within_its_bound(bump):
+    """Unit: every mode is given back -j dw y / r for the median relative shift the estimator reads on the modes
+    it learns from (one mode's odd reading moves nothing), and never past SHIFT_MAX."""
+    from modalctl.loops.shot import loop_parts
+    from modalctl.loops.touch import SHIFT_MAX
+    from modalctl.options import LoopOptions
+
+    plan = bump[2][True][1]
+    touch = loop_parts(plan, LoopOptions()).controller
+    touch.reset()
+    omega = 2 * np.pi * plan.model.frequencies[plan.modes][touch.learned]
+    for shares, expected in (([0.02, 0.03, 0.01, -0.5, 0.02, 0.025, 0.02], 0.02), ([0.4] * 7, SHIFT_MAX)):
+        shares = np.resize(shares, omega.size)
+        touch.estimator.detuning = lambda: shares * omega
+        touch._retune()
+        assert touch._shared == pytest.approx(expected)  # the median (-0.5 moves nothing), or the bound
+        all_omega = 2 * np.pi * plan.model.frequencies[plan.modes]
+        assert np.allclose(touch._detuned, -1j * touch._shared * all_omega)
+
+
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "bump", "--param", "width=25mm",
        "--focus-time", "25ms", "--quiet", "--no-plots", "--json"]
 

@@ -36,6 +36,7 @@ from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
 __all__ = ["TouchControl", "CommandFilter", "learned_from", "LEAK_MAX"]
 
 RETUNE = 8  # periods between two readings of the modes' detunings (a drift moves over milliseconds)
+SHIFT_MAX = 0.1  # the largest relative shift of the resonances given back: past any drift a plan holds (+-2%)
 LEAK_MAX = 0.05  # the most a reading the touch estimator learns from may see of the other modes (see learned_from)
 
 
@@ -219,6 +220,7 @@ class TouchControl(Controller):
         shares = np.sort(sure / self._learned_omega).tolist()
         middle = len(shares) // 2
         shared = shares[middle] if len(shares) % 2 else (shares[middle - 1] + shares[middle]) / 2
+        shared = min(max(shared, -SHIFT_MAX), SHIFT_MAX)
         np.multiply(self._jomega, shared, out=self._detuned)
         self._shared = shared
 
