@@ -186,9 +186,10 @@ class Runtime:
         # one contiguous row per period: the loop reads them period by period
         self._reference, self._authority = (np.ascontiguousarray(np.asarray(x).T)
                                             for x in (schedule.reference, parts.authority))
-        # what each mode's reading holds of the others' answers (the reference less the mode's own),
-        # a row per period: the controllers and trackers that observe get the mode's own answer
-        self._others = np.ascontiguousarray((np.asarray(schedule.reference) - np.asarray(schedule.own)).T)
+        # each mode's own planned answer, a row per period: the controllers and trackers that observe get
+        # the mode's own answer, the measured less what its reading holds of the others' (the reference
+        # less the planned own) and the leak: the planned own less the error, one operation
+        self._own = np.ascontiguousarray(np.asarray(schedule.own).T)
         self._gains = np.abs(schedule.weights)
         self.recorder, self.tracker = recorder, tracker
         self.held = hold_gain(schedule.carriers, schedule.control_rate * schedule.decimation, HOLD)
@@ -253,7 +254,7 @@ class Runtime:
         reference, leaked = self._reference[n], self.leak * self.command
         error = reference - measured + leaked
         if self.tracker is not None or self.controller.observes:
-            own = measured - self._others[n] - leaked  # the mode's own answer
+            own = self._own[n] - error  # the mode's own answer: measured - (reference - own) - leaked
             if self.tracker is not None:
                 drive = (self.schedule.drive[:, n] + self.command) * self.held
                 self.tracker.update(own[:, None], drive[:, None])

@@ -80,11 +80,12 @@ class CommandFilter:
         self._output = self._next.view(complex)[:, 0, 0]
 
     def step(self, value: np.ndarray) -> np.ndarray:
-        """The filtered value (k,) at this sample of the input ``value`` (k,); the filter moves on."""
+        """The filtered value (k,) at this sample of the input ``value`` (k,); the filter moves on. The
+        array returned is the filter's own, overwritten by the next step: use it before."""
         self._input[:] = value
         np.matmul(self._step, self._parts, out=self._next)  # the output, then the next state
         self._state[:] = self._state_next
-        return self._output.copy()
+        return self._output
 
 
 def learned_from(plant: LoopPlant) -> np.ndarray | None:
