@@ -93,7 +93,8 @@ def test_a_run_draws_its_pictures_beside_its_fields_and_says_what_stopped_them(c
     assert "the pictures could not be drawn (ValueError: out of ink)" in said and "Traceback" not in said
     kept = json.loads((tmp_path / "broken" / "metrics.json").read_text())
     assert kept["pictures_error"] == "ValueError: out of ink" and "pictures" not in kept and kept["tau"] > 0.9
-    assert "Traceback" in (tmp_path / "broken" / "pictures-error.txt").read_text()
+    said_on_file = (tmp_path / "broken" / "pictures-error.txt").read_text()
+    assert "Traceback" in said_on_file and said_on_file.count("pictures failed") == 2  # both children's, not the first's
     assert (tmp_path / "broken" / "fields.npz").exists() and not list((tmp_path / "broken").glob("*.png"))
 
 

@@ -325,21 +325,25 @@ def _pictures_drawn(pictures: list, metrics: dict, out: Path) -> float | None:
     metrics, its fields and the other pictures are not lost for it) is said on stderr, its
     traceback in ``DIR/pictures-error.txt`` and its last line in ``metrics["pictures_error"]``: None."""
     answers = []
-    for child in pictures:
-        try:
-            answers.append(child.result())
-        except RuntimeError as ended:  # the child ended without an answer
-            answers.append({"error": str(ended)})
+    try:
+        for child in pictures:
+            try:
+                answers.append(child.result())
+            except RuntimeError as ended:  # the child ended without an answer
+                answers.append({"error": str(ended)})
+    except BaseException:  # interrupted while waiting: no child drawing on behind the run's back
+        for child in pictures:
+            child.stop()
+        raise
     drawn = {k: v for answer in answers for k, v in answer.get("pictures", {}).items()}
     if drawn:
         metrics["pictures"] = drawn
     failed = [answer["error"] for answer in answers if "error" in answer]
     if not failed:
         return max(answer["seconds"] for answer in answers)
-    answer = {"error": failed[0]}
     from modalctl.outdir import atomic
 
-    text = f"drawing the run's pictures failed: {answer['error']}"
+    text = "\n".join(f"drawing the run's pictures failed: {error}" for error in failed)  # every child's
     with atomic(out / "pictures-error.txt") as path:  # never through a link planted in the folder
         path.write_text(text + "\n")
     last = [line for line in text.splitlines() if line.strip()][-1]
