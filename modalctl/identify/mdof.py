@@ -16,6 +16,7 @@ from modalctl.model.modes import ModelError
 
 from .estimators import (
     FAIR_ERROR,
+    NOISE,
     Modes,
     constants_of,
     fit_band,
@@ -23,6 +24,7 @@ from .estimators import (
     modes_from_rows,
     sdof_fit,
 )
+from .coarse import coarse_rows
 from .frf import FRF
 from .lscf import pick_poles, stabilization
 
@@ -189,4 +191,5 @@ def auto_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
 
     rows = [(*single.row(i)[:4], False, UNSEEN) if unseen_by_lscf(i) else single.row(i)
             for i in range(single.n_modes) if not replaced(i)]
-    return modes_from_rows(rows + [multi.row(i) for i in new], frf.values.shape[0], "auto")
+    rows = coarse_rows(frf, rows + [multi.row(i) for i in new], skip=(NOISE,))
+    return modes_from_rows(rows, frf.values.shape[0], "auto")

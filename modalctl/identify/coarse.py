@@ -1,0 +1,191 @@
+"""Modes whose peak the file's lines under-resolve: one pole on all FRFs at once, judged by their agreement.
+
+Where a mode's half-power band ``2 zeta f`` spans fewer than ``RESOLVED_LINES`` lines, the
+peak is one or two lines: the band fit's misfit says little (the noise grows with the
+response at the peak, and a peak between two lines is fitted as well by two poles on them,
+as LSCF does), and a local optimizer started at a line stays there. Such a pole is fitted
+instead by least squares on every FRF jointly, each with its own complex constant (any
+residue: a window or a record that truncates the response turns it), a complex constant and
+slope: the frequency is searched on a grid of a twentieth of a line over the peak's lines
+before it is polished, so no line traps it. It is judged by what the FRFs themselves say:
+the jackknife over the FRFs (the fit again with each left out) gives its frequency's standard
+error, which holds every cause of their disagreement (noise, a hit that differs, a peak too
+narrow for the lines). A pole is a mode when three of those errors are within
+``FREQUENCY_TOLERANCE`` of it; else it is left out, saying how far the FRFs disagree.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from modalctl.model.modes import ModelError
+
+from .estimators import FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, modal_constants
+from .frf import FRF
+
+__all__ = ["JointPole", "joint_pole", "coarse_rows", "under_resolved", "LINES_SEARCHED", "HALF_LINES"]
+
+LINES_SEARCHED = 1.0  # the frequency is searched this many lines either side of the start
+HALF_LINES = 3  # the band fitted spans this many lines either side of the pole (at least)
+GRID = 20  # frequency grid steps per line
+DAMPING_GRID = np.geomspace(1e-4, 0.1, 31)
+
+
+@dataclass(frozen=True)
+class JointPole:
+    """One pole fitted on all FRFs jointly (:func:`joint_pole`).
+
+    Attributes
+    ----------
+    f_hz, zeta : float
+    sigma_hz : float
+        Jackknife standard error of ``f_hz`` over the FRFs (Hz).
+    spread_hz : tuple of float
+        Lowest and highest frequency of one pole fitted on each FRF alone (Hz).
+    lines : float
+        Its half-power band ``2 zeta f`` in lines.
+    """
+
+    f_hz: float
+    zeta: float
+    sigma_hz: float
+    spread_hz: tuple
+    lines: float
+
+    @property
+    def fixed(self) -> bool:
+        """Whether the FRFs agree on its frequency within ``FREQUENCY_TOLERANCE`` (3 sigma)."""
+        return bool(3 * self.sigma_hz <= FREQUENCY_TOLERANCE * self.f_hz)
+
+    def reason(self, rows: int) -> str:
+        """Why it is left out (when not :attr:`fixed`): what the FRFs said."""
+        return (f"its peak spans {self.lines:.1f} lines and the {rows} FRFs disagree on it: one pole fitted on each "
+                f"alone lands between {self.spread_hz[0]:.2f} and {self.spread_hz[1]:.2f} Hz (searched within a line), on all jointly at "
+                f"{self.f_hz:.2f} Hz +- {self.sigma_hz:.2f} Hz (jackknife over the FRFs; 3 sigma at most "
+                f"{FREQUENCY_TOLERANCE:.0%})")
+
+
+def _chi(freqs: np.ndarray, h: np.ndarray, f, zeta, centre: float) -> np.ndarray:
+    """Joint residual energy of ``h`` (nb, rows) for each pole ``(f, zeta)`` (arrays of one
+    shape; each pole with its two general columns, a constant and a slope), that shape."""
+    f, zeta = np.broadcast_arrays(np.asarray(f, float), np.asarray(zeta, float))
+    w, wk, z = 2 * np.pi * freqs, 2 * np.pi * f.reshape(-1, 1), zeta.reshape(-1, 1)
+    den = wk**2 - w**2 + 2j * z * wk * w  # (poles, nb)
+    ones = np.ones_like(den)
+    b = np.stack([1j * w / den, wk**2 / den, ones, ones * (freqs / centre - 1)], axis=-1)  # (poles, nb, 4)
+    q, _ = np.linalg.qr(b)
+    inside = np.einsum("pnk,nr->pkr", q.conj(), h)
+    return (np.sum(np.abs(h) ** 2) - np.sum(np.abs(inside) ** 2, axis=(1, 2))).reshape(f.shape)
+
+
+def _fit(freqs: np.ndarray, h: np.ndarray, f0: float, z0: float, df: float, search: bool = True) -> tuple[float, float]:
+    """The pole ``(f, zeta)`` minimizing the joint residual of ``h`` (nb, rows): with ``search``
+    a grid over ``f0 +- LINES_SEARCHED`` lines and ``DAMPING_GRID`` first, then polished from
+    the best point (or from ``(f0, z0)``) by Nelder-Mead on the frequency in lines and log zeta."""
+    import scipy.optimize  # here, not at import: the command line's help loads every identifier
+
+    centre = float(np.mean(freqs))
+    if search:
+        grid = f0 + df * np.arange(-LINES_SEARCHED * GRID, LINES_SEARCHED * GRID + 1) / GRID
+        chi = _chi(freqs, h, grid[:, None], DAMPING_GRID[None, :], centre)
+        i, j = np.unravel_index(np.argmin(chi), chi.shape)
+        f0, z0 = float(grid[i]), float(DAMPING_GRID[j])
+    step = np.log(DAMPING_GRID[1] / DAMPING_GRID[0])
+    cost = lambda x: float(_chi(freqs, h, f0 + x[0] * df, z0 * np.exp(x[1] * step), centre))  # noqa: E731
+    sol = scipy.optimize.minimize(cost, np.zeros(2), method="Nelder-Mead",
+                                  options={"initial_simplex": [[0, 0], [1 / GRID, 0], [0, 1]], "xatol": 1e-4,
+                                           "fatol": 0.0})
+    return float(f0 + sol.x[0] * df), float(z0 * np.exp(sol.x[1] * step))
+
+
+def _grid_best(freqs: np.ndarray, h: np.ndarray, f0: float, df: float) -> float:
+    """The frequency of the best pole on the search grid around ``f0`` (no polish), Hz."""
+    grid = f0 + df * np.arange(-LINES_SEARCHED * GRID, LINES_SEARCHED * GRID + 1) / GRID
+    chi = _chi(freqs, h, grid[:, None], DAMPING_GRID[None, :], float(np.mean(freqs)))
+    return float(grid[np.argmin(np.min(chi, axis=1))])
+
+
+def _local_best(freqs: np.ndarray, h: np.ndarray, f0: float, z0: float, df: float) -> float:
+    """The best frequency near a known optimum ``(f0, z0)`` (a line either side, the damping
+    within a factor 1.6), a parabola through the profile's three lowest grid values, Hz."""
+    offsets = np.linspace(-1.0, 1.0, 4 * GRID + 1)
+    chi = _chi(freqs, h, (f0 + df * offsets)[:, None], z0 * np.exp(np.linspace(-0.5, 0.5, 11))[None, :],
+               float(np.mean(freqs)))
+    profile = np.min(chi, axis=1)
+    i = int(np.clip(np.argmin(profile), 1, offsets.size - 2))
+    a, b, c = profile[i - 1:i + 2]
+    shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c > 0 else 0.0
+    return float(f0 + df * (offsets[i] + np.clip(shift, -1, 1) * (offsets[1] - offsets[0])))
+
+
+def joint_pole(frf: FRF, f: float, zeta: float) -> JointPole:
+    """One pole near ``f`` (Hz; ``zeta`` its first damping ratio) fitted on every row of ``frf``
+    jointly, with its frequency's jackknife standard error over the rows.
+
+    The band is ``f +- max(3 zeta f, HALF_LINES lines)``; the damping is searched on
+    ``DAMPING_GRID``. Rows are the FRFs (any input, any point).
+    """
+    df = float(frf.frequencies[1] - frf.frequencies[0])
+    half = max(3 * zeta * f, HALF_LINES * df) + LINES_SEARCHED * df
+    keep = np.abs(frf.frequencies - f) <= half
+    freqs, h = frf.frequencies[keep], frf.values[:, keep].T
+    f_fit, z_fit = _fit(freqs, h, f, zeta, df)
+    rows = h.shape[1]
+    alone = np.array([_grid_best(freqs, h[:, [r]], f_fit, df) for r in range(rows)])
+    left = np.array([_local_best(freqs, np.delete(h, r, axis=1), f_fit, z_fit, df) for r in range(rows)]) \
+        if rows > 2 else np.array([f_fit])
+    sigma = float(np.sqrt((rows - 1) / rows * np.sum((left - left.mean()) ** 2))) if rows > 2 else np.inf
+    return JointPole(f_fit, z_fit, sigma, (float(alone.min()), float(alone.max())), 2 * z_fit * f_fit / df)
+
+
+def under_resolved(f: float, zeta: float, df: float) -> bool:
+    """Whether a pole's half-power band spans fewer than ``RESOLVED_LINES`` lines of ``df`` (Hz)."""
+    return bool(np.isfinite(zeta) and 0 < zeta and 2 * zeta * f / df < RESOLVED_LINES)
+
+
+def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
+    """Rows ``(f, zeta, constants, misfit, resolved, reason)`` with every under-resolved pole the
+    band fit did not explain (misfit above ``UNRESOLVED_ERROR``) fitted again by :func:`joint_pole`.
+
+    Such poles within ``LINES_SEARCHED + 1`` lines of each other are one peak (LSCF's pair on
+    the lines either side of it, a peak-picked pole and a doubtful one): fitted once, from the
+    one of lowest misfit; one near a pole the band fit explained is that pole's; a group of
+    poles no band fit was made of (LSCF's doubtful ones, misfit infinite) is left as it is. Poles whose
+    reason is in ``skip`` (peaks of the noise) are left as they are. A pole :attr:`JointPole.fixed`
+    is returned at the joint fit with its constants by :func:`modal_constants`; else it is left
+    out with :meth:`JointPole.reason`.
+    """
+    df = float(frf.frequencies[1] - frf.frequencies[0])
+    near = (LINES_SEARCHED + 1) * df
+
+    def candidate(r) -> bool:
+        return under_resolved(r[0], r[1], df) and r[5] not in skip and (not r[4] or r[3] > UNRESOLVED_ERROR)
+
+    sure = np.array([r[0] for r in rows if r[4] and not candidate(r)])
+    out = [r for r in rows if not candidate(r)]
+    peaks = sorted((r for r in rows if candidate(r)), key=lambda r: r[0])
+    groups = []
+    for r in peaks:
+        if sure.size and np.min(np.abs(sure - r[0])) <= near:
+            continue
+        if groups and r[0] - groups[-1][-1][0] <= near:
+            groups[-1].append(r)
+        else:
+            groups.append([r])
+    for group in groups:
+        if not any(np.isfinite(r[3]) for r in group):  # LSCF's doubtful poles only: no peak was fitted there
+            out.extend(group)
+            continue
+        f, zeta = min(group, key=lambda r: r[3])[:2]
+        pole = joint_pole(frf, f, zeta)
+        try:
+            fit = modal_constants(frf, pole.f_hz, pole.zeta, max(3 * pole.zeta * pole.f_hz, HALF_LINES * df),
+                                  frequency_check=False)
+        except ModelError:  # at the edge of the measurement
+            out.append((f, zeta, np.zeros(frf.values.shape[0]), np.inf, False, group[0][5]))
+            continue
+        why = "" if pole.fixed else pole.reason(frf.values.shape[0])
+        out.append((pole.f_hz, pole.zeta, fit.constants, fit.misfit, pole.fixed, why))
+    return out

@@ -1,0 +1,59 @@
+"""Modes whose half-power band spans fewer lines than resolve a pole (issue 38: the strip's 0.5 Hz lines)."""
+
+from dataclasses import replace
+
+import numpy as np
+
+from modalctl.identify.coarse import joint_pole
+from modalctl.identify.frf import FRF, mobility
+from modalctl.identify.survey import identify_frf
+
+DF = 0.5  # Hz per line, as the strip's analyzer exported
+
+
+def coarse_frf(f_rows, zeta=0.002, noise=0.01, seed=1, others=((120.0, 0.002),)):
+    """One mode of ``zeta`` at ``f_rows`` (one frequency per row: rows that disagree, or the same
+    for all) and separated ``others``, on lines every ``DF``; complex noise of ``noise`` times
+    each row's peak."""
+    rng = np.random.default_rng(seed)
+    freqs = np.arange(5.0, 200.0 + DF / 2, DF)
+    rows = len(f_rows)
+    shape = np.sin(np.pi * (np.arange(rows) + 0.5) / rows * 2.3) + 0.2
+    values = np.vstack([mobility(freqs, [f, *[o[0] for o in others]], [zeta, *[o[1] for o in others]],
+                                 np.array([[shape[r]], *[[1.0 - 0.05 * r] for _ in others]]))[0]
+                        for r, f in enumerate(f_rows)])
+    scale = np.max(np.abs(values), axis=1, keepdims=True)
+    values = values + noise * scale * (rng.standard_normal(values.shape) + 1j * rng.standard_normal(values.shape))
+    points = np.column_stack([0.1 * np.arange(rows)])
+    return FRF(freqs, values, np.ones(values.shape), points, input_unit="N")
+
+
+def test_joint_pole_fixes_a_peak_narrower_than_a_line():
+    f_true = 53.23  # between two lines; half-power band 0.21 Hz: 0.4 lines
+    frf = coarse_frf([f_true] * 20)
+    pole = joint_pole(frf, 53.0, 0.006)  # started where a peak picker lands: on a line, too damped
+    assert abs(pole.f_hz - f_true) < 0.02 * DF
+    assert abs(pole.zeta / 0.002 - 1) < 0.2
+    assert pole.fixed and pole.sigma_hz < 0.02 * DF
+    assert pole.lines < 1
+
+
+def test_joint_pole_says_when_the_frfs_disagree():
+    rng = np.random.default_rng(3)
+    frf = coarse_frf(list(53.0 + rng.uniform(-1.0, 1.0, 20)), zeta=0.001)  # every hit its own peak
+    pole = joint_pole(frf, 53.0, 0.002)
+    assert not pole.fixed
+    assert "disagree" in pole.reason(20) and "jackknife" in pole.reason(20)
+
+
+def test_default_identify_returns_one_mode_for_a_peak_between_two_lines():
+    # twenty hits that differ a little (0.08 Hz, each its own trigger's phase), the peak 0.4 lines
+    # wide between two lines: LSCF fits it by a pair of poles on the lines either side, which
+    # auto returned as two modes; the joint fit returns one, at the peak
+    rng = np.random.default_rng(12)
+    frf = coarse_frf(list(53.23 + 0.08 * rng.standard_normal(20)), noise=0.003, seed=2)
+    frf = replace(frf, values=frf.values * np.exp(1j * rng.uniform(-0.8, 0.8, (20, 1))))
+    survey = identify_frf(frf, 1.0)
+    assert survey.model.n_modes == 2
+    assert abs(survey.model.frequencies[0] - 53.23) < 0.1 * DF
+    assert abs(survey.model.frequencies[1] - 120.0) < 0.02 * DF
