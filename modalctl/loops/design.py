@@ -25,7 +25,7 @@ from .pi import PIControl
 # this module only when a controller is made, so commands that design no loop do not pay for it
 
 __all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "cluster_poles",
-           "pi_controller"]
+           "cluster_model", "pi_controller"]
 
 
 def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
@@ -147,19 +147,7 @@ def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     loops = np.atleast_1d(np.asarray(loops, int))
     s, design = parts.schedule, parts.design
     period = 1 / s.control_rate
-    offsets = 2 * np.pi * (np.asarray(s.carriers)[loops] - s.carriers[loops[0]])  # rad/s in w0's frame
-    p, w0 = poles(truth), 2j * np.pi * s.carriers[loops[0]]
-    r = p / (p - p.conj())
-    drive = truth.actuator_gains @ np.asarray(s.weights)[:, loops]  # (M, k): each loop's unit force on each mode
-    seen = np.asarray(s.sensors)[loops] @ truth.sensor_gains.T  # (k, M): each loop's reading of each mode
-    static = seen @ ((r.conj() / (w0 - p.conj()))[:, None] * drive) - np.diag(np.asarray(parts.leak)[loops])
-    # a mode far from every loop's carrier (beyond NEAR lock-in corners) answers within the loops'
-    # band as its static gain: the state space holds the modes near the cluster, whatever the truth's size
-    reach = np.abs(offsets).max() + 2 * np.pi * NEAR * np.max(np.asarray(s.bandwidths)[loops])
-    near = np.abs((p - w0).imag) <= reach
-    static = static + seen[:, ~near] @ ((r[~near] / (w0 - p[~near]))[:, None] * drive[~near])
-    modes = (np.diag(p[near] - w0), drive[near], seen[:, near] * r[near], static)
-    filters = _stacked([_turned(lockin_filter(s.bandwidths[i]), offset) for i, offset in zip(loops, offsets)])
+    modes, filters, offsets = cluster_model(s, loops, truth, np.asarray(parts.leak)[loops])
     plant = control.c2d(control.ss(*_real(*_series(modes, filters))), period, method="foh")
     late = control.ss(control.tf([1], [1] + [0] * max(1, int(parts.lead)), period))
     controllers = []
@@ -172,6 +160,44 @@ def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     loop = control.series(control.ss(*_real(*_stacked(controllers)), period), plant)
     z = control.poles(control.feedback(loop, np.eye(2 * loops.size)))
     return np.log(z.astype(complex)) * s.control_rate
+
+
+def cluster_model(s, loops, truth, leak, carrier: float | None = None) -> tuple:
+    """The continuous model of :func:`cluster_poles` (its description holds), complex, in the frame of
+    ``carrier`` (Hz; the first loop's by default): what the readings of loops ``loops`` of schedule ``s``
+    (a :class:`~.schedule.Schedule`) hold of ``truth``'s answer to their drives.
+
+    Parameters
+    ----------
+    leak : ndarray, shape (k,)
+        The static leak the runtime removes from each loop's reading, taken off before its lock-in.
+
+    Returns
+    -------
+    modes : tuple
+        (A, B, C, D) complex of the near modes (a state each, in the frame), input the loops' commands
+        (k,), output their readings before the lock-ins (k,).
+    filters : tuple
+        (A, B, C, D) complex of the lock-ins side by side, each turned to its carrier's offset.
+    offsets : ndarray, shape (k,)
+        Each loop's carrier less the frame's (rad/s).
+    """
+    loops = np.atleast_1d(np.asarray(loops, int))
+    w0 = 2j * np.pi * (s.carriers[loops[0]] if carrier is None else carrier)
+    offsets = 2 * np.pi * np.asarray(s.carriers)[loops] - w0.imag  # rad/s in w0's frame
+    p = poles(truth)
+    r = p / (p - p.conj())
+    drive = truth.actuator_gains @ np.asarray(s.weights)[:, loops]  # (M, k): each loop's unit force on each mode
+    seen = np.asarray(s.sensors)[loops] @ truth.sensor_gains.T  # (k, M): each loop's reading of each mode
+    static = seen @ ((r.conj() / (w0 - p.conj()))[:, None] * drive) - np.diag(leak)
+    # a mode far from every loop's carrier (beyond NEAR lock-in corners) answers within the loops'
+    # band as its static gain: the state space holds the modes near the cluster, whatever the truth's size
+    reach = np.abs(offsets).max() + 2 * np.pi * NEAR * np.max(np.asarray(s.bandwidths)[loops])
+    near = np.abs((p - w0).imag) <= reach
+    static = static + seen[:, ~near] @ ((r[~near] / (w0 - p[~near]))[:, None] * drive[~near])
+    modes = (np.diag(p[near] - w0), drive[near], seen[:, near] * r[near], static)
+    filters = _stacked([_turned(lockin_filter(s.bandwidths[i]), offset) for i, offset in zip(loops, offsets)])
+    return modes, filters, offsets
 
 
 def _turned(system, offset: float) -> tuple:

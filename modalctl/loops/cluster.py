@@ -1,0 +1,282 @@
+"""Loops for close modes: one multivariable Kalman observer and LQ feedback per cluster (the ``cluster`` plugin).
+
+Each kept mode is read by a lock-in at its carrier. Two loops whose lock-in bands overlap read each
+other: loop j's command moves mode j (and, through the structure, every mode near it), and what
+that adds to loop i's reading rotates at the carriers' difference in loop i's frame and passes its
+lock-in. :func:`find_clusters` says which kept modes do (the rule is in its docstring) and
+:class:`ClusterControl` controls each such group as one plant; isolated modes keep the per-mode
+LQG loops of :mod:`modalctl.loops.lqg`.
+
+The cluster's model is :func:`~modalctl.loops.design.cluster_model` (the one
+:func:`~modalctl.loops.design.cluster_poles` predicts stability with): every mode of the model near
+the cluster's carriers (unkept modes too) as a state driven by the loops' commands through its
+actuator gains, read through each loop's sensor weights, then each loop's lock-in low-pass; the
+static leak the runtime removes is taken off after the lock-in, as the runtime does.
+
+The frame. In each loop's own frame a neighbour's contribution turns at the carriers' difference:
+the cluster's model is time-varying there. In one common frame, rotating at the cluster's mean
+carrier ``w0``, it is time-invariant: mode m is ``x' = (p_m - j w0) x + ...``, loop i's lock-in is
+its Butterworth moved to ``w_i - w0`` (a complex filter), and every loop's command and reading are
+turned by ``exp(+- j (w_i - w0) t)`` on the way in and out, at the time the board plays or reads
+them (the board's carriers start at phase 0 at the shot's first sample). The board's ramp between
+periods is a first-order hold (python-control's ``c2d(..., "foh")``); a command computed after the
+reading of period n reaches its value ``lead`` periods later. Each loop integrates its error in its
+own frame (a constant error there is what must vanish); in the common frame that integrator is a
+resonator at ``w_i - w0``: ``I[m+1] = exp(j (w_i - w0) T) (I[m] + z[m])``.
+
+Not modelled: the touch's coupling ``c phi_k phi_j`` (the finger's damping and place are unknown
+to this controller: it would need the touch estimator's, which reads the modes through per-mode
+channels: issue 37 item 2), and drift (the observer's process noise stands for it, as per-mode LQG).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import control
+import numpy as np
+
+from .controller import Controller, LoopPlant
+from .design import _real, _series, cluster_model
+from .lqg import NOISE_FLOOR, LQGControl
+from .sensing import feedthrough
+
+__all__ = ["Clusters", "find_clusters", "ClusterControl"]
+
+INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
+PROCESS = 1.0  # the process noise, in units of lqg's
+
+
+@dataclass(frozen=True)
+class Clusters:
+    """Which kept modes are controlled together, and why.
+
+    Attributes
+    ----------
+    groups : tuple of tuple of int
+        Positions (in the kept modes) of each cluster's modes, two or more each, ascending.
+    pairs : tuple of (int, int, float, float)
+        ``(i, j, spacing, threshold)`` for every pair linked (``spacing < threshold``) and every pair
+        of kept modes adjacent in frequency: carrier spacing and the rule's threshold (Hz).
+    """
+
+    groups: tuple
+    pairs: tuple
+
+    def lines(self, labels=None) -> list[str]:
+        """One line per pair: what the planner or the report prints (``labels``: the kept modes' names)."""
+        name = (lambda i: str(i)) if labels is None else (lambda i: str(labels[i]))
+        return [f"modes {name(i)} and {name(j)}: {spacing:.1f} Hz apart, "
+                f"{'below' if spacing < threshold else 'above'} {threshold:.1f} Hz: "
+                f"{'one cluster' if spacing < threshold else 'apart'}" for i, j, spacing, threshold in self.pairs]
+
+
+def find_clusters(frequencies, bandwidths, crossovers) -> Clusters:
+    """The kept modes whose loops read each other.
+
+    Loop j's feedback moves its envelope within its crossover ``fc_j``; in loop i's frame that motion
+    sits at the carriers' difference ``|f_i - f_j|``, spread over ``+- fc_j``, and loop i's lock-in
+    passes what lies below its corner ``B_i``. So modes i and j are linked when
+    ``|f_i - f_j| < max(B_i + fc_j, B_j + fc_i)`` and a cluster is a connected group of links.
+
+    Parameters
+    ----------
+    frequencies, bandwidths, crossovers : array_like, shape (k,)
+        Carriers, lock-in corners and the loops' crossovers (Hz), e.g. the PI design's
+        (:func:`~modalctl.loops.design.design_loops`), which the LQ loops aim at.
+    """
+    f, b, fc = (np.asarray(x, float) for x in (frequencies, bandwidths, crossovers))
+    order = np.argsort(f)
+    adjacent = {tuple(sorted(map(int, pair))) for pair in zip(order[:-1], order[1:])}
+    parent = list(range(f.size))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    pairs = []
+    for i in range(f.size):
+        for j in range(i + 1, f.size):
+            spacing, threshold = abs(f[i] - f[j]), max(b[i] + fc[j], b[j] + fc[i])
+            if spacing < threshold:
+                parent[root(j)] = root(i)
+            if spacing < threshold or (i, j) in adjacent:
+                pairs.append((i, j, float(spacing), float(threshold)))
+    groups: dict = {}
+    for i in range(f.size):
+        groups.setdefault(root(i), []).append(i)
+    return Clusters(tuple(tuple(g) for g in groups.values() if len(g) > 1), tuple(pairs))
+
+
+@dataclass(frozen=True)
+class _Law:
+    """One cluster's observer and LQ law, real I/Q form (complex numbers as interleaved pairs).
+
+    ``A, B, C``: the observed model (plant, then the delay line of the commands), ``M`` the
+    current-estimate Kalman gain, ``K, Ki`` the state and integrator feedback, ``turn`` the
+    integrators' turn per period, ``offsets`` (k,) each carrier less the frame's (rad/s), ``lead`` the
+    periods from a reading to its command's full value.
+    """
+
+    loops: np.ndarray
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    M: np.ndarray
+    K: np.ndarray
+    Ki: np.ndarray
+    turn: np.ndarray
+    offsets: np.ndarray
+    lead: int
+
+
+def _observed_model(plant: LoopPlant, loops: np.ndarray, carrier: float) -> tuple:
+    """The cluster's discrete model in the frame of ``carrier`` (Hz), real I/Q form: (A, B, C, G, offsets, lead)
+    of the state ``[plant, commands in flight (lead)]``, input the command computed this period,
+    output the readings less the runtime's leak; ``G`` puts process noise on the modes' states; ``lead``
+    the periods in flight."""
+    s, model = plant.schedule, plant.model
+    modes = np.asarray(plant.modes)[loops]
+    leak = feedthrough(model, modes, np.asarray(s.sensors)[loops], np.asarray(s.weights)[:, loops])
+    near, filters, offsets = cluster_model(s, loops, model, np.zeros(loops.size), carrier)
+    sampled = control.c2d(control.ss(*_real(*_series(near, filters))), 1 / s.control_rate, method="foh")
+    a, b, c, d = (np.asarray(x, float) for x in (sampled.A, sampled.B, sampled.C, sampled.D))
+    d = d - _real(np.diag(leak))[0]  # the runtime removes leak x the command last sent, after the lock-in
+    k2, n, lead = 2 * loops.size, a.shape[0], max(1, int(round(plant.latency)))
+    size = n + lead * k2
+    big_a, big_b, big_c = np.zeros((size, size)), np.zeros((size, k2)), np.zeros((k2, size))
+    big_a[:n, :n], big_a[:n, size - k2:] = a, b  # the plant takes the oldest command in flight
+    big_a[n + k2:, n:size - k2] = np.eye((lead - 1) * k2)  # the delay line moves on
+    big_b[n:n + k2] = np.eye(k2)
+    big_c[:, :n], big_c[:, size - k2:] = c, d
+    g = np.zeros((size, 2 * near[0].shape[0]))
+    g[:g.shape[1]] = np.eye(g.shape[1])  # the modes' states come first in the series
+    return big_a, big_b, big_c, g, offsets, lead
+
+
+def _design(plant: LoopPlant, loops: np.ndarray, crossover: np.ndarray, noise: np.ndarray) -> _Law:
+    """The observer and LQ law of the cluster ``loops`` (positions in the kept modes)."""
+    period = 1 / plant.control_rate
+    carrier = float(np.mean(np.asarray(plant.schedule.carriers)[loops]))
+    a, b, c, g, offsets, lead = _observed_model(plant, loops, carrier)
+    size, k2 = a.shape[0], 2 * loops.size
+    turn = _real(np.diag(np.exp(1j * offsets * period)))[0]
+    big_a = np.block([[a, np.zeros((size, k2))], [turn @ c, turn]])  # I' = turn (I + z)
+    big_b = np.vstack([b, np.zeros((k2, k2))])
+    wc = np.repeat(2 * np.pi * crossover[loops], 2)
+    q = np.zeros((size + k2, size + k2))
+    q[:size, :size] = c.T @ c
+    q[size:, size:] = np.diag((wc * period * INTEGRAL) ** 2)  # the integrators: slower than the loops (as lqg)
+    r = np.diag((0.5 / wc) ** 2)
+    gain = np.asarray(control.dlqr(big_a, big_b, q, r)[0])
+    level = np.max(plant.level[loops]) if plant.level is not None else 1.0
+    # as lqg's: the detuning a drift makes at the planned level, on each mode's state (twice the velocity
+    # envelope: its residue is about a half); the cluster's highest carrier and largest level for all
+    w = PROCESS * (2 * 2 * np.pi * plant.drift * np.max(plant.frequencies[loops]) * period * level) ** 2
+    v = np.diag(np.repeat(noise[loops] ** 2, 2))
+    prior = np.asarray(control.dlqe(a, g, c, w * np.eye(g.shape[1]), v)[1])
+    m = prior @ c.T @ np.linalg.inv(c @ prior @ c.T + v)
+    return _Law(loops, a, b, c, m, gain[:, :size], gain[:, size:], turn, offsets, lead)
+
+
+def closed_loop_radius(law: _Law) -> float:
+    """Largest |eigenvalue| of the cluster's nominal model under its observer-based law (below 1: stable).
+
+    With ``xh = xp + M (C x - C xp)``, ``u = -K xh - Ki I``, ``I' = turn (I + C x)`` and ``xp' = A xh + B u``,
+    the state ``(x, xp, I)`` evolves by the block matrix below."""
+    a, b, c, m = law.A, law.B, law.C, law.M
+    n, k2 = a.shape[0], c.shape[0]
+    mc = m @ c
+    rest = np.eye(n) - mc
+    u_x, u_p, u_i = -law.K @ mc, -law.K @ rest, -law.Ki
+    top = np.hstack([a + b @ u_x, b @ u_p, b @ u_i])
+    middle = np.hstack([a @ mc + b @ u_x, a @ rest + b @ u_p, b @ u_i])
+    bottom = np.hstack([law.turn @ c, np.zeros((k2, n)), law.turn])
+    return float(np.max(np.abs(np.linalg.eigvals(np.vstack([top, middle, bottom])))))
+
+
+class ClusterControl(Controller):
+    """Per-mode LQG loops, and one multivariable observer and LQ law per cluster of close modes.
+
+    Without the plant's ``model`` (and ``schedule``) there is no cluster to model: the controller is
+    :class:`~modalctl.loops.lqg.LQGControl`, and so it is where :func:`find_clusters` finds none.
+
+    Parameters
+    ----------
+    plant : LoopPlant
+        With ``model``, ``modes`` and ``schedule`` (as :func:`~modalctl.loops.shot.parts_for` makes it).
+    clusters : Clusters, optional
+        The groups to control together (default: :func:`find_clusters` on the LQG loops' crossovers).
+
+    Attributes
+    ----------
+    clusters : Clusters
+    spectral_radius : ndarray, shape (c,)
+        Each cluster's nominal closed loop (:func:`closed_loop_radius`; below 1: stable).
+    innovation : list of ndarray
+        Each cluster's last innovation (k_c,), complex, in each loop's frame: the reading less the
+        observer's one-period prediction (zero where the model is the structure).
+    """
+
+    observes = True  # to know the period (the frames turn with time) and the commands the supervisor let through
+
+    def __init__(self, plant: LoopPlant, clusters: Clusters | None = None):
+        self.inner = LQGControl(plant)
+        self.design = self.inner.design
+        modelled = plant.model is not None and plant.schedule is not None and plant.modes is not None
+        if clusters is None:
+            clusters = find_clusters(plant.frequencies, plant.bandwidths, self.design.crossover_hz) if modelled \
+                else Clusters((), ())
+        if clusters.groups and not modelled:
+            raise ValueError("cluster controller: clusters need the plant's model, modes and schedule")
+        self.clusters = clusters
+        level = np.ones(plant.frequencies.size) if plant.level is None else plant.level
+        noise = np.maximum(level * NOISE_FLOOR, 0 if plant.noise is None else plant.noise)  # as lqg's
+        self.laws = [_design(plant, np.array(g), self.design.crossover_hz, noise) for g in clusters.groups]
+        self.spectral_radius = np.array([closed_loop_radius(law) for law in self.laws])
+        self.period = 1 / plant.control_rate
+        self._gains = [(law.K, law.Ki) for law in self.laws]
+        self.reset()
+
+    def reset(self) -> None:
+        self.inner.reset()
+        self._n, self._sent = 0, None
+        self._state = [np.zeros(law.A.shape[0]) for law in self.laws]  # predicted, real I/Q
+        self._integral = [np.zeros(law.loops.size, complex) for law in self.laws]  # in each loop's own frame
+        self.innovation = [np.zeros(law.loops.size, complex) for law in self.laws]  # the last period's
+
+    def scale(self, factor: float) -> None:
+        """Multiply every feedback gain, the clusters' and the isolated loops' (a stability test)."""
+        self.inner.scale(factor)
+        self._gains = [(k * factor, ki * factor) for k, ki in self._gains]
+
+    def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
+        self._n, self._sent = period, np.array(sent, complex)
+
+    def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
+        """Commands (k,): the isolated modes' from per-mode LQG, each cluster's from its own law."""
+        command = self.inner.update(error, limit)
+        m = self._n + 1  # the reading of period n is the model's sample at (n + 1) T
+        for c, law in enumerate(self.laws):
+            idx, k2 = law.loops, 2 * law.loops.size
+            gain, integral_gain = self._gains[c]
+            spin = np.exp(1j * law.offsets * self.period)
+            now, played = spin ** m, spin ** (m + law.lead)  # frame turns now and when this command is reached
+            x = self._state[c]
+            if self._sent is not None:  # the command in flight last sent, as the supervisor let it through
+                x[x.size - law.lead * k2:x.size - (law.lead - 1) * k2] = (self._sent[idx] * played / spin).view(float)
+            z = -error[idx]  # the measured deviation from the plan, in each loop's frame
+            surprise = (z * now).view(float) - law.C @ x
+            self.innovation[c] = surprise.view(complex) / now  # what the model did not predict, each loop's frame
+            x = x + law.M @ surprise
+            wanted = (-gain @ x - integral_gain @ (self._integral[c] * now).view(float)).view(complex)
+            out = wanted / played
+            size, cap = np.abs(out), limit[idx]
+            over = size > cap
+            out[over] *= cap[over] / np.maximum(size[over], 1e-300)
+            self._integral[c] = np.where(over, self._integral[c], self._integral[c] + z)  # anti-windup
+            self._integral[c][cap <= 0] = 0  # a loop with no authority rests
+            self._state[c] = law.A @ x + law.B @ (out * played).view(float)
+            command[idx] = out
+        return command

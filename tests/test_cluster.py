@@ -1,0 +1,253 @@
+"""The cluster controller (issue 37, item 1): which kept modes read each other, the coupled envelope
+model it designs on, and its loops on the HIL board against per-mode LQG."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from scipy.linalg import expm
+from scipy.signal import butter, lsim, sosfilt
+
+from modalctl.loops.cluster import ClusterControl, Clusters, closed_loop_radius, find_clusters
+from modalctl.loops.controller import Controller
+from modalctl.loops.design import _series, cluster_model
+from modalctl.loops.lockin import LockIn, Oscillators, lockin_bandwidths
+from modalctl.loops.lqg import LQGControl
+from modalctl.loops.schedule import HOLD, Schedule
+from modalctl.loops.sensing import sensor_weights
+from modalctl.model.propagate import Plant
+from modalctl.model.scenes import load_scene
+from modalctl.options import LoopOptions
+from modalctl.plan.dispatch import dispatch
+
+PAIR = (13, 14)  # plate-glass's labels 13 and 14: 8158 and 8278 Hz, 1.5% apart
+
+
+@pytest.fixture(scope="module")
+def plate():
+    return load_scene("plate-glass")
+
+
+def _bands(frequencies):
+    """The loops' lock-in corners (Hz) with the run's default options."""
+    options = LoopOptions()
+    return lockin_bandwidths(frequencies, options.control_rate, options.lockin_fraction, options.lockin_image)
+
+
+def _pair(model):
+    return np.array([int(np.flatnonzero(model.labels == label)[0]) for label in PAIR])
+
+
+def test_the_cluster_model_is_what_two_close_modes_demodulated_at_both_carriers_read(plate):
+    """Loop 0 of a close pair steps its command on its carrier; the two modes' velocity simulated in time
+    (scipy's lsim of each mode's equation, sensors, then each carrier's mixing and a digital Butterworth at
+    1 MHz) against the model's step response in the driven loop's frame, turned to each loop's own: the
+    neighbour's reading turns at the carriers' difference and passes its lock-in, as the model says."""
+    pair = plate.select(_pair(plate))
+    f, fs, t_end = pair.frequencies, 1e6, 15e-3
+    bands = _bands(f)
+    weights, sensors = dispatch(pair, [0, 1]), sensor_weights(pair, [0, 1])
+    s = Schedule(20e3, 50, f, bands, sensors, *(np.zeros((2, 1)),) * 3, np.zeros((4, 1)), weights)
+    t = np.arange(int(t_end * fs)) / fs
+    command = 1e-3 * np.exp(0.7j)  # modal force envelope, N/sqrt(kg)
+    volts = np.real(np.outer(weights[:, 0] * command, np.exp(2j * np.pi * f[0] * t)))  # (a, n)
+    velocity = [lsim(([1, 0], [1, 2 * z * w, w**2]), force, t)[1]
+                for w, z, force in zip(pair.omega, pair.damping, pair.actuator_gains @ volts)]
+    sensed = sensors @ (pair.sensor_gains.T @ np.array(velocity))  # (2, n): each loop's sensor combination
+    read = [sosfilt(butter(4, b, fs=fs, output="sos"), 2 * y * np.exp(-2j * np.pi * fc * t))
+            for y, b, fc in zip(sensed, bands, f)]
+    (a, b, c, d), filters, offsets = cluster_model(s, [0, 1], pair, np.zeros(2))
+    a, b, c, d = _series((a, b, c, d), filters)
+    late = t[::500][4:]  # from 2 ms (the lock-ins' start-up at the model's hold differs) every 0.5 ms
+    x = np.array([np.linalg.solve(a, (expm(a * x) - np.eye(a.shape[0])) @ b[:, 0]) * command for x in late])
+    model = (x @ c.T + d[:, 0] * command) * np.exp(-1j * np.outer(late, offsets))  # each loop's frame
+    sim = np.array(read)[:, (late * fs).round().astype(int)].T
+    assert np.abs(model[:, 1]).max() > 0.1 * np.abs(model[:, 0]).max()  # the neighbour reads a good part of it
+    assert np.abs(model - sim).max() < 0.02 * np.abs(sim).max()
+    unturned = x @ c.T + d[:, 0] * command  # read in the driven loop's frame only: not what the other reads
+    assert np.abs(unturned[:, 1] - sim[:, 1]).max() > 0.3 * np.abs(sim[:, 1]).max()
+
+
+def test_the_clusters_of_plate_glass_are_the_modes_whose_bands_meet(plate):
+    """plate-glass's kept modes (the 30 mm Gaussian's 17): with lock-in corners at the gap to the
+    nearest mode (the default) the 1.5% pair and the 5502/5943 Hz pair (which tests/test_truth.py shows
+    holding less together than alone) are clusters, and mode 11 (its 1.2% neighbour, mode 12, is not
+    kept, its corner is that gap and no kept mode is near) is alone; with corners at 0.4 of the gap the
+    neighbour's motion, within its loop's crossover, falls outside every lock-in: no cluster."""
+    from modalctl.loops.design import design_loops
+
+    kept = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 13, 15, 16, 19, 20])
+    f = plate.frequencies[kept]
+    for fraction, expect in ((1.0, True), (0.4, False)):
+        bands = lockin_bandwidths(plate.frequencies, 20e3, fraction, 0.5)[kept]
+        fc = design_loops(f, plate.damping[kept], bands, 20e3).crossover_hz
+        found = find_clusters(f, bands, fc)
+        label = {int(plate.labels[kept[i]]): g for g in found.groups for i in g}
+        assert (label.get(13) is not None and label.get(13) == label.get(14)) == expect
+        assert (label.get(9) is not None and label.get(9) == label.get(10)) == expect
+        assert 11 not in label
+        for i, j, spacing, threshold in found.pairs:
+            assert spacing == pytest.approx(abs(f[i] - f[j]))
+            assert threshold == pytest.approx(max(bands[i] + fc[j], bands[j] + fc[i]))
+            assert (spacing < threshold) == any(i in g and j in g for g in found.groups)
+        assert len(found.lines()) == len(found.pairs)
+
+
+def _schedule_of(model) -> Schedule:
+    """A schedule of a model's two modes that holds only what the cluster's model needs (no shot)."""
+    f = model.frequencies
+    return Schedule(20e3, 25, f, _bands(f), sensor_weights(model, [0, 1]), *(np.zeros((2, 1)),) * 3,
+                    np.zeros((model.actuator_gains.shape[1], 1)), dispatch(model, [0, 1]))
+
+
+def test_a_neighbour_just_inside_or_outside_the_band_and_crossover_is_linked_or_not():
+    bands, fc = np.array([100.0, 100.0, 100.0]), np.array([20.0, 20.0, 20.0])
+    assert find_clusters([1000, 1119, 5000], bands, fc).groups == ((0, 1),)
+    assert find_clusters([1000, 1121, 5000], bands, fc).groups == ()
+    assert find_clusters([1000, 1110, 1220], bands, fc).groups == ((0, 1, 2),)  # a chain is one cluster
+
+
+def _pair_shot(model, truth, steps, controller: str, periods: int = 400, authority: float = 2.0):
+    """The pair alone on the HIL board (no planner): a feed-forward that raises the modes in ``steps``
+    (1 or 0 each) on their carriers, references read through the model as a schedule reads them, the
+    loops of ``controller`` closing on ``truth``: the errors (periods, 2) the loops saw, the references'
+    largest and the modes' velocity missed (the truth's less the planned, RMS over the shot's second half,
+    relative to the planned's RMS there)."""
+    from modalctl.hil.phasor_board import BoardSetup, HILBoard
+    from modalctl.loops.runtime import Runtime
+    from modalctl.loops.shot import loop_sensing, parts_for
+    from modalctl.loops.supervisor import Supervisor
+
+    fs, rate, options = 500e3, 20e3, LoopOptions(controller=controller, authority=authority)
+    d, modes = int(fs / rate), np.array([0, 1])
+    sensors, bands = loop_sensing(model, modes, options)
+    weights = dispatch(model, modes)
+    t = np.arange(periods * d) / fs
+    rise = np.minimum(t / 4e-3, 1.0)
+    forces = (2 * model.omega * model.damping * 0.01 * np.asarray(steps))[:, None] * rise  # holds 0.01 m/s sqrt(kg)
+    phasors = Oscillators(model.frequencies, fs).phasors(t.size)
+    volts = np.real(weights @ (forces * phasors))
+    plant = Plant(model, fs, hold=HOLD)
+    velocity = plant.step(volts)
+
+    def lockin(x):
+        return LockIn(bands, fs, d, closing=True).demodulate(x, phasors)
+
+    reference, own = lockin(sensors @ plant.sensors(velocity)), lockin(velocity)
+    s = Schedule(rate, d, model.frequencies, bands, sensors, reference, lockin(model.actuator_gains @ volts), own,
+                 volts, weights)
+    parts = parts_for(s, model, modes, options)
+    logged = _Logged(parts.controller)
+    parts.controller = logged
+    board = HILBoard(truth, fs, BoardSetup())
+    result = Runtime(board, parts, Supervisor(parts.limits, s, np.abs(reference).max(axis=1) * 10)).run()
+    assert result.reason is None
+    half = slice(t.size // 2, None)
+    rms = lambda x: np.sqrt(np.mean(x[:, half] ** 2))  # noqa: E731
+    missed = rms(board.velocity - velocity) / rms(velocity)
+    return np.array(logged.errors), np.abs(reference).max(), missed
+
+
+class _Logged(Controller):
+    """A controller that keeps the errors it is given."""
+
+    def __init__(self, inner):
+        self.inner, self.design, self.observes, self.errors = inner, inner.design, inner.observes, []
+
+    def reset(self):
+        self.inner.reset()
+
+    def observe(self, period, envelope, sent):
+        self.inner.observe(period, envelope, sent)
+
+    def update(self, error, limit):
+        self.errors.append(np.array(error))
+        return self.inner.update(error, limit)
+
+
+ONE_ALONE = pytest.mark.xfail(strict=True, reason="measured: driving the lower mode alone, the cluster's loops miss "
+                              "0.62 of its velocity where per-mode LQG misses 0.56 (PI 0.43): the joint law spends "
+                              "the upper loop against the lower mode's share of its reading")
+
+
+@pytest.mark.parametrize("steps", [pytest.param((1, 0), marks=ONE_ALONE), (0, 1), (1, 1)])
+def test_a_close_pair_driven_one_by_one_and_together_is_tracked_at_least_as_well_as_by_per_mode_lqg(plate, steps):
+    """The 1.5% pair with 1% more stiffness and 30% more damping in the truth than in the model: what the
+    modes' velocity misses of the planned (RMS over the shot's second half) with the cluster's loops (one
+    observer and one law on both) is no more than with per-mode LQG's, except when the lower mode alone
+    is driven (xfail, measured)."""
+    model = plate.select(_pair(plate))
+    truth = replace(model, frequencies=model.frequencies * 1.01, damping=model.damping * 1.3)
+    missed = {controller: _pair_shot(model, truth, steps, controller)[2] for controller in ("lqg", "cluster")}
+    assert missed["cluster"] <= missed["lqg"], missed
+
+
+def test_the_observer_predicts_what_the_board_reads_of_a_pair_under_any_command_and_not_if_its_frames_turn_wrong(
+        plate, monkeypatch):
+    """The nominal truth, the plan's references, and a random command (held 10 periods, as large as the
+    drive) added to the loops' in every period: the cluster observer's one-period prediction of both
+    readings (its innovation) is within 0.1% of what the commands move them, on the HIL board's path
+    (lock-ins at the DAC rate, the board's ramp, the runtime's leak); with each loop's frame turned the
+    wrong way (the cross terms at minus the carriers' difference) it is far off."""
+    import modalctl.loops.cluster as cluster
+
+    model = plate.select(_pair(plate))
+    dither = np.random.default_rng(0).standard_normal((40, 2, 2)) @ np.array([1, 1j]) * 0.3
+    ratios = []
+    for wrong in (False, True):
+        if wrong:
+            right = cluster._design
+            monkeypatch.setattr(cluster, "_design", lambda *a: replace(right(*a), offsets=-right(*a).offsets))
+        seen = []
+
+        def dithered(self, error, limit):
+            seen.append((np.array(error), self.inner.innovation[0].copy() if self.inner.innovation else None))
+            return self.inner.update(error, limit) + dither[(len(seen) - 1) // 10]
+
+        monkeypatch.setattr(_Logged, "update", dithered)
+        _pair_shot(model, model, (1, 1), "cluster", authority=1e6)
+        error = np.array([e for e, _ in seen[21:]])
+        innovation = np.array([i for _, i in seen[21:]])
+        ratios.append(np.abs(innovation).max() / np.abs(error).max())
+    assert ratios[0] < 1e-3 and ratios[1] > 0.1, ratios
+
+
+def test_with_no_close_modes_the_controller_is_per_mode_lqg(plate):
+    """Lock-in corners at 0.4 of the gaps: no cluster on plate-glass's kept modes, and the cluster
+    controller's commands are per-mode LQG's, period after period, limits biting or not."""
+    from modalctl.loops.controller import LoopPlant
+    from modalctl.loops.design import design_loops
+
+    kept = np.array([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 12, 13, 15, 16, 19, 20])
+    bands = lockin_bandwidths(plate.frequencies, 20e3, 0.4, 0.5)[kept]
+    plant = LoopPlant(plate.frequencies[kept], plate.damping[kept], bands, 20e3, noise=np.full(kept.size, 1e-4),
+                      level=np.full(kept.size, 0.01), model=plate, modes=kept)
+    assert find_clusters(plant.frequencies, bands, design_loops(plant.frequencies, plant.damping, bands,
+                                                                20e3).crossover_hz).groups == ()
+    cluster, lqg = ClusterControl(plant), LQGControl(plant)
+    assert cluster.clusters.groups == () and not cluster.laws
+    rng = np.random.default_rng(1)
+    for n in range(50):
+        error = 1e-3 * (rng.standard_normal(kept.size) + 1j * rng.standard_normal(kept.size))
+        limit = np.full(kept.size, 1e-3 if n % 7 else 1e-9)
+        cluster.observe(n, error, np.zeros(kept.size))
+        assert np.array_equal(cluster.update(error, limit), lqg.update(error, limit))
+
+
+def test_each_clusters_nominal_loop_is_stable_and_a_plant_without_its_model_refuses_clusters(plate):
+    from modalctl.loops.controller import LoopPlant
+
+    model = plate.select(_pair(plate))
+    errors, level, _ = _pair_shot(model, model, (1, 1), "cluster", periods=100)  # the nominal truth: nothing to correct
+    assert np.abs(errors).max() < 1e-3 * level
+    plant = LoopPlant(model.frequencies, model.damping, _bands(model.frequencies), 20e3)
+    with pytest.raises(ValueError, match="model"):
+        ClusterControl(plant, Clusters(((0, 1),), ()))
+    assert ClusterControl(plant).laws == []
+    full = LoopPlant(model.frequencies, model.damping, _bands(model.frequencies), 20e3,
+                     level=np.full(2, 0.01), noise=np.full(2, 1e-4), model=model, modes=np.array([0, 1]),
+                     schedule=_schedule_of(model))
+    controller = ClusterControl(full)
+    assert controller.clusters.groups == ((0, 1),)
+    assert controller.spectral_radius == pytest.approx([closed_loop_radius(controller.laws[0])])
+    assert 0 < controller.spectral_radius[0] < 1
