@@ -51,6 +51,11 @@ class LoopPlant:
     leaks : ndarray, shape (k,), optional
         How much more each loop's reading sees of the other modes' answer to its drive than of its own
         mode's (:func:`~modalctl.loops.sensing.leak_ratio`).
+    model : ModalModel, optional
+        The controller's whole model (every mode, its actuator and sensor gains) and ``modes`` (k,) the
+        kept modes' positions in it: for controllers that model how the loops read each other
+        (:mod:`modalctl.loops.cluster`).
+    modes : ndarray of int, shape (k,), optional
     """
 
     frequencies: np.ndarray
@@ -68,6 +73,8 @@ class LoopPlant:
     touch_at: int | None = None
     readable: np.ndarray | None = None
     leaks: np.ndarray | None = None
+    model: object | None = None
+    modes: np.ndarray | None = None
 
 
 class Controller(ABC):

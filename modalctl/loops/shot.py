@@ -76,7 +76,7 @@ def parts_for(s: Schedule, model: ModalModel, modes, options: LoopOptions, sigma
     plant = LoopPlant(model.frequencies[modes], model.damping[modes], s.bandwidths, s.control_rate,
                       1 + options.latency, noise, level, options.drift, schedule=s, shapes=model.shapes[modes],
                       points=model.grid.points, touch_at=sensed, readable=readable,
-                      leaks=leaks)
+                      leaks=leaks, model=model, modes=modes)
     loops = pick("controller", options.chosen_controller).create(plant)
     excess, spread = np.abs(s.own) - 3 * noise[:, None], 7 * noise[:, None]
     trust = np.clip(np.divide(excess, spread, out=(excess > 0).astype(float), where=spread > 0), 0, 1)  # no noise: 1

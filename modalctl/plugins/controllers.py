@@ -1,5 +1,5 @@
 """First-party per-mode controllers: PI loops designed on margins, a Kalman observer with LQ feedback,
-and PI loops that give back the force a touch takes.
+PI loops that give back the force a touch takes, and LQG loops that control close modes together.
 
 Each is a :class:`~modalctl.loops.controller.ControllerFactory` subclass, as a third party's would
 be. They are designed with python-control, which loads matplotlib's pyplot when imported: the
@@ -47,6 +47,17 @@ class Touch(ControllerFactory):
         return TouchControl(plant, (inner or PI()).create(plant), **options)
 
 
+class Cluster(ControllerFactory):
+    name = "cluster"
+    summary = "per-mode LQG, but one multivariable Kalman observer and LQ law with integral action for each " \
+              "cluster of modes whose lock-in bands overlap (the coupled envelope model in a common frame)"
+
+    def create(self, plant: LoopPlant, **options) -> Controller:
+        from modalctl.loops.cluster import ClusterControl
+
+        return ClusterControl(plant, **options)
+
+
 @hookimpl
 def modalctl_controllers():
-    return [PI(), LQG(), Touch()]
+    return [PI(), LQG(), Touch(), Cluster()]
