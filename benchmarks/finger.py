@@ -1,6 +1,7 @@
 """A finger on the focus: how much of what it takes each method gives back, in one shot.
 
     python benchmarks/finger.py   # writes benchmarks/results/finger.{json,md,png} (--report-only: redraw)
+    python benchmarks/finger.py --controllers pi,touch,lqg,cluster --cases plate   # finger_controllers.{json,md}
 
 A finger of 1 N s/m rests on the focus (the target's peak) of four scenes: thesis-al-cc's 25 mm
 bump and 18 mm sinc at the middle, plate-glass's 30 mm Gaussian at (20, 10) mm, the clamped
@@ -81,6 +82,8 @@ def _setup(scene: str, shape: str, params: dict):
 def _options(method: str, at) -> RunOptions:
     if method == "open":
         return RunOptions(FOCUS, PlanOptions())
+    if method.startswith("controller "):  # --controllers: the named controller plugin, nothing else
+        return RunOptions(FOCUS, PlanOptions(), LoopOptions(controller=method.split()[1]))
     loop = LoopOptions(controller="pi" if method in ("pi", "learned") else "touch",
                        touch_at=at if method == "touch + sensor" else None)
     return RunOptions(FOCUS, PlanOptions(), loop, "record" if method == "learned" else None)
@@ -269,5 +272,48 @@ def _draw(rows, sweep) -> None:
     save_figure(fig, "finger")
 
 
+def controllers(names: list[str], cases: list[str]) -> None:
+    """``--controllers pi,lqg,...``: each named controller plugin on ``cases`` (labels of :data:`CASES`
+    containing one of them; ``--cases plate,panel``), the finger resting and without a finger, in one
+    sitting: tau, margin and the share of the lost peak given back. Writes results/finger_controllers.*."""
+    rows, start = [], time.perf_counter()
+    for case in (c for c in CASES if any(c.startswith(word) for word in cases)):
+        model, target, peak = _setup(*CASES[case])
+        plans: dict = {}
+        shots = {}
+        for method in ["open"] + [f"controller {name}" for name in names]:
+            for finger in (0.0, 1.0):
+                p = Perturbation(finger=finger, finger_at=peak if finger else None, snr_db=SNR)
+                shots[method, finger] = _shot(model, target, method, p, plans)
+        taken = shots["open", 0.0]["peak"] - shots["open", 1.0]["peak"]
+        for (method, finger), row in shots.items():
+            back = (row["peak"] - shots["open", 1.0]["peak"]) / taken if finger and taken > 0 else None
+            rows.append({"case": case, "method": method, "finger": finger, "recovered": back,
+                         **{k: row[k] for k in ("peak", "tau", "margin_ratio", "state", "fault", "seconds")}})
+    md = ["# A finger on the focus, per controller", "",
+          "`python benchmarks/finger.py --controllers " + ",".join(names) + " --cases " + ",".join(cases) + "`: one "
+          "shot per row on the HIL (40 dB, convex planner, margin 0.5, focus 25 ms); finger 1 N s/m resting on "
+          "the target's peak or none. recovered: the share of the focus peak the finger took (open loop's) that "
+          f"the controller gives back. Wall time {time.perf_counter() - start:.0f} s.", "",
+          "| case | method | finger (N s/m) | tau | margin | recovered | state | s |",
+          "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        back = "-" if r["recovered"] is None else f"{100 * r['recovered']:.1f}%"
+        md.append(f"| {r['case']} | {r['method']} | {r['finger']:g} | {r['tau']:.4f} | {r['margin_ratio']:.3f} | "
+                  f"{back} | {r['state']} | {r['seconds']:.1f} |")
+    write_markdown("finger_controllers", md, write_json("finger_controllers", {"rows": rows}))
+
+
+def _argument(flag: str, default: str) -> list[str]:
+    import sys
+
+    return (sys.argv[sys.argv.index(flag) + 1] if flag in sys.argv else default).split(",")
+
+
 if __name__ == "__main__":
-    main_or_report("finger", main, report)
+    import sys
+
+    if "--controllers" in sys.argv:
+        controllers(_argument("--controllers", "pi"), _argument("--cases", "plate gaussian"))
+    else:
+        main_or_report("finger", main, report)
