@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import control
 import numpy as np
+from scipy.linalg import block_diag
 
 from .controller import Controller, LoopPlant
 from .design import _real, _series, cluster_model
@@ -214,9 +215,9 @@ class ClusterControl(Controller):
     clusters : Clusters
     spectral_radius : ndarray, shape (c,)
         Each cluster's nominal closed loop (:func:`closed_loop_radius`; below 1: stable).
-    innovation : list of ndarray
-        Each cluster's last innovation (k_c,), complex, in each loop's frame: the reading less the
-        observer's one-period prediction (zero where the model is the structure).
+    innovation : ndarray, shape (c,)
+        The last innovation of each loop in a cluster (in ``clusters.groups``' order), complex, in its own
+        frame: the reading less the observer's one-period prediction (zero where the model is the structure).
     """
 
     observes = True  # to know the period (the frames turn with time) and the commands the supervisor let through
@@ -235,48 +236,61 @@ class ClusterControl(Controller):
         noise = np.maximum(level * NOISE_FLOOR, 0 if plant.noise is None else plant.noise)  # as lqg's
         self.laws = [_design(plant, np.array(g), self.design.crossover_hz, noise) for g in clusters.groups]
         self.spectral_radius = np.array([closed_loop_radius(law) for law in self.laws])
-        self.period = 1 / plant.control_rate
-        self._gains = [(law.K, law.Ki) for law in self.laws]
+        self._stack(1 / plant.control_rate)
         self.reset()
+
+    def _stack(self, period: float) -> None:
+        """Every cluster's law as one block-diagonal law: a period is a dozen products, not a dozen per cluster."""
+        laws = self.laws
+        self._idx = np.concatenate([law.loops for law in laws]) if laws else np.zeros(0, int)
+        lead = {law.lead for law in laws}.pop() if laws else 1
+        spin = np.exp(1j * np.concatenate([law.offsets for law in laws] or [np.zeros(0)]) * period)
+        self._spin, self._ahead, self._sent_ahead = spin, spin ** lead, spin ** (lead - 1)
+        self._A, self._B, self._C, self._M, self._K, self._Ki = (block_diag(*(getattr(law, name) for law in laws))
+                                                                 for name in ("A", "B", "C", "M", "K", "Ki"))
+        slots, start = [], 0  # where each law's newest command in flight sits in the stacked state
+        for law in laws:
+            size, k2 = law.A.shape[0], 2 * law.loops.size
+            slots.append(start + np.arange(size - law.lead * k2, size - (law.lead - 1) * k2))
+            start += size
+        self._slot = np.concatenate(slots) if slots else np.zeros(0, int)
 
     def reset(self) -> None:
         self.inner.reset()
         self._n, self._sent = 0, None
-        self._state = [np.zeros(law.A.shape[0]) for law in self.laws]  # predicted, real I/Q
-        self._integral = [np.zeros(law.loops.size, complex) for law in self.laws]  # in each loop's own frame
-        self.innovation = [np.zeros(law.loops.size, complex) for law in self.laws]  # the last period's
+        self._x = np.zeros(sum(law.A.shape[0] for law in self.laws))  # every cluster's predicted state, real I/Q
+        self._integral = np.zeros(self._idx.size, complex)  # in each loop's own frame
+        self.innovation = np.zeros(self._idx.size, complex)  # the last period's, each loop's frame
 
     def scale(self, factor: float) -> None:
         """Multiply every feedback gain, the clusters' and the isolated loops' (a stability test)."""
         self.inner.scale(factor)
-        self._gains = [(k * factor, ki * factor) for k, ki in self._gains]
+        self._K, self._Ki = self._K * factor, self._Ki * factor
 
     def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
         self._n, self._sent = period, np.array(sent, complex)
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
-        """Commands (k,): the isolated modes' from per-mode LQG, each cluster's from its own law."""
+        """Commands (k,): the isolated modes' from per-mode LQG, the clusters' from their own laws."""
         command = self.inner.update(error, limit)
-        m = self._n + 1  # the reading of period n is the model's sample at (n + 1) T
-        for c, law in enumerate(self.laws):
-            idx, k2 = law.loops, 2 * law.loops.size
-            gain, integral_gain = self._gains[c]
-            spin = np.exp(1j * law.offsets * self.period)
-            now, played = spin ** m, spin ** (m + law.lead)  # frame turns now and when this command is reached
-            x = self._state[c]
-            if self._sent is not None:  # the command in flight last sent, as the supervisor let it through
-                x[x.size - law.lead * k2:x.size - (law.lead - 1) * k2] = (self._sent[idx] * played / spin).view(float)
-            z = -error[idx]  # the measured deviation from the plan, in each loop's frame
-            surprise = (z * now).view(float) - law.C @ x
-            self.innovation[c] = surprise.view(complex) / now  # what the model did not predict, each loop's frame
-            x = x + law.M @ surprise
-            wanted = (-gain @ x - integral_gain @ (self._integral[c] * now).view(float)).view(complex)
-            out = wanted / played
-            size, cap = np.abs(out), limit[idx]
-            over = size > cap
-            out[over] *= cap[over] / np.maximum(size[over], 1e-300)
-            self._integral[c] = np.where(over, self._integral[c], self._integral[c] + z)  # anti-windup
-            self._integral[c][cap <= 0] = 0  # a loop with no authority rests
-            self._state[c] = law.A @ x + law.B @ (out * played).view(float)
-            command[idx] = out
+        if not self.laws:
+            return command
+        idx = self._idx
+        now = self._spin ** (self._n + 1)  # the frames' turn now: the reading of period n is the model's (n + 1) T
+        played = now * self._ahead  # and when the command computed now is reached
+        x = self._x
+        if self._sent is not None:  # the command in flight last sent, as the supervisor let it through
+            x[self._slot] = (self._sent[idx] * now * self._sent_ahead).view(float)
+        z = -error[idx]  # the measured deviation from the plan, in each loop's frame
+        surprise = (z * now).view(float) - self._C @ x
+        self.innovation = surprise.view(complex) / now  # what the model did not predict
+        x = x + self._M @ surprise
+        out = (-(self._K @ x) - self._Ki @ (self._integral * now).view(float)).view(complex) / played
+        size, cap = np.abs(out), limit[idx]
+        over = size > cap
+        out[over] *= cap[over] / np.maximum(size[over], 1e-300)
+        self._integral = np.where(over, self._integral, self._integral + z)  # anti-windup
+        self._integral[cap <= 0] = 0  # a loop with no authority rests
+        self._x = self._A @ x + self._B @ (out * played).view(float)
+        command[idx] = out
         return command
