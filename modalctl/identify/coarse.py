@@ -24,6 +24,7 @@ from modalctl.model.modes import ModelError
 
 from .estimators import FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, modal_constants
 from .frf import FRF
+from .noise import SIGNIFICANCE, noise_weights
 
 __all__ = ["JointPole", "joint_pole", "coarse_rows", "under_resolved", "LINES_SEARCHED", "HALF_LINES"]
 
@@ -46,6 +47,8 @@ class JointPole:
         Lowest and highest frequency of one pole fitted on each FRF alone (Hz).
     lines : float
         Its half-power band ``2 zeta f`` in lines.
+    significance : float
+        Energy the pole explains over what fitting it to noise alone gives (inf: noise unknown).
     """
 
     f_hz: float
@@ -53,14 +56,19 @@ class JointPole:
     sigma_hz: float
     spread_hz: tuple
     lines: float
+    significance: float = np.inf
 
     @property
     def fixed(self) -> bool:
-        """Whether the FRFs agree on its frequency within ``FREQUENCY_TOLERANCE`` (3 sigma)."""
-        return bool(3 * self.sigma_hz <= FREQUENCY_TOLERANCE * self.f_hz)
+        """Whether it stands out of the noise (``SIGNIFICANCE``) and the FRFs agree on its
+        frequency within ``FREQUENCY_TOLERANCE`` (3 sigma)."""
+        return bool(self.significance >= SIGNIFICANCE and 3 * self.sigma_hz <= FREQUENCY_TOLERANCE * self.f_hz)
 
     def reason(self, rows: int) -> str:
         """Why it is left out (when not :attr:`fixed`): what the FRFs said."""
+        if self.significance < SIGNIFICANCE:
+            return (f"a peak of the noise: one pole on all {rows} FRFs jointly explains {self.significance:.3g} times "
+                    f"what it would of noise alone (at least {SIGNIFICANCE:g})")
         return (f"its peak spans {self.lines:.1f} lines and the {rows} FRFs disagree on it: one pole fitted on each "
                 f"alone lands between {self.spread_hz[0]:.2f} and {self.spread_hz[1]:.2f} Hz (searched within a line), on all jointly at "
                 f"{self.f_hz:.2f} Hz +- {self.sigma_hz:.2f} Hz (jackknife over the FRFs; 3 sigma at most "
@@ -133,11 +141,20 @@ def joint_pole(frf: FRF, f: float, zeta: float) -> JointPole:
     freqs, h = frf.frequencies[keep], frf.values[:, keep].T
     f_fit, z_fit = _fit(freqs, h, f, zeta, df)
     rows = h.shape[1]
+    # the noise estimated between lines misses what grows with the response at a sharp peak: it
+    # weights the test of the pole against noise alone (each FRF by its own), not the fit
+    noise = frf.noise(keep)
+    scaled = h if noise is None else h * np.sqrt(noise_weights(noise))[None, :]
+    rest = np.column_stack([np.ones(freqs.size), freqs / np.mean(freqs) - 1])
+    base = np.sum(np.abs(scaled - rest @ np.linalg.lstsq(rest, scaled, rcond=None)[0]) ** 2)
+    explained = base - float(_chi(freqs, scaled, f_fit, z_fit, float(np.mean(freqs))))
+    significance = np.inf if noise is None else explained / (2 * rows)  # two coefficients a row
     alone = np.array([_grid_best(freqs, h[:, [r]], f_fit, df) for r in range(rows)])
     left = np.array([_local_best(freqs, np.delete(h, r, axis=1), f_fit, z_fit, df) for r in range(rows)]) \
         if rows > 2 else np.array([f_fit])
     sigma = float(np.sqrt((rows - 1) / rows * np.sum((left - left.mean()) ** 2))) if rows > 2 else np.inf
-    return JointPole(f_fit, z_fit, sigma, (float(alone.min()), float(alone.max())), 2 * z_fit * f_fit / df)
+    return JointPole(f_fit, z_fit, sigma, (float(alone.min()), float(alone.max())), 2 * z_fit * f_fit / df,
+                     significance)
 
 
 def under_resolved(f: float, zeta: float, df: float) -> bool:

@@ -311,7 +311,8 @@ def one_pole_stands(frf: FRF, f: float, zeta: float, half_width: float, others, 
 
     A second pole is started where the residual ``resid`` (nb, n_points) of the first peaks and
     both are fitted (:func:`fit_band`); one pole stands unless the two divide the residual by
-    ``SPLIT_GAIN`` with the second inside the band. When they do, the two poles ``(f, zeta)``
+    ``SPLIT_GAIN`` with the second inside the band, against the first with any residue (a
+    turned one is no second mode). When they do, the two poles ``(f, zeta)``
     are appended to ``split`` (a list, if given).
     """
     if not 0 < zeta < 0.5:  # no physical pole to start from
@@ -327,7 +328,9 @@ def one_pole_stands(frf: FRF, f: float, zeta: float, half_width: float, others, 
     h = frf.values[:, keep].T
     b = pole_basis(freqs, poles, f)
     coef, *_ = np.linalg.lstsq(b, h, rcond=None)
-    stands = bool(np.linalg.norm(h - b @ coef) * SPLIT_GAIN > np.linalg.norm(resid))
+    one = pole_basis(freqs, [(f, zeta), *others], f, general=True)  # one pole, any residue: as many columns
+    alone = min(np.linalg.norm(resid), np.linalg.norm(h - one @ np.linalg.lstsq(one, h, rcond=None)[0]))
+    stands = bool(np.linalg.norm(h - b @ coef) * SPLIT_GAIN > alone)
     if not stands and split is not None:
         split.extend(tuple(map(float, p)) for p in poles[:2])
     return stands
