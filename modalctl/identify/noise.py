@@ -1,4 +1,4 @@
-"""The noise of FRFs that carry no estimate of it (a file exported without coherence).
+"""The noise of FRFs that carry no estimate of it (a file exported without coherence, or without its averages).
 
 An FRF sampled finely is smooth between its lines: the second difference along frequency,
 ``d_k = H_{k-1} - 2 H_k + H_{k+1}``, removes the structure's response (its curvature is small
@@ -18,7 +18,7 @@ import numpy as np
 
 from .frf import FRF
 
-__all__ = ["scatter_noise", "with_noise_estimate", "noise_weights", "noise_figures", "NoiseFigures", "within_noise",
+__all__ = ["scatter_noise", "coherence_noise", "with_noise_estimate", "noise_weights", "noise_figures", "NoiseFigures", "within_noise",
            "BLOCK", "SCATTER_SOURCE", "NOISE_EXCESS", "SIGNIFICANCE"]
 
 # a mode whose one pole leaves more than UNRESOLVED_ERROR of it unexplained is resolved all the same...
@@ -28,6 +28,8 @@ SIGNIFICANCE = 25.0  # ...and the mode's energy this many times what a fit to no
 BLOCK = 64  # lines per block whose median gives the noise there
 SECOND_DIFFERENCE = 6.0  # variance of H_{k-1} - 2 H_k + H_{k+1} over that of one line's noise
 SCATTER_SOURCE = "estimated from the scatter between neighbouring lines (the file gives no noise)"
+AVERAGES_MAX = 100  # averages no impact or shaker test takes: a match above this says the scatter misses noise
+COHERENCE_FLOOR = 1e-3  # a coherence below this counts as this (the noise is then a thousand times |H|)
 
 
 def scatter_noise(values: np.ndarray, block: int = BLOCK) -> np.ndarray:
@@ -59,12 +61,53 @@ def scatter_noise(values: np.ndarray, block: int = BLOCK) -> np.ndarray:
     return np.maximum(np.sqrt(variance), floor)
 
 
+def coherence_noise(values: np.ndarray, coherence: np.ndarray, averages: float) -> np.ndarray:
+    """Standard deviation of an H1 estimate from its coherence and number of averages ``n``:
+    ``|H| sqrt((1 - g^2) / (g^2 (n - 1)))`` (the scatter of the response that ``H`` does not
+    explain, per shot, over the force's energy: what :class:`~.frf.H1` computes from its spectra).
+
+    Parameters
+    ----------
+    values, coherence : ndarray, shape (n_points, nf)
+        FRFs (any unit) and their coherence in [0, 1].
+    averages : float
+        Shots averaged, at least 2 (one shot's coherence is one everywhere).
+
+    Returns
+    -------
+    ndarray, shape (n_points, nf)
+        Same unit as ``values``.
+    """
+    g2 = np.clip(coherence, COHERENCE_FLOOR, 1.0)
+    return np.abs(values) * np.sqrt((1 - g2) / (g2 * (averages - 1)))
+
+
 def with_noise_estimate(frf: FRF) -> FRF:
-    """``frf`` itself when its noise is known (measured), else with the noise estimated by
-    :func:`scatter_noise` and ``noise_source`` saying so."""
+    """``frf`` itself when its noise is known (measured), else with an estimate, ``noise_source``
+    saying which.
+
+    With a coherence but no number of averages (a file's export), the coherence gives the
+    noise's shape over frequency and points (:func:`coherence_noise`; largest, an upper bound,
+    for two averages) and the scatter between neighbouring lines (:func:`scatter_noise`) its
+    level: the averages are those that make the two agree (median over every value). Without a
+    coherence, the scatter alone.
+    """
     if frf.noise_std is not None or frf.values.shape[1] < 3:
         return frf
-    return replace(frf, noise_std=scatter_noise(frf.values), noise_source=SCATTER_SOURCE)
+    scatter = scatter_noise(frf.values)
+    if frf.averages > 1 or np.all(frf.coherence >= 1):  # averages known (and then noise_std too), or no coherence
+        return replace(frf, noise_std=scatter, noise_source=SCATTER_SOURCE)
+    bound = np.maximum(coherence_noise(frf.values, frf.coherence, 2), scatter * 1e-3)
+    more = max(1.0, float(np.median((bound / scatter) ** 2)))  # n - 1
+    worst = np.median(bound / np.maximum(np.abs(frf.values), np.finfo(float).tiny))
+    doubt = (f"; more averages than a test takes (above {AVERAGES_MAX}): the coherence's loss is mostly not random "
+             f"noise independent between lines (a window that smooths it, leakage, a nonlinearity), which the "
+             f"scatter does not see") if 1 + more > AVERAGES_MAX else ""
+    return replace(frf, noise_std=bound / np.sqrt(more),
+                   noise_source=f"from the coherence, |H| sqrt((1 - g^2) / (g^2 (n - 1))), the file giving no number "
+                                f"of averages n: n = {1 + more:.3g} matches the scatter between neighbouring lines "
+                                f"(the coherence alone bounds the random error by {worst:.2g} of |H| in the median, "
+                                f"for n = 2{doubt})")
 
 
 def noise_weights(noise: np.ndarray) -> np.ndarray:

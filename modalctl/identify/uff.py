@@ -99,7 +99,8 @@ def _coherence(path, frfs: list[dict], coherences: list[dict], freqs: np.ndarray
         rows.append(np.minimum(values, 1.0))
     coherence = np.array(rows)
     return coherence, [f"coherence read with each FRF (function type 6): median {np.median(coherence):.2f}, lowest "
-                       f"{coherence.min():.2f}; without the number of averages it gives no noise level"]
+                       f"{coherence.min():.2f}; with no number of averages in the file it gives the noise's shape, "
+                       f"the scatter between lines its level"]
 
 
 def input_unit(frfs: list[dict]) -> str:
