@@ -33,6 +33,7 @@ from modalctl.options import THESIS_MARGIN, LoopOptions, RunOptions
 from modalctl.plan.decompose import Decomposition
 from modalctl.plan.planner import Plan, plan_shot
 from modalctl.plugin.manager import name_of, pick
+from modalctl.threads import heard_at_once
 
 __all__ = ["run", "resolved", "ShotResult", "ShotMetrics", "LoopMetrics", "LearningMetrics"]
 
@@ -331,11 +332,13 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
     elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
         _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
     plan_options = options.planned.but(voltage_limit=voltage_limit)
-    dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
+    dec, the_plan = planned or heard_at_once(
+        lambda: plan_shot(model, shape, options.focus_time, plan_options, options.progress))
     learning = None
     if options.learn is not None:
         learning, model = _learning_shot(dec, the_plan, device, options, voltage_limit)
-        dec, the_plan = plan_shot(model, shape, options.focus_time, plan_options, options.progress)
+        dec, the_plan = heard_at_once(lambda: plan_shot(model, shape, options.focus_time, plan_options,
+                                                        options.progress))
     start = _time.perf_counter()
     played = _play(the_plan, device, options, voltage_limit, options.log)
     shot = _measure(dec, the_plan, played, device, caps, options, start)

@@ -11,11 +11,43 @@ passes on two threads of its own, each with BLAS on one.
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Callable
+
 from threadpoolctl import threadpool_limits
 
-__all__ = ["serial_blas"]
+__all__ = ["serial_blas", "heard_at_once"]
+
+STEP = 0.1  # s: how often a thread waiting for a worker lets a signal's handler run
 
 
 def serial_blas() -> threadpool_limits:
     """A context in which BLAS runs on one thread (threadpoolctl's :func:`threadpool_limits`)."""
     return threadpool_limits(limits=1, user_api="blas")
+
+
+def heard_at_once(job: Callable):
+    """``job()``'s result, computed in a daemon thread while this one waits in steps of :data:`STEP`.
+
+    Python runs a signal's handler in the main thread between bytecodes: a job that sits in one C
+    call (a DAQP solve of a tablet panel's margin program takes minutes, releasing the interpreter's
+    lock) would hear a SIGTERM only when the call returns (49 s after ``timeout`` sent it, measured).
+    Waiting here, the handler runs within a step, and what it raises (the command line's
+    ``Interrupted``) leaves this call at once; the worker, a daemon, ends with the process. What
+    ``job`` raises is raised here.
+    """
+    answer: dict = {}
+
+    def work():
+        try:
+            answer["value"] = job()
+        except BaseException as exc:  # noqa: BLE001 - handed to the waiting thread as it is
+            answer["error"] = exc
+
+    worker = threading.Thread(target=work, name="modalctl-worker", daemon=True)
+    worker.start()
+    while worker.is_alive():
+        worker.join(STEP)
+    if "error" in answer:
+        raise answer["error"]
+    return answer["value"]

@@ -72,3 +72,39 @@ def test_a_signal_outside_a_shot_ends_the_command_without_a_traceback(tmp_path, 
     monkeypatch.setattr("modalctl.model.scenes.load_scene", interrupted)
     code = main([*CLOSED, "--out", str(tmp_path / "out")])
     assert code == 130 and "interrupted by SIGINT" in capsys.readouterr().err
+
+
+def test_a_signal_while_planning_is_heard_at_once(tmp_path, capsys, monkeypatch):
+    """SIGTERM while the planner sits in one long C call that releases the interpreter's lock and
+    checks no signal (a tablet panel's DAQP solve, minutes; here one large BLAS product): the command
+    ends before the call returns (49 s after ``timeout``'s SIGTERM, before)."""
+    import threading
+    import time
+
+    returned = {}
+
+    def planning(*_, **__):
+        a = np.ones((2500, 2500))
+        threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGTERM)).start()
+        a @ a  # one C call of a second or more: no signal handler runs in it
+        returned["call"] = time.perf_counter()  # (where the call runs in the main thread, its handler raises first)
+        raise AssertionError("the planning thread was waited for")
+
+    monkeypatch.setattr("modalctl.run.plan_shot", planning)
+    code = main([*CLOSED, "--out", str(tmp_path / "out")])
+    returned["command"] = time.perf_counter()
+    for _ in range(300):  # the call, left running in its daemon thread, ends
+        if "call" in returned:
+            break
+        time.sleep(0.1)
+    assert returned.get("call", -np.inf) > returned["command"], "the command waited for the planner's call"
+    assert code == 143 and "interrupted by SIGTERM" in capsys.readouterr().err
+    assert json.loads((tmp_path / "out" / "metrics.json").read_text())["interrupted"] == "SIGTERM"
+
+
+def test_heard_at_once_returns_the_jobs_answer_and_raises_its_error():
+    from modalctl.threads import heard_at_once
+
+    assert heard_at_once(lambda: 6 * 7) == 42
+    with pytest.raises(ZeroDivisionError):
+        heard_at_once(lambda: 1 / 0)
