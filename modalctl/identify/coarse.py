@@ -70,7 +70,8 @@ class JointPole:
             return (f"a peak of the noise: one pole on all {rows} FRFs jointly explains {self.significance:.3g} times "
                     f"what it would of noise alone (at least {SIGNIFICANCE:g})")
         return (f"its peak spans {self.lines:.1f} lines and the {rows} FRFs disagree on it: one pole fitted on each "
-                f"alone lands between {self.spread_hz[0]:.2f} and {self.spread_hz[1]:.2f} Hz (searched within a line), on all jointly at "
+                f"alone lands between {self.spread_hz[0]:.2f} and {self.spread_hz[1]:.2f} Hz (searched within a "
+                f"line), on all jointly at "
                 f"{self.f_hz:.2f} Hz +- {self.sigma_hz:.2f} Hz (jackknife over the FRFs; 3 sigma at most "
                 f"{FREQUENCY_TOLERANCE:.0%})")
 

@@ -18,7 +18,8 @@ import numpy as np
 
 from .frf import FRF
 
-__all__ = ["scatter_noise", "coherence_noise", "with_noise_estimate", "noise_weights", "noise_figures", "NoiseFigures", "within_noise",
+__all__ = ["scatter_noise", "coherence_noise", "with_noise_estimate", "noise_weights", "noise_figures", "NoiseFigures",
+           "within_noise",
            "BLOCK", "SCATTER_SOURCE", "NOISE_EXCESS", "SIGNIFICANCE"]
 
 # a mode whose one pole leaves more than UNRESOLVED_ERROR of it unexplained is resolved all the same...
