@@ -42,7 +42,8 @@ from modalctl.model.shape import parse_params  # noqa: E402
 from modalctl.options import LoopOptions, PlanOptions, RunOptions  # noqa: E402
 from modalctl.plan.growth import model_for  # noqa: E402
 from modalctl.plan.planner import plan_shot  # noqa: E402
-from modalctl.plugin.manager import get_shape  # noqa: E402
+from modalctl.loops.controller import ControllerFactory  # noqa: E402
+from modalctl.plugin.manager import get_shape, pick  # noqa: E402
 from modalctl.run import run  # noqa: E402
 
 FOCUS = 25e-3
@@ -83,10 +84,21 @@ def _options(method: str, at) -> RunOptions:
     if method == "open":
         return RunOptions(FOCUS, PlanOptions())
     if method.startswith("controller "):  # --controllers: the named controller plugin, nothing else
-        return RunOptions(FOCUS, PlanOptions(), LoopOptions(controller=method.split()[1]))
+        name = method.split()[1]
+        return RunOptions(FOCUS, PlanOptions(), LoopOptions(controller=_TouchOver(name) if "+" in name else name))
     loop = LoopOptions(controller="pi" if method in ("pi", "learned") else "touch",
                        touch_at=at if method == "touch + sensor" else None)
     return RunOptions(FOCUS, PlanOptions(), loop, "record" if method == "learned" else None)
+
+
+class _TouchOver(ControllerFactory):
+    """``touch+NAME``: the touch controller over the loops of controller plugin NAME (PI by default)."""
+
+    def __init__(self, name: str):
+        self.name, self.inner = name, pick("controller", name.split("+")[1])
+
+    def create(self, plant, **options):
+        return pick("controller", "touch").create(plant, inner=self.inner, **options)
 
 
 def _shot(model, target, method: str, perturbation: Perturbation, plans: dict) -> dict:

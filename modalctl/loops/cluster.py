@@ -220,7 +220,9 @@ class ClusterControl(Controller):
         frame: the reading less the observer's one-period prediction (zero where the model is the structure).
     """
 
-    observes = True  # to know the period (the frames turn with time) and the commands the supervisor let through
+    # to know the period (the frames turn with time) and the commands the supervisor let through; as another
+    # controller's inner one (not told), it counts its updates and takes its own commands for those sent
+    observes = True
 
     def __init__(self, plant: LoopPlant, clusters: Clusters | None = None):
         self.inner = LQGControl(plant)
@@ -274,6 +276,7 @@ class ClusterControl(Controller):
         """Commands (k,): the isolated modes' from per-mode LQG, the clusters' from their own laws."""
         command = self.inner.update(error, limit)
         if not self.laws:
+            self._n += 1
             return command
         idx = self._idx
         now = self._spin ** (self._n + 1)  # the frames' turn now: the reading of period n is the model's (n + 1) T
@@ -292,5 +295,6 @@ class ClusterControl(Controller):
         self._integral = np.where(over, self._integral, self._integral + z)  # anti-windup
         self._integral[cap <= 0] = 0  # a loop with no authority rests
         self._x = self._A @ x + self._B @ (out * played).view(float)
+        self._n += 1  # the next period's, unless observe says otherwise (a lost reading)
         command[idx] = out
         return command
