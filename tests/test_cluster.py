@@ -165,7 +165,8 @@ class _Logged(Controller):
 
 ONE_ALONE = pytest.mark.xfail(strict=True, reason="measured: driving the lower mode alone, the cluster's loops miss "
                               "0.62 of its velocity where per-mode LQG misses 0.56 (PI 0.43): the joint law spends "
-                              "the upper loop against the lower mode's share of its reading")
+                              "the upper loop against the lower mode's share of its reading (an LQ cost on the modes' "
+                              "own velocity envelopes instead of the readings: 0.60-0.62, no better)")
 
 
 @pytest.mark.parametrize("steps", [pytest.param((1, 0), marks=ONE_ALONE), (0, 1), (1, 1)])
