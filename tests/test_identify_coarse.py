@@ -78,3 +78,18 @@ def test_a_turned_residue_is_no_second_mode():
         phase = np.exp(0.5j * np.angle(np.sum(coef[0] ** 2)))
         resid = h[:, keep].T - np.outer(b[:, 0], (coef[0] / phase).real * phase) - b[:, 1:] @ coef[1:]  # real shape
         assert one_pole_stands(frf, f, zeta, 0.6, [], resid), seed
+
+
+def test_two_inputs_that_disagree_on_a_shape_are_said_to():
+    rng = np.random.default_rng(5)
+    freqs = np.arange(50.0, 250.0, 0.25)
+    points = np.linspace(0, 1, 8)[:, None]
+    same, other = np.sin(np.pi * points[:, 0] + 0.3), rng.standard_normal(8)
+    inputs = []
+    for second in (np.cos(2 * np.pi * points[:, 0]), other):  # mode 2's shape: the same, then another
+        h = mobility(freqs, [100.0, 180.0], [0.02, 0.015], np.vstack([same, second]))
+        h = h + 1e-3 * np.abs(h).max() * (rng.standard_normal(h.shape) + 1j * rng.standard_normal(h.shape))
+        inputs.append(FRF(freqs, h, np.ones(h.shape), points, input_unit="N"))
+    notes = identify_frf(inputs, 1.0).notes
+    assert not any("100.0" in n and "agree to MAC" in n for n in notes)
+    assert any("180.0" in n and "agree to MAC" in n for n in notes), notes

@@ -22,11 +22,12 @@ import numpy as np
 
 from modalctl.model.modes import ModelError
 
-from .estimators import FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, modal_constants
+from .estimators import FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, constants_of, modal_constants
 from .frf import FRF
 from .noise import SIGNIFICANCE, noise_weights
 
-__all__ = ["JointPole", "joint_pole", "coarse_rows", "under_resolved", "LINES_SEARCHED", "HALF_LINES"]
+__all__ = ["JointPole", "joint_pole", "coarse_rows", "under_resolved", "file_notes", "LINES_SEARCHED", "HALF_LINES",
+           "AGREE"]
 
 LINES_SEARCHED = 1.0  # the frequency is searched this many lines either side of the start
 HALF_LINES = 3  # the band fitted spans this many lines either side of the pole (at least)
@@ -207,3 +208,30 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
         why = "" if pole.fixed else pole.reason(frf.values.shape[0])
         out.append((pole.f_hz, pole.zeta, fit.constants, fit.misfit, pole.fixed, why))
     return out
+
+
+AGREE = 0.9  # MAC below which two inputs' shapes of one mode are said to disagree
+
+
+def file_notes(frfs: list, frequencies: np.ndarray, damping: np.ndarray) -> list[str]:
+    """What the FRFs say of the returned modes ``(frequencies, damping)``: for each whose peak the
+    lines under-resolve, its frequency's jackknife standard error over the FRFs
+    (:func:`joint_pole`); with several inputs, each mode whose shapes from the two inputs that
+    drive it most agree to a MAC below ``AGREE`` (the same mode: they should agree)."""
+    frf = frfs[0] if len(frfs) == 1 else FRF.stack(frfs)
+    df = float(frf.frequencies[1] - frf.frequencies[0])
+    notes = []
+    for k, (f, zeta) in enumerate(zip(frequencies, damping)):
+        if under_resolved(f, zeta, df):
+            pole = joint_pole(frf, f, zeta)
+            notes.append(f"mode at {f:.2f} Hz: its peak spans {pole.lines:.1f} lines; one pole on all "
+                         f"{frf.values.shape[0]} FRFs jointly fixes its frequency to +- {pole.sigma_hz:.3f} Hz "
+                         f"(jackknife over the FRFs)")
+        if len(frfs) > 1:
+            c = [constants_of(x, frequencies, damping, k, frequency_check=False).constants for x in frfs]
+            a, b = np.argsort([-np.sqrt(np.mean(x**2)) for x in c])[:2]
+            agree = float(np.dot(c[a], c[b]) ** 2 / max(np.dot(c[a], c[a]) * np.dot(c[b], c[b]), 1e-300))
+            if agree < AGREE:
+                notes.append(f"mode at {f:.2f} Hz: the shapes inputs {a} and {b} give agree to MAC {agree:.2f} only "
+                             f"(the same mode: they should agree): its shape is uncertain")
+    return notes

@@ -24,6 +24,7 @@ from modalctl.options import SurveyOptions
 from modalctl.plugin.manager import pick
 
 from .acquire import measure_frf
+from .coarse import file_notes
 from .estimators import Modes, actuator_gains, constants_of, to_model
 from .frf import FRF, Sweep, bending_wavelength, check_spatial_step
 from .noise import with_noise_estimate
@@ -283,7 +284,8 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
     noise = [f"noise {frfs[0].noise_source}: median {np.median(frfs[0].noise_std):.2g} {frfs[0].unit}, "
              f"{np.median(frfs[0].noise_std) / np.max(np.abs(frfs[0].values)):.1e} of the largest |H|"] \
         if frfs[0].noise_source else []
-    notes = [*frfs[0].notes, *noise, *([note] if note else []), *poles.left_out()]
+    notes = [*frfs[0].notes, *noise, *([note] if note else []),
+             *file_notes(frfs, model.frequencies, model.damping), *poles.left_out()]
     table = dict(enumerate(frfs))
     return Survey(model, poles, drive, np.zeros(model.n_modes, int), before, crosstalk(model.shapes, model.grid.mass),
                   notes, {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},
