@@ -10,8 +10,9 @@ slope: the frequency is searched on a grid of a twentieth of a line over the pea
 before it is polished, so no line traps it. It is judged by what the FRFs themselves say:
 the jackknife over the FRFs (the fit again with each left out) gives its frequency's standard
 error, which holds every cause of their disagreement (noise, a hit that differs, a peak too
-narrow for the lines). A pole is a mode when three of those errors are within
-``FREQUENCY_TOLERANCE`` of it; else it is left out, saying how far the FRFs disagree.
+narrow for the lines). A pole is a mode when it stands out of the FRFs' noise (``SIGNIFICANCE``,
+where the noise is known or estimated) and three of those errors are within
+``FREQUENCY_TOLERANCE`` of it; else it is left out, saying which failed.
 """
 
 from __future__ import annotations
