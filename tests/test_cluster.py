@@ -1,6 +1,7 @@
 """The cluster controller (issue 37, item 1): which kept modes read each other, the coupled envelope
 model it designs on, and its loops on the HIL board against per-mode LQG."""
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -263,6 +264,47 @@ def test_as_another_controllers_inner_loops_it_counts_the_periods_itself(plate):
         sent = told.update(error, np.full(2, 1e-2))
         assert np.allclose(untold.update(error, np.full(2, 1e-2)), sent, rtol=1e-9, atol=1e-15)
     assert np.abs(sent).max() > 0
+
+
+def test_the_clusters_say_which_modes_and_why_in_words_and_in_numbers():
+    bands, fc = np.array([100.0, 100.0, 100.0]), np.array([20.0, 20.0, 20.0])
+    linked = find_clusters([1119, 1000, 5000], bands, fc)
+    assert linked.summary(["b", "a", "c"]) == ["modes a, b: a-b 119.0 Hz apart, below 120.0"]  # in frequency order
+    numbers = linked.to_dict(["b", "a", "c"])
+    assert numbers["groups"] == [["b", "a"]]
+    assert {(tuple(p["modes"]), p["linked"]) for p in numbers["pairs"]} == {(("b", "a"), True), (("b", "c"), False)}
+    apart = find_clusters([1000, 1121, 5000], bands, fc)
+    assert apart.summary() == ["no cluster: the nearest to one, modes 0 and 1, 121.0 Hz apart, above 120.0 Hz"]
+
+
+@pytest.mark.parametrize("controller, together", [(None, False), ("cluster", True)])
+def test_a_closed_loop_run_reports_the_clusters_whatever_the_controller(tmp_path, capsys, controller, together):
+    """metrics.json's loop.clusters: the kept modes (labels) whose loops read each other, every pair's carrier
+    spacing (the model's frequencies) against the rule's threshold, the groups the linked pairs join;
+    the printed summary says them, and whether the controller controls them as one."""
+    from modalctl.cli import main
+
+    args = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "bump", "--param", "width=25mm",
+            "--focus-time", "25ms", "--no-plots", "--loop", "closed", "--out", str(tmp_path / "r")]
+    assert main(args + ([] if controller is None else ["--controller", controller])) == 0
+    printed = capsys.readouterr().out
+    clusters = json.loads((tmp_path / "r" / "metrics.json").read_text())["loop"]["clusters"]
+    model = load_scene("thesis-al-cc", 211)
+    frequency = {int(label): f for label, f in zip(model.labels, model.frequencies)}
+    assert clusters["together"] is together and clusters["groups"]  # al-cc's gaps are its lock-ins' corners
+    for pair in clusters["pairs"]:
+        a, b = pair["modes"]
+        assert pair["spacing_hz"] == pytest.approx(abs(frequency[a] - frequency[b]))
+        assert pair["linked"] == (pair["spacing_hz"] < pair["threshold_hz"])
+    group_of = {m: i for i, group in enumerate(clusters["groups"]) for m in group}
+    for pair in (p for p in clusters["pairs"] if p["linked"]):  # a linked pair lies in one group
+        a, b = pair["modes"]
+        assert a in group_of and group_of[a] == group_of.get(b)
+    for group in clusters["groups"]:  # every mode of a group is linked to another of it
+        linked = {m for p in clusters["pairs"] if p["linked"] and set(p["modes"]) <= set(group) for m in p["modes"]}
+        assert linked == set(group)
+    assert "clusters (" in printed and all(line in printed for line in clusters["lines"])
+    assert ("each controlled as one" in printed) is together
 
 
 def _pair_plant(model):

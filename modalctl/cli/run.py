@@ -436,6 +436,13 @@ def _print_loop(m: dict, shot, out: Path) -> None:
               f"design {lp['design_seconds']:.2f} s and the field's scan {lp['scan_seconds']:.2f} s besides)")
         if lp.get("note"):
             print("note: " + lp["note"])
+        if lp.get("clusters"):
+            c = lp["clusters"]
+            how = "each controlled as one" if c["together"] else "per-mode loops that read each other"
+            print(f"clusters ({len(c['groups'])}, {how}; carriers closer than one loop's lock-in corner plus the "
+                  "other's crossover): " + ("" if c["groups"] else c["lines"][0]))
+            for line in c["lines"] if c["groups"] else ():
+                print("  " + line)
     if shot.learning is not None:
         ls = shot.learning
         how = (f"fit {ls.update_seconds:.1f} s, misfit {100 * ls.misfit:.1f}%" if ls.source == "record"

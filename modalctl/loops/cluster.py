@@ -31,7 +31,7 @@ channels: issue 37 item 2), and drift (the observer's process noise stands for i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import control
 import numpy as np
@@ -42,7 +42,7 @@ from .design import _real, _series, cluster_model
 from .lqg import NOISE_FLOOR, LQGControl
 from .sensing import feedthrough
 
-__all__ = ["Clusters", "find_clusters", "ClusterControl"]
+__all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl"]
 
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
@@ -59,10 +59,13 @@ class Clusters:
     pairs : tuple of (int, int, float, float)
         ``(i, j, spacing, threshold)`` for every pair linked (``spacing < threshold``) and every pair
         of kept modes adjacent in frequency: carrier spacing and the rule's threshold (Hz).
+    frequencies : tuple of float
+        The kept modes' carriers (Hz; empty if not given): the order :meth:`summary` reads a cluster in.
     """
 
     groups: tuple
     pairs: tuple
+    frequencies: tuple = ()
 
     def lines(self, labels=None) -> list[str]:
         """One line per pair: what the planner or the report prints (``labels``: the kept modes' names)."""
@@ -70,6 +73,37 @@ class Clusters:
         return [f"modes {name(i)} and {name(j)}: {spacing:.1f} Hz apart, "
                 f"{'below' if spacing < threshold else 'above'} {threshold:.1f} Hz: "
                 f"{'one cluster' if spacing < threshold else 'apart'}" for i, j, spacing, threshold in self.pairs]
+
+    def to_dict(self, labels=None) -> dict:
+        """JSON-ready (the run's ``metrics.json``): ``groups`` as lists of the kept modes' names (their
+        positions without ``labels``), ``pairs`` with ``modes``, ``spacing_hz``, ``threshold_hz`` and ``linked``."""
+        name = (lambda i: int(i)) if labels is None else (lambda i: labels[i])
+        return {"rule": RULE, "groups": [[name(i) for i in g] for g in self.groups],
+                "pairs": [{"modes": [name(i), name(j)], "spacing_hz": spacing, "threshold_hz": threshold,
+                           "linked": bool(spacing < threshold)} for i, j, spacing, threshold in self.pairs]}
+
+    def summary(self, labels=None) -> list[str]:
+        """One line per cluster: its modes and, for each two adjacent in frequency, their carrier spacing
+        against the rule's threshold (Hz); with no cluster, one line naming the closest pair and its margin."""
+        name = (lambda i: str(i)) if labels is None else (lambda i: str(labels[i]))
+        if not self.groups:
+            if not self.pairs:
+                return ["no cluster: a single kept mode"]
+            i, j, spacing, threshold = min(self.pairs, key=lambda p: p[2] / p[3])
+            return [f"no cluster: the nearest to one, modes {name(i)} and {name(j)}, {spacing:.1f} Hz apart, "
+                    f"above {threshold:.1f} Hz"]
+        known = {(i, j): (spacing, threshold) for i, j, spacing, threshold in self.pairs}
+        out = []
+        for group in self.groups:
+            group = sorted(group, key=lambda i: self.frequencies[i]) if self.frequencies else list(group)
+            links = [(i, j, known.get((min(i, j), max(i, j)))) for i, j in zip(group[:-1], group[1:])]
+            out.append(f"modes {', '.join(name(i) for i in group)}: " + "; ".join(
+                f"{name(i)}-{name(j)} {pair[0]:.1f} Hz apart, {'below' if pair[0] < pair[1] else 'above'} {pair[1]:.1f}"
+                for i, j, pair in links if pair is not None))
+        return out
+
+
+RULE = "modes i and j read each other when |f_i - f_j| < max(B_i + fc_j, B_j + fc_i) (B: lock-in corner, fc: crossover)"
 
 
 def find_clusters(frequencies, bandwidths, crossovers) -> Clusters:
@@ -107,7 +141,28 @@ def find_clusters(frequencies, bandwidths, crossovers) -> Clusters:
     groups: dict = {}
     for i in range(f.size):
         groups.setdefault(root(i), []).append(i)
-    return Clusters(tuple(tuple(g) for g in groups.values() if len(g) > 1), tuple(pairs))
+    return Clusters(tuple(tuple(g) for g in groups.values() if len(g) > 1), tuple(pairs), tuple(f.tolist()))
+
+
+def clusters_of(controller, frequencies, bandwidths) -> tuple[Clusters, bool]:
+    """The clusters a run reports, whatever its controller: ``(clusters, together)``. A controller that
+    controls clusters together (its own ``clusters``, or an inner controller's: the touch controller's)
+    gives its own and ``together`` True; for per-mode loops, :func:`find_clusters` on their design's
+    crossovers says which of them read each other (``together`` False).
+
+    Parameters
+    ----------
+    controller : Controller
+    frequencies, bandwidths : array_like, shape (k,)
+        The kept modes' carriers and lock-in corners (Hz).
+    """
+    inner = controller
+    while inner is not None:
+        if isinstance(getattr(inner, "clusters", None), Clusters):
+            found = inner.clusters
+            return (found if found.frequencies else replace(found, frequencies=tuple(map(float, frequencies)))), True
+        inner = getattr(inner, "inner", None)
+    return find_clusters(frequencies, bandwidths, controller.design.crossover_hz), False
 
 
 @dataclass(frozen=True)
