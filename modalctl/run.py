@@ -33,7 +33,6 @@ from modalctl.options import THESIS_MARGIN, LoopOptions, RunOptions
 from modalctl.plan.decompose import Decomposition
 from modalctl.plan.planner import Plan, plan_shot
 from modalctl.plugin.manager import name_of, pick
-from modalctl.threads import heard_at_once
 
 __all__ = ["run", "resolved", "ShotResult", "ShotMetrics", "LoopMetrics", "LearningMetrics"]
 
@@ -151,9 +150,6 @@ class LoopMetrics:
         the ``touch`` controller's estimate of the touch).
     note : str or None
         What the run chose in the options' place (a lower control rate the link sustains).
-    clusters : dict or None
-        Which kept modes' loops read each other and why (:meth:`~modalctl.loops.cluster.Clusters.to_dict`, modes
-        by label), ``together``: whether the controller controls each cluster as one, and ``lines``: one per cluster.
     """
 
     controller: str
@@ -175,7 +171,6 @@ class LoopMetrics:
     scan_seconds: float
     learned: dict | None = None
     note: str | None = None
-    clusters: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -336,13 +331,11 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
     elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
         _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
     plan_options = options.planned.but(voltage_limit=voltage_limit)
-    dec, the_plan = planned or heard_at_once(
-        lambda: plan_shot(model, shape, options.focus_time, plan_options, options.progress))
+    dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     learning = None
     if options.learn is not None:
         learning, model = _learning_shot(dec, the_plan, device, options, voltage_limit)
-        dec, the_plan = heard_at_once(lambda: plan_shot(model, shape, options.focus_time, plan_options,
-                                                        options.progress))
+        dec, the_plan = plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     start = _time.perf_counter()
     played = _play(the_plan, device, options, voltage_limit, options.log)
     shot = _measure(dec, the_plan, played, device, caps, options, start)
@@ -517,17 +510,7 @@ def _loop_metrics(played: _Played, the_plan: Plan, sim_seconds: float) -> LoopMe
         gain_margin_db=design.gain_margin_db.tolist(), design_seconds=played.design_seconds,
         shot_seconds=played.seconds, real_time_factor=played.seconds / the_plan.duration,
         scan_seconds=sim_seconds - played.design_seconds - played.seconds, learned=played.parts.controller.summary(),
-        note=played.note, clusters=_clusters(played.parts, the_plan))
-
-
-def _clusters(parts: LoopParts, the_plan: Plan) -> dict:
-    """Which kept modes' loops read each other (whatever the controller), modes by label."""
-    from modalctl.loops.cluster import clusters_of  # python-control's: loaded once loops are designed
-
-    carriers = the_plan.model.frequencies[the_plan.modes]
-    found, together = clusters_of(parts.controller, carriers, parts.schedule.bandwidths)
-    labels = [int(label) for label in the_plan.model.labels[the_plan.modes]]
-    return {**found.to_dict(labels), "together": together, "lines": found.summary(labels)}
+        note=played.note)
 
 
 def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):

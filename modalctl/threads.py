@@ -33,8 +33,12 @@ def heard_at_once(job: Callable):
     call (a DAQP solve of a tablet panel's margin program takes minutes, releasing the interpreter's
     lock) would hear a SIGTERM only when the call returns (49 s after ``timeout`` sent it, measured).
     Waiting here, the handler runs within a step, and what it raises (the command line's
-    ``Interrupted``) leaves this call at once; the worker, a daemon, ends with the process. What
-    ``job`` raises is raised here.
+    ``Interrupted``) leaves this call at once; the worker, a daemon, is abandoned and ends with the
+    process. What ``job`` raises is raised here.
+
+    For one C call that uses no thread pool of its own (DAQP's solve), not for BLAS work: an
+    abandoned job inside OpenBLAS's threads keeps the interpreter from exiting (measured: the
+    command returned 143 and the process hung).
     """
     answer: dict = {}
 

@@ -74,32 +74,67 @@ def test_a_signal_outside_a_shot_ends_the_command_without_a_traceback(tmp_path, 
     assert code == 130 and "interrupted by SIGINT" in capsys.readouterr().err
 
 
+PLANNED = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "sinc", "--param", "width=18mm",
+           "--param", "center=24mm", "--focus-time", "25ms", "--quiet", "--no-plots"]  # the margin program: DAQP
+
+
+def _long_daqp(solve):
+    """A DAQP solve (``solve``: daqp's own) of a few seconds (500 columns, 2,500 rows): one C call that
+    hears no signal."""
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((2500, 500))
+    return solve(np.eye(500), rng.standard_normal(500), a, np.full(2500, 0.1), np.full(2500, -0.1),
+                      np.zeros(2500, dtype=np.int32))
+
+
 def test_a_signal_while_planning_is_heard_at_once(tmp_path, capsys, monkeypatch):
-    """SIGTERM while the planner sits in one long C call that releases the interpreter's lock and
-    checks no signal (a tablet panel's DAQP solve, minutes; here one large BLAS product): the command
-    ends before the call returns (49 s after ``timeout``'s SIGTERM, before)."""
+    """SIGTERM while the margin program sits in one DAQP solve (a tablet panel's take minutes and hear
+    no signal): the command ends before the solve returns (49 s after ``timeout``'s SIGTERM, before)."""
     import threading
     import time
 
-    returned = {}
+    import daqp
 
-    def planning(*_, **__):
-        a = np.ones((2500, 2500))
+    returned, own = {}, daqp.solve
+
+    def solving(*_, **__):
         threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGTERM)).start()
-        a @ a  # one C call of a second or more: no signal handler runs in it
+        _long_daqp(own)
         returned["call"] = time.perf_counter()  # (where the call runs in the main thread, its handler raises first)
-        raise AssertionError("the planning thread was waited for")
+        raise AssertionError("the solve was waited for")
 
-    monkeypatch.setattr("modalctl.run.plan_shot", planning)
-    code = main([*CLOSED, "--out", str(tmp_path / "out")])
+    monkeypatch.setattr(daqp, "solve", solving)
+    code = main([*PLANNED, "--out", str(tmp_path / "out")])
     returned["command"] = time.perf_counter()
-    for _ in range(300):  # the call, left running in its daemon thread, ends
+    for _ in range(600):  # the solve, left running in its daemon thread, ends
         if "call" in returned:
             break
         time.sleep(0.1)
-    assert returned.get("call", -np.inf) > returned["command"], "the command waited for the planner's call"
+    assert returned.get("call", -np.inf) > returned["command"], "the command waited for the solve"
     assert code == 143 and "interrupted by SIGTERM" in capsys.readouterr().err
     assert json.loads((tmp_path / "out" / "metrics.json").read_text())["interrupted"] == "SIGTERM"
+
+
+def test_a_process_signalled_while_solving_exits(tmp_path):
+    """The process itself ends, with the solve still under way in its abandoned thread (a worker left
+    inside OpenBLAS's threads kept a process from exiting): exit 143 well before the solve's minute."""
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import os, signal, sys, threading, time, daqp\n"
+        "def solving(*_, **__):\n"
+        "    threading.Timer(0.1, os.kill, (os.getpid(), signal.SIGTERM)).start()\n"
+        "    time.sleep(60)\n"
+        "daqp.solve = solving\n"
+        "from modalctl.cli import main\n"
+        f"sys.exit(main({[*PLANNED, '--out', str(tmp_path / 'out')]!r}))\n")
+    started = time.perf_counter()
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=50)
+    assert done.returncode == 143, done.stderr
+    assert time.perf_counter() - started < 45  # the set-up's seconds, not the solve's 60
+    assert "interrupted by SIGTERM" in done.stderr and "Traceback" not in done.stderr
 
 
 def test_heard_at_once_returns_the_jobs_answer_and_raises_its_error():

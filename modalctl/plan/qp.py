@@ -13,6 +13,8 @@ import time as _time
 
 import numpy as np
 
+from modalctl.threads import heard_at_once
+
 from .planner import PlanError
 
 if TYPE_CHECKING:
@@ -135,9 +137,10 @@ def _daqp_once(qp: QP, a, lower, upper, energy_bound, start, neq, seconds):
     import daqp
 
     sense = np.r_[np.full(neq, 5), np.zeros(a.shape[0] - neq)].astype(np.int32)
-    x, _, flag, info = daqp.solve(qp.dense_hessian(), qp.linear, a, upper, lower, sense,
-                                  fval_bound=min(energy_bound, 1e30), dual_start=start, primal_tol=PRIMAL_TOL,
-                                  time_limit=seconds)
+    hessian = qp.dense_hessian()
+    x, _, flag, info = heard_at_once(lambda: daqp.solve(hessian, qp.linear, a, upper, lower, sense,
+                                                        fval_bound=min(energy_bound, 1e30), dual_start=start,
+                                                        primal_tol=PRIMAL_TOL, time_limit=seconds))
     return np.asarray(x), flag, np.asarray(info["lam"])
 
 
