@@ -150,6 +150,9 @@ class LoopMetrics:
         the ``touch`` controller's estimate of the touch).
     note : str or None
         What the run chose in the options' place (a lower control rate the link sustains).
+    clusters : dict or None
+        Which kept modes' loops read each other and why (:meth:`~modalctl.loops.cluster.Clusters.to_dict`, modes
+        by label), ``together``: whether the controller controls each cluster as one, and ``lines``: one per cluster.
     """
 
     controller: str
@@ -171,6 +174,7 @@ class LoopMetrics:
     scan_seconds: float
     learned: dict | None = None
     note: str | None = None
+    clusters: dict | None = None
 
 
 @dataclass(frozen=True)
@@ -510,7 +514,17 @@ def _loop_metrics(played: _Played, the_plan: Plan, sim_seconds: float) -> LoopMe
         gain_margin_db=design.gain_margin_db.tolist(), design_seconds=played.design_seconds,
         shot_seconds=played.seconds, real_time_factor=played.seconds / the_plan.duration,
         scan_seconds=sim_seconds - played.design_seconds - played.seconds, learned=played.parts.controller.summary(),
-        note=played.note)
+        note=played.note, clusters=_clusters(played.parts, the_plan))
+
+
+def _clusters(parts: LoopParts, the_plan: Plan) -> dict:
+    """Which kept modes' loops read each other (whatever the controller), modes by label."""
+    from modalctl.loops.cluster import clusters_of  # python-control's: loaded once loops are designed
+
+    carriers = the_plan.model.frequencies[the_plan.modes]
+    found, together = clusters_of(parts.controller, carriers, parts.schedule.bandwidths)
+    labels = [int(label) for label in the_plan.model.labels[the_plan.modes]]
+    return {**found.to_dict(labels), "together": together, "lines": found.summary(labels)}
 
 
 def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):
