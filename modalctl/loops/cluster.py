@@ -276,7 +276,8 @@ class ClusterControl(Controller):
     """
 
     # to know the period (the frames turn with time) and the commands the supervisor let through; as another
-    # controller's inner one (not told), it counts its updates and takes its own commands for those sent
+    # controller's inner one not told (the touch controller tells it), it counts its updates and takes its own
+    # commands for those sent
     observes = True
 
     def __init__(self, plant: LoopPlant, clusters: Clusters | None = None):
