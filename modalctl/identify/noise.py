@@ -29,7 +29,7 @@ SIGNIFICANCE = 25.0  # ...and the mode's energy this many times what a fit to no
 BLOCK = 64  # lines per block whose median gives the noise there
 SECOND_DIFFERENCE = 6.0  # variance of H_{k-1} - 2 H_k + H_{k+1} over that of one line's noise
 SCATTER_SOURCE = "estimated from the scatter between neighbouring lines (the file gives no noise)"
-AVERAGES_MAX = 100  # averages no impact or shaker test takes: a match above this says the scatter misses noise
+AVERAGES_MAX = 100  # averages no test takes: a match above says the scatter misses noise; the level is taken here
 COHERENCE_FLOOR = 1e-3  # a coherence below this counts as this (the noise is then a thousand times |H|)
 
 
@@ -74,11 +74,19 @@ def coherence_noise(values: np.ndarray, coherence: np.ndarray, averages: float) 
     averages : float
         Shots averaged, at least 2 (one shot's coherence is one everywhere).
 
+    Raises
+    ------
+    ValueError
+        Fewer than 2 averages.
+
     Returns
     -------
     ndarray, shape (n_points, nf)
         Same unit as ``values``.
     """
+    if not averages >= 2:
+        raise ValueError(f"coherence_noise: {averages} average(s): the coherence of fewer than 2 is one everywhere "
+                         f"and says nothing of the noise")
     g2 = np.clip(coherence, COHERENCE_FLOOR, 1.0)
     return np.abs(values) * np.sqrt((1 - g2) / (g2 * (averages - 1)))
 
@@ -90,8 +98,15 @@ def with_noise_estimate(frf: FRF) -> FRF:
     With a coherence but no number of averages (a file's export), the coherence gives the
     noise's shape over frequency and points (:func:`coherence_noise`; largest, an upper bound,
     for two averages) and the scatter between neighbouring lines (:func:`scatter_noise`) its
-    level: the averages are those that make the two agree (median over every value). Without a
-    coherence, the scatter alone.
+    level: the averages are those that make the two agree (median over every value), at most
+    ``AVERAGES_MAX``. More than that says the scatter misses most of the noise (it sees only
+    what is independent between lines): the level is then the coherence's at ``AVERAGES_MAX``
+    averages, the least noise the coherence allows a real test, not the scatter's (which makes
+    every test against the noise over-confident). Not the bound of two averages: where the
+    scatter sees so little, much of the coherence's loss is a bias (leakage, a window, a
+    nonlinearity), not random noise, and n = 2 would count all of it as noise, ``sqrt(AVERAGES_MAX
+    - 1)``, ten, times the level at ``AVERAGES_MAX``: of the levels a real test allows, the
+    one nearest the data's own scatter is taken. Without a coherence, the scatter alone.
     """
     if frf.noise_std is not None or frf.values.shape[1] < 3:
         return frf
@@ -100,15 +115,18 @@ def with_noise_estimate(frf: FRF) -> FRF:
         return replace(frf, noise_std=scatter, noise_source=SCATTER_SOURCE)
     bound = np.maximum(coherence_noise(frf.values, frf.coherence, 2), scatter * 1e-3)
     more = max(1.0, float(np.median((bound / scatter) ** 2)))  # n - 1
-    worst = np.median(bound / np.maximum(np.abs(frf.values), np.finfo(float).tiny))
-    doubt = (f"; more averages than a test takes (above {AVERAGES_MAX}): the coherence's loss is mostly not random "
-             f"noise independent between lines (a window that smooths it, leakage, a nonlinearity), which the "
-             f"scatter does not see") if 1 + more > AVERAGES_MAX else ""
+    median_bound = np.median(bound / np.maximum(np.abs(frf.values), np.finfo(float).tiny))
+    found = f"n = {1 + more:.3g} matches the scatter between neighbouring lines"
+    if 1 + more > AVERAGES_MAX:  # the scatter misses noise: the least the coherence allows a real test
+        more, found = AVERAGES_MAX - 1.0, (
+            f"n = {1 + more:.3g} would match the scatter between neighbouring lines, more averages than a test "
+            f"takes: the coherence's loss is mostly not random noise independent between lines (a window that "
+            f"smooths it, leakage, a nonlinearity), which the scatter does not see; taken at n = {AVERAGES_MAX}, the "
+            f"least noise the coherence allows a real test")
     return replace(frf, noise_std=bound / np.sqrt(more),
                    noise_source=f"from the coherence, |H| sqrt((1 - g^2) / (g^2 (n - 1))), the file giving no number "
-                                f"of averages n: n = {1 + more:.3g} matches the scatter between neighbouring lines "
-                                f"(the coherence alone bounds the random error by {worst:.2g} of |H| in the median, "
-                                f"for n = 2{doubt})")
+                                f"of averages n: {found} (the coherence alone bounds the random error by "
+                                f"{median_bound:.2g} of |H| in the median, for n = 2)")
 
 
 def noise_weights(noise: np.ndarray) -> np.ndarray:
