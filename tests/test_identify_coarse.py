@@ -4,9 +4,13 @@ from dataclasses import replace
 
 import numpy as np
 
-from modalctl.identify.coarse import joint_pole
-from modalctl.identify.estimators import one_pole_stands, pole_basis
+import pytest
+
+import modalctl.identify.coarse as coarse
+from modalctl.identify.coarse import _chi, coarse_rows, file_notes, joint_pole
+from modalctl.identify.estimators import NO_HALF_POWER, one_pole_stands, pole_basis
 from modalctl.identify.frf import FRF, mobility
+from modalctl.identify.noise import with_noise_estimate
 from modalctl.identify.survey import identify_frf
 
 DF = 0.5  # Hz per line, as the strip's analyzer exported
@@ -93,3 +97,86 @@ def test_two_inputs_that_disagree_on_a_shape_are_said_to():
     notes = identify_frf(inputs, 1.0).notes
     assert not any("100.0" in n and "agree to MAC" in n for n in notes)
     assert any("180.0" in n and "agree to MAC" in n for n in notes), notes
+
+
+def test_one_or_two_frfs_are_judged_by_their_noise_not_a_jackknife():
+    # one or two FRFs give no jackknife: the error was inf, so no pole was ever fixed, the reason
+    # said "the 1 FRFs disagree on it ... between 53.23 and 53.23 Hz" and the note "+- inf Hz"
+    for rows in (1, 2):
+        frf = with_noise_estimate(coarse_frf([53.23] * rows, noise=0.003, seed=2))
+        pole = joint_pole(frf, 53.0, 0.006)
+        assert pole.fixed and pole.noise_fixed and not pole.jackknifed, (rows, pole)
+        assert abs(pole.f_hz - 53.23) < 0.05 * DF
+        note = "; ".join(file_notes([frf], [pole.f_hz], [pole.zeta]))
+        assert "by the noise alone" in note and "too few FRFs for a jackknife" in note and "inf" not in note, note
+    # the noise unknown: nothing judges the frequency; said, not blamed on the FRFs' disagreement
+    pole = joint_pole(coarse_frf([53.23] * 2, noise=0.003, seed=2), 53.0, 0.006)
+    assert not pole.fixed and pole.noise_fixed is None
+    assert "too few FRFs (2" in pole.reason() and "disagree" not in pole.reason()
+
+
+def test_a_note_says_when_the_frfs_do_not_fix_the_frequency():
+    rng = np.random.default_rng(3)
+    frf = coarse_frf(list(53.0 + rng.uniform(-1.0, 1.0, 20)), zeta=0.001)  # every hit its own peak
+    pole = joint_pole(frf, 53.0, 0.002)
+    note = "; ".join(file_notes([frf], [pole.f_hz], [pole.zeta]))
+    assert not pole.fixed and "does not fix" in note and "fixes its frequency" not in note, note
+
+
+def test_every_row_coarse_rows_drops_is_said_and_none_contradicts_a_mode():
+    frf = with_noise_estimate(coarse_frf([53.23] * 20, noise=0.003, seed=2))
+    n = frf.values.shape[0]
+    rows = [(120.0, 0.002, np.ones(n), 0.01, True, ""),  # a sure pole
+            (120.5, 0.002, np.ones(n), 0.5, False, "one pole explains its band poorly"),  # a candidate on its peak
+            (53.0, 0.006, np.ones(n), 0.4, False, "one pole explains its band poorly"),  # the peak picker's line
+            (53.2, -0.03, np.zeros(n), np.inf, False, NO_HALF_POWER)]  # no candidate: its damping is not physical
+    out = coarse_rows(frf, rows)
+    kept = [r for r in out if r[4]]
+    assert len(kept) == 2 and abs(min(r[0] for r in kept) - 53.23) < 0.05 * DF
+    left = {round(r[0], 1): r[5] for r in out if not r[4]}
+    assert set(left) == {120.5, 53.2}, left  # the candidate near 120 Hz was dropped unsaid
+    assert left[120.5].startswith("the peak of the mode at 120.00 Hz"), left
+    assert left[53.2].startswith("the peak of the mode at 53.23 Hz"), left  # not "no half-power points"
+
+
+@pytest.mark.parametrize("rows", [2, 3, 20])
+def test_identify_reports_no_peak_of_a_returned_mode_as_left_out_for_another_reason(rows):
+    frf = coarse_frf([53.23] * rows, noise=0.003, seed=2)
+    survey = identify_frf(frf, 1.0)
+    assert np.min(np.abs(survey.model.frequencies - 53.23)) < 0.05 * DF
+    for note in survey.notes:
+        if " Hz left out: " in note:
+            f = float(note.split(" Hz left out")[0])
+            if np.min(np.abs(survey.model.frequencies - f)) <= 2 * DF:
+                assert "left out: the peak of the mode at" in note, note
+
+
+def test_file_notes_uses_the_pole_coarse_rows_fitted(monkeypatch):
+    frf = with_noise_estimate(coarse_frf([53.23] * 20, noise=0.003, seed=2))
+    n = frf.values.shape[0]
+    out = coarse_rows(frf, [(53.0, 0.006, np.ones(n), 0.4, False, "one pole explains its band poorly")])
+    (row,) = out
+    assert row[4]
+
+    def refit(*args, **kwargs):
+        raise AssertionError("file_notes fitted the pole again")
+
+    monkeypatch.setattr(coarse, "joint_pole", refit)
+    # the rows leave as arrays (Modes, the model): the same floats, any FRF object holding the same values
+    again = FRF(frf.frequencies.copy(), frf.values.copy(), frf.coherence, frf.points, noise_std=frf.noise_std,
+                input_unit="N")
+    notes = file_notes([again], np.array([row[0]]), np.array([row[1]]))
+    assert row.pole.f_hz == row[0] and notes == [row.pole.note()]  # the row carries its pole
+
+
+def test_chi_agrees_with_pole_basis():
+    # _chi builds estimators.pole_basis(..., general=True) for many poles at once: they must agree
+    rng = np.random.default_rng(7)
+    freqs = np.arange(50.0, 57.0, DF)
+    h = rng.standard_normal((freqs.size, 4)) + 1j * rng.standard_normal((freqs.size, 4))
+    f, zeta = np.array([52.9, 53.23, 54.1]), np.array([0.002, 0.01, 0.05])
+    got = _chi(freqs, h, f, zeta, 53.5)
+    for k in range(f.size):
+        b = pole_basis(freqs, [(f[k], zeta[k])], 53.5, general=True)
+        resid = h - b @ np.linalg.lstsq(b, h, rcond=None)[0]
+        assert np.isclose(got[k], np.sum(np.abs(resid) ** 2), rtol=1e-8), (k, got[k])

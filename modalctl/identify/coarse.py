@@ -12,7 +12,9 @@ the jackknife over the FRFs (the fit again with each left out) gives its frequen
 error, which holds every cause of their disagreement (noise, a hit that differs, a peak too
 narrow for the lines). A pole is a mode when it stands out of the FRFs' noise (``SIGNIFICANCE``,
 where the noise is known or estimated) and three of those errors are within
-``FREQUENCY_TOLERANCE`` of it; else it is left out, saying which failed.
+``FREQUENCY_TOLERANCE`` of it (with fewer than ``JACKKNIFE_ROWS`` FRFs there is no jackknife:
+the noise alone must fix the frequency, as for a resolved mode); else it is left out, saying
+which failed.
 """
 
 from __future__ import annotations
@@ -23,17 +25,19 @@ import numpy as np
 
 from modalctl.model.modes import ModelError
 
-from .estimators import FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, constants_of, modal_constants
+from .estimators import (FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, constants_of, frequency_fixed,
+                         modal_constants)
 from .frf import FRF
 from .noise import SIGNIFICANCE, noise_weights
 
-__all__ = ["JointPole", "joint_pole", "coarse_rows", "under_resolved", "file_notes", "LINES_SEARCHED", "HALF_LINES",
-           "AGREE"]
+__all__ = ["JointPole", "joint_pole", "coarse_rows", "CoarseRow", "fitted_pole", "under_resolved", "file_notes",
+           "LINES_SEARCHED", "HALF_LINES", "AGREE", "JACKKNIFE_ROWS"]
 
 LINES_SEARCHED = 1.0  # the frequency is searched this many lines either side of the start
 HALF_LINES = 3  # the band fitted spans this many lines either side of the pole (at least)
 GRID = 20  # frequency grid steps per line
 DAMPING_GRID = np.geomspace(1e-4, 0.1, 31)
+JACKKNIFE_ROWS = 3  # fewer FRFs than this give no jackknife: the noise alone judges the frequency
 
 
 @dataclass(frozen=True)
@@ -42,15 +46,25 @@ class JointPole:
 
     Attributes
     ----------
-    f_hz, zeta : float
+    f_hz : float
+        Frequency (Hz).
+    zeta : float
+        Viscous damping ratio.
     sigma_hz : float
-        Jackknife standard error of ``f_hz`` over the FRFs (Hz).
+        Jackknife standard error of ``f_hz`` over the FRFs (Hz); inf with fewer than
+        ``JACKKNIFE_ROWS`` FRFs.
     spread_hz : tuple of float
         Lowest and highest frequency of one pole fitted on each FRF alone (Hz).
     lines : float
         Its half-power band ``2 zeta f`` in lines.
     significance : float
         Energy the pole explains over what fitting it to noise alone gives (inf: noise unknown).
+    rows : int
+        FRFs fitted jointly.
+    noise_fixed : bool or None
+        With fewer than ``JACKKNIFE_ROWS`` FRFs, whether the noise fixes its frequency within
+        ``FREQUENCY_TOLERANCE`` (:func:`~.estimators.frequency_fixed`); None otherwise, or when
+        the noise is unknown.
     """
 
     f_hz: float
@@ -59,28 +73,81 @@ class JointPole:
     spread_hz: tuple
     lines: float
     significance: float = np.inf
+    rows: int = JACKKNIFE_ROWS
+    noise_fixed: bool | None = None
+
+    @property
+    def jackknifed(self) -> bool:
+        """Whether there were FRFs enough (``JACKKNIFE_ROWS``) for a jackknife."""
+        return self.rows >= JACKKNIFE_ROWS
 
     @property
     def fixed(self) -> bool:
-        """Whether it stands out of the noise (``SIGNIFICANCE``) and the FRFs agree on its
-        frequency within ``FREQUENCY_TOLERANCE`` (3 sigma)."""
-        return bool(self.significance >= SIGNIFICANCE and 3 * self.sigma_hz <= FREQUENCY_TOLERANCE * self.f_hz)
+        """Whether it stands out of the noise (``SIGNIFICANCE``) and its frequency is fixed within
+        ``FREQUENCY_TOLERANCE``: by the FRFs' agreement (3 jackknife sigma) or, with fewer than
+        ``JACKKNIFE_ROWS`` FRFs, by the noise alone (:attr:`noise_fixed`)."""
+        if self.significance < SIGNIFICANCE:
+            return False
+        if not self.jackknifed:
+            return bool(self.noise_fixed)
+        return bool(3 * self.sigma_hz <= FREQUENCY_TOLERANCE * self.f_hz)
 
-    def reason(self, rows: int) -> str:
-        """Why it is left out (when not :attr:`fixed`): what the FRFs said."""
+    def reason(self, rows: int | None = None) -> str:
+        """Why it is left out (when not :attr:`fixed`): what the FRFs said (``rows``: their
+        number, :attr:`rows` by default)."""
+        rows = self.rows if rows is None else rows
         if self.significance < SIGNIFICANCE:
             return (f"a peak of the noise: one pole on all {rows} FRFs jointly explains {self.significance:.3g} times "
                     f"what it would of noise alone (at least {SIGNIFICANCE:g})")
+        if not self.jackknifed:
+            judged = ("no noise is known to judge it by" if self.noise_fixed is None else
+                      f"the noise leaves its frequency uncertain by more than {FREQUENCY_TOLERANCE:.0%} (3 sigma)")
+            return (f"its peak spans {self.lines:.1f} lines; too few FRFs ({rows}, at least {JACKKNIFE_ROWS}) for a "
+                    f"jackknife, and {judged}: one pole on all jointly at {self.f_hz:.2f} Hz")
         return (f"its peak spans {self.lines:.1f} lines and the {rows} FRFs disagree on it: one pole fitted on each "
                 f"alone lands between {self.spread_hz[0]:.2f} and {self.spread_hz[1]:.2f} Hz (searched within a "
                 f"line), on all jointly at "
                 f"{self.f_hz:.2f} Hz +- {self.sigma_hz:.2f} Hz (jackknife over the FRFs; 3 sigma at most "
                 f"{FREQUENCY_TOLERANCE:.0%})")
 
+    def note(self) -> str:
+        """What it says of its mode's frequency, for :func:`file_notes`."""
+        if not self.fixed:
+            return f"mode at {self.f_hz:.2f} Hz: one pole on all FRFs jointly does not fix it: {self.reason()}"
+        head = f"mode at {self.f_hz:.2f} Hz: its peak spans {self.lines:.1f} lines; one pole on all {self.rows} FRFs"
+        if not self.jackknifed:
+            return (f"{head} jointly fixes its frequency within {FREQUENCY_TOLERANCE:.0%} (3 sigma) by the noise alone "
+                    f"(too few FRFs for a jackknife)")
+        return f"{head} jointly fixes its frequency to +- {self.sigma_hz:.3f} Hz (jackknife over the FRFs)"
+
 
 def _chi(freqs: np.ndarray, h: np.ndarray, f, zeta, centre: float) -> np.ndarray:
     """Joint residual energy of ``h`` (nb, rows) for each pole ``(f, zeta)`` (arrays of one
-    shape; each pole with its two general columns, a constant and a slope), that shape."""
+    shape; each pole with its two general columns, a constant and a slope), that shape.
+
+    The basis of each pole is :func:`~.estimators.pole_basis` ``(freqs, [(f, zeta)], centre,
+    general=True)``, built here for all poles at once: that function takes the poles of one
+    basis (its columns from :func:`~.frf.mobility` through an identity of one row per pole),
+    so a grid of a thousand poles would be a thousand calls or a thousand-square identity per
+    call, and the grid search and jackknife call this some forty times per mode. The two must
+    agree (``tests/test_identify_coarse.py`` checks that they do).
+
+    Parameters
+    ----------
+    freqs : ndarray, shape (nb,)
+        Hz.
+    h : ndarray, shape (nb, rows)
+        FRFs (any unit).
+    f, zeta : array_like
+        Poles' frequencies (Hz) and damping ratios, broadcast together.
+    centre : float
+        Hz: the slope's origin.
+
+    Returns
+    -------
+    ndarray, shape of ``f`` and ``zeta`` broadcast
+        Residual energy, the unit of ``h`` squared.
+    """
     f, zeta = np.broadcast_arrays(np.asarray(f, float), np.asarray(zeta, float))
     w, wk, z = 2 * np.pi * freqs, 2 * np.pi * f.reshape(-1, 1), zeta.reshape(-1, 1)
     den = wk**2 - w**2 + 2j * z * wk * w  # (poles, nb)
@@ -136,7 +203,10 @@ def joint_pole(frf: FRF, f: float, zeta: float) -> JointPole:
     jointly, with its frequency's jackknife standard error over the rows.
 
     The band is ``f +- max(3 zeta f, HALF_LINES lines)``; the damping is searched on
-    ``DAMPING_GRID``. Rows are the FRFs (any input, any point).
+    ``DAMPING_GRID``. Rows are the FRFs (any input, any point). With fewer than
+    ``JACKKNIFE_ROWS`` rows there is no jackknife (one or two values leave none or no spread to
+    speak of): the error is inf and the noise alone says whether the frequency is fixed
+    (:func:`~.estimators.frequency_fixed`, as for a resolved mode).
     """
     df = float(frf.frequencies[1] - frf.frequencies[0])
     half = max(3 * zeta * f, HALF_LINES * df) + LINES_SEARCHED * df
@@ -147,22 +217,69 @@ def joint_pole(frf: FRF, f: float, zeta: float) -> JointPole:
     # the noise estimated between lines misses what grows with the response at a sharp peak: it
     # weights the test of the pole against noise alone (each FRF by its own), not the fit
     noise = frf.noise(keep)
-    scaled = h if noise is None else h * np.sqrt(noise_weights(noise))[None, :]
+    weight = None if noise is None else noise_weights(noise)
+    scaled = h if weight is None else h * np.sqrt(weight)[None, :]
     rest = np.column_stack([np.ones(freqs.size), freqs / np.mean(freqs) - 1])
     base = np.sum(np.abs(scaled - rest @ np.linalg.lstsq(rest, scaled, rcond=None)[0]) ** 2)
     explained = base - float(_chi(freqs, scaled, f_fit, z_fit, float(np.mean(freqs))))
     significance = np.inf if noise is None else explained / (2 * rows)  # two coefficients a row
     alone = np.array([_grid_best(freqs, h[:, [r]], f_fit, df) for r in range(rows)])
-    left = np.array([_local_best(freqs, np.delete(h, r, axis=1), f_fit, z_fit, df) for r in range(rows)]) \
-        if rows > 2 else np.array([f_fit])
-    sigma = float(np.sqrt((rows - 1) / rows * np.sum((left - left.mean()) ** 2))) if rows > 2 else np.inf
-    return JointPole(f_fit, z_fit, sigma, (float(alone.min()), float(alone.max())), 2 * z_fit * f_fit / df,
-                     significance)
+    spread = (float(alone.min()), float(alone.max()))
+    if rows < JACKKNIFE_ROWS:  # no jackknife: the noise alone, where it is known, judges the frequency
+        by_noise = None if weight is None else frequency_fixed(freqs, h, weight, f_fit, z_fit, general=True)
+        return JointPole(f_fit, z_fit, np.inf, spread, 2 * z_fit * f_fit / df, significance, rows, by_noise)
+    left = np.array([_local_best(freqs, np.delete(h, r, axis=1), f_fit, z_fit, df) for r in range(rows)])
+    sigma = float(np.sqrt((rows - 1) / rows * np.sum((left - left.mean()) ** 2)))
+    return JointPole(f_fit, z_fit, sigma, spread, 2 * z_fit * f_fit / df, significance, rows)
 
 
 def under_resolved(f: float, zeta: float, df: float) -> bool:
     """Whether a pole's half-power band spans fewer than ``RESOLVED_LINES`` lines of ``df`` (Hz)."""
     return bool(np.isfinite(zeta) and 0 < zeta and 2 * zeta * f / df < RESOLVED_LINES)
+
+
+class CoarseRow(tuple):
+    """A row ``(f, zeta, constants, misfit, resolved, reason)`` as every identifier gives it, with
+    the :class:`JointPole` it was fitted as (:attr:`pole`) carried along."""
+
+    pole: JointPole
+
+    def __new__(cls, row, pole: JointPole):
+        self = super().__new__(cls, row)
+        self.pole = pole
+        return self
+
+
+_FITTED: dict = {}  # (f_hz, zeta, FRFs' fingerprint) -> JointPole, what coarse_rows fitted last
+_FITTED_MAX = 256
+
+
+def _fingerprint(frf: FRF) -> tuple:
+    """What tells one set of FRFs from another, cheaply: shape, lines and a hash of the values."""
+    return frf.values.shape, float(frf.frequencies[0]), float(frf.frequencies[-1]), hash(frf.values.tobytes())
+
+
+def fitted_pole(frf: FRF, f: float, zeta: float) -> JointPole | None:
+    """The :class:`JointPole` :func:`coarse_rows` returned for the mode at exactly ``(f, zeta)``
+    (Hz, ratio: the row's own values) on these FRFs (the same values, any FRF object), or None.
+
+    The rows leave the identifiers as :class:`~.estimators.Modes`, which keeps no pole; this is
+    how :func:`file_notes` gets the fit that made a mode instead of fitting it again.
+    """
+    return _FITTED.get((float(f), float(zeta), _fingerprint(frf)))
+
+
+def _keep(frf: FRF, pole: JointPole) -> None:
+    """Remember ``pole``, fitted on ``frf``, for :func:`fitted_pole` (the oldest forgotten past ``_FITTED_MAX``)."""
+    while len(_FITTED) >= _FITTED_MAX:
+        _FITTED.pop(next(iter(_FITTED)))
+    _FITTED[(pole.f_hz, pole.zeta, _fingerprint(frf))] = pole
+
+
+def _same_peak(r, f: float, near: float):
+    """Row ``r`` left out as the peak of the mode returned at ``f`` (Hz), within ``near`` (Hz) of it."""
+    return (*r[:4], False, f"the peak of the mode at {f:.2f} Hz (within {near:g} Hz, {LINES_SEARCHED + 1:g} lines, "
+                           f"of it): the same peak, not a second mode")
 
 
 def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
@@ -171,11 +288,14 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
 
     Such poles within ``LINES_SEARCHED + 1`` lines of each other are one peak (LSCF's pair on
     the lines either side of it, a peak-picked pole and a doubtful one): fitted once, from the
-    one of lowest misfit; one near a pole the band fit explained is that pole's; a group of
-    poles no band fit was made of (LSCF's doubtful ones, misfit infinite) is left as it is. Poles whose
-    reason is in ``skip`` (peaks of the noise) are left as they are. A pole :attr:`JointPole.fixed`
-    is returned at the joint fit with its constants by :func:`modal_constants`; else it is left
-    out with :meth:`JointPole.reason`.
+    one of lowest misfit, as one row; one near a pole the band fit explained is that pole's; a
+    group of poles no band fit was made of (LSCF's doubtful ones, misfit infinite) is left as it
+    is. Poles whose reason is in ``skip`` (peaks of the noise) are not fitted. A pole
+    :attr:`JointPole.fixed` is returned at the joint fit with its constants by
+    :func:`modal_constants` (a :class:`CoarseRow`, carrying its pole); a pole not fixed is left
+    out with :meth:`JointPole.reason`. Every row left out within those lines of a mode returned
+    (a sure pole, a joint one fixed) is left out as that mode's peak, not for a reason of its
+    own: none is dropped unsaid, and none contradicts the mode.
     """
     df = float(frf.frequencies[1] - frf.frequencies[0])
     near = (LINES_SEARCHED + 1) * df
@@ -185,15 +305,15 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
 
     sure = np.array([r[0] for r in rows if r[4] and not candidate(r)])
     out = [r for r in rows if not candidate(r)]
-    peaks = sorted((r for r in rows if candidate(r)), key=lambda r: r[0])
     groups = []
-    for r in peaks:
-        if sure.size and np.min(np.abs(sure - r[0])) <= near:
-            continue
-        if groups and r[0] - groups[-1][-1][0] <= near:
+    for r in sorted((r for r in rows if candidate(r)), key=lambda r: r[0]):
+        if sure.size and np.min(np.abs(sure - r[0])) <= near:  # the sure pole's peak: said so below
+            out.append((*r[:4], False, r[5]))
+        elif groups and r[0] - groups[-1][-1][0] <= near:
             groups[-1].append(r)
         else:
             groups.append([r])
+    joint = []
     for group in groups:
         if not any(np.isfinite(r[3]) for r in group):  # LSCF's doubtful poles only: no peak was fitted there
             out.extend(group)
@@ -203,12 +323,18 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
         try:
             fit = modal_constants(frf, pole.f_hz, pole.zeta, max(3 * pole.zeta * pole.f_hz, HALF_LINES * df),
                                   frequency_check=False)
-        except ModelError:  # at the edge of the measurement
-            out.append((f, zeta, np.zeros(frf.values.shape[0]), np.inf, False, group[0][5]))
+        except ModelError:  # at the edge of the measurement: each as it came, left out
+            out.extend((*r[:4], False, r[5] or "at the measurement's edge: too few lines to fit its peak jointly")
+                       for r in group)
             continue
-        why = "" if pole.fixed else pole.reason(frf.values.shape[0])
-        out.append((pole.f_hz, pole.zeta, fit.constants, fit.misfit, pole.fixed, why))
-    return out
+        _keep(frf, pole)
+        joint.append(CoarseRow((pole.f_hz, pole.zeta, fit.constants, fit.misfit, pole.fixed,
+                                "" if pole.fixed else pole.reason()), pole))
+    kept = np.array([r[0] for r in [*out, *joint] if r[4]])
+    if kept.size:  # a row left out near a mode returned is that mode's peak, not left out for a reason of its own
+        out = [_same_peak(r, float(kept[np.argmin(np.abs(kept - r[0]))]), near)
+               if not r[4] and np.min(np.abs(kept - r[0])) <= near else r for r in out]
+    return out + joint
 
 
 AGREE = 0.9  # MAC below which two inputs' shapes of one mode are said to disagree
@@ -217,17 +343,16 @@ AGREE = 0.9  # MAC below which two inputs' shapes of one mode are said to disagr
 def file_notes(frfs: list, frequencies: np.ndarray, damping: np.ndarray) -> list[str]:
     """What the FRFs say of the returned modes ``(frequencies, damping)``: for each whose peak the
     lines under-resolve, its frequency's jackknife standard error over the FRFs
-    (:func:`joint_pole`); with several inputs, each mode whose shapes from the two inputs that
+    (:func:`joint_pole`, the fit :func:`coarse_rows` made when it made the mode:
+    :func:`fitted_pole`; :meth:`JointPole.note`); with several inputs, each mode whose shapes from the two inputs that
     drive it most agree to a MAC below ``AGREE`` (the same mode: they should agree)."""
     frf = frfs[0] if len(frfs) == 1 else FRF.stack(frfs)
     df = float(frf.frequencies[1] - frf.frequencies[0])
     notes = []
     for k, (f, zeta) in enumerate(zip(frequencies, damping)):
-        if under_resolved(f, zeta, df):
-            pole = joint_pole(frf, f, zeta)
-            notes.append(f"mode at {f:.2f} Hz: its peak spans {pole.lines:.1f} lines; one pole on all "
-                         f"{frf.values.shape[0]} FRFs jointly fixes its frequency to +- {pole.sigma_hz:.3f} Hz "
-                         f"(jackknife over the FRFs)")
+        if under_resolved(f, zeta, df):  # the pole coarse_rows fitted the mode as, else fitted here
+            pole = fitted_pole(frf, f, zeta) or joint_pole(frf, f, zeta)
+            notes.append(pole.note())
         if len(frfs) > 1:
             c = [constants_of(x, frequencies, damping, k, frequency_check=False).constants for x in frfs]
             a, b = np.argsort([-np.sqrt(np.mean(x**2)) for x in c])[:2]
