@@ -32,6 +32,16 @@ def test_a_thesis_beam_continued_keeps_its_identified_modes_and_scales_the_analy
     assert richer.meta["continued_modes"] == list(range(22, 43)) and richer.meta["estimated_modes"] == [18]
 
 
+def test_a_scene_on_another_grid_is_continued_on_that_grid():
+    """A scene built on a grid of its user's (``--points``) is continued on that grid, not refused
+    for being off the scene's default one: the same first modes, on the same points."""
+    for name, points in (("thesis-al-cc", 211), ("plate-glass", (51, 36))):
+        model = load_scene(name, points)
+        richer = continued(model, model.n_modes + 5)
+        assert richer.grid.n == model.grid.n and np.array_equal(richer.grid.points, model.grid.points)
+        np.testing.assert_allclose(richer.shapes[:model.n_modes], model.shapes, rtol=1e-12, atol=1e-12)
+
+
 def test_the_free_free_beam_continues_its_symmetric_modes_by_two():
     richer = continued(load_scene("thesis-al-ff"), 12)
     assert list(richer.labels) == [1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 21, 23]

@@ -253,8 +253,8 @@ def continued(model: ModalModel, modes: int) -> ModalModel:
             band *= max(1.2, 1.1 * modes / richer.n_modes)
             richer = grown(model, band)
         richer = richer.select(np.arange(modes))
-    elif name in SCENES:
-        richer = load_scene(name, modes=modes)
+    elif name in SCENES:  # on the model's own grid (a beam's count of points, a plate's lattice)
+        richer = load_scene(name, model.grid.shape or model.grid.n, modes=modes)
     else:
         raise ModelError(f"model {name!r} is neither a scene nor a finite-element plate's: it cannot be continued to "
                          f"{modes} modes (give the truth as a model file)")
