@@ -185,7 +185,7 @@ def _survey(args, scene, meta: dict):
                              f"{' x '.join(f'{e * 1e3:.0f}' for e in np.ptp(scan, axis=0))} mm; at least "
                              f"{SCAN_POINTS_MIN} per direction draw a mode shape")
         survey = identify_device(device, sweep, points, density, options, beam_wavelength(meta, opt["f_high"]),
-                                 progress=progress_bars(args))
+                                 progress=progress_bars(args), stage=lambda text: stage(args, text))
     return survey, points
 
 

@@ -3,10 +3,13 @@ drifted and erred modes, a finger resting on the surface, resonances moving duri
 
 from __future__ import annotations
 
+import hashlib
+from dataclasses import replace
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
+import scipy.fft
 from tqdm.auto import tqdm
 
 from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError
@@ -19,11 +22,12 @@ from modalctl.model.shape import ParamError
 from .finger import FingerPlant
 from .plant import HOLDS, Plant, truncation
 from .scenario import Perturbation, perturb
-from .vibrometer import scan_field, scan_modes, scan_noise_stream
+from .vibrometer import scan_field, scan_modes, scan_noise_stream, scan_spectrum
 
 __all__ = ["SimDevice"]
 
 CHUNK = 8192  # samples per plant step (one progress-bar tick)
+SPECTRUM_KEY = 1  # in the key of the noise of a shot's spectrum (scan_spectrum)
 DRIFT_STEP = 50e-6  # s: resonances moving during a shot are retuned this often (the loops' period at 20 kHz)
 
 
@@ -59,6 +63,9 @@ class SimDevice(Device):
             self.info["finger_at_m"] = [float(x) for x in perturbation.finger_at]
         self._noise_sigma = None
         self._voltages = self._modal = self._board = None
+        self._spectra = {}  # the last shot's modal spectra by band (scan_spectrum)
+        self._last_drive, self._pending, self._played = None, False, None  # the last drive played (_replay)
+        self._unit_bounds = None  # (waveform's digest, its modes' bounds with unit gains): _truncation
         self._boards = 0  # phasor boards made so far
         self._shots = 0  # open-loop shots triggered so far (each its own scan noise)
         self._kept = np.arange(model.n_modes)
@@ -90,7 +97,7 @@ class SimDevice(Device):
         """Set the DAC/ADC rate (Hz) and report what the board can do."""
         if not 0 < sample_rate <= self.max_sample_rate:
             raise DeviceError(f"{self.url}: sample rate {sample_rate:g} Hz outside (0, {self.max_sample_rate:g}]")
-        self.sample_rate, self.state = float(sample_rate), "inactive"
+        self.sample_rate, self.state, self._last_drive, self._unit_bounds = float(sample_rate), "inactive", None, None
         self.capabilities = Capabilities("modalctl HIL board", self.model.actuator_gains.shape[1],
                                          self.model.sensor_gains.shape[1], self.max_sample_rate,
                                          self.perturbation.voltage_limit, True, self.model.grid.points,
@@ -105,7 +112,7 @@ class SimDevice(Device):
             raise DeviceError(f"{self.url}: {u.shape[0]} waveforms for {channels} channels")
         if not np.all(np.isfinite(u)):
             raise DeviceError(f"{self.url}: waveform contains non-finite samples")
-        self._voltages, self._played, self._board = u, None, None
+        self._voltages, self._pending, self._board = u, True, None
 
     def trigger(self, progress: bool = False) -> Capture:
         """Play the uploaded waveforms and record the sensors (the plant from rest)."""
@@ -114,18 +121,29 @@ class SimDevice(Device):
         if self._voltages is None:
             raise DeviceError(f"{self.url}: nothing uploaded")
         u, p = self._voltages, self.perturbation
-        if self._played is None:  # the structure answers a repeated drive identically; only noise differs
-            self._play(u, progress)
+        if self._pending:  # the structure answers a repeated drive identically; only noise differs
+            self._replay(u, progress)
+            self._pending = False
         self._shots += 1  # every shot its own vibrometer noise (a repeated one too: averages average)
-        sensors = self._played
-        sensors = sensors + self._sigma(np.max(np.abs(sensors))) * self._rng.standard_normal(sensors.shape)
-        times = np.arange(u.shape[1]) / self.sample_rate
-        return Capture(times, sensors, np.clip(u, -p.voltage_limit, p.voltage_limit) if p.voltage_limit else u)
+        times, sigma, applied = self._record  # the same for every repeat of the drive
+        sensors = self._played + sigma * self._rng.standard_normal(self._played.shape)
+        return Capture(times, sensors, applied)
+
+    def _replay(self, u: np.ndarray, progress: bool) -> None:
+        """The structure's answer to the drive ``u``: played, or kept from the shot before when that
+        played the same drive (an FRF survey's sparse sweep of an actuator, then its full scan)."""
+        key = hashlib.blake2b(u.tobytes(), digest_size=16).digest() + repr(u.shape).encode()
+        if key != self._last_drive:
+            p = self.perturbation
+            self._play(u, progress)
+            self._record = np.arange(u.shape[1]) / self.sample_rate, self._sigma(np.max(np.abs(self._played))), \
+                np.clip(u, -p.voltage_limit, p.voltage_limit) if p.voltage_limit else u
+            self._last_drive = key
 
     def _play(self, u: np.ndarray, progress: bool) -> None:
         p = self.perturbation
         if self.finger is None:
-            kept, bounds, dropped = truncation(self.truth, u, self.sample_rate, self.tol)
+            kept, dropped = self._truncation(u)
             plant = Plant(self.truth.select(kept), self.sample_rate, self.hold, p.amplifier_bandwidth,
                           p.voltage_limit)
         else:  # the finger couples every mode to every other: all are simulated
@@ -144,9 +162,25 @@ class SimDevice(Device):
                 plant.retune(base * (1 + p.shift((i + chunk / 2) / self.sample_rate)))  # the chunk's middle
             played.append(plant.step(u[:, i:i + chunk]))
         self._modal = np.hstack(played)
+        self._spectra = {}  # the modes' spectra of this shot, by band (scan_spectrum)
         self.info["clipped_samples"] = plant.clipped
         self._noise_sigma = self._sigma(self._field_peak()) / np.sqrt(self.perturbation.scan_repeats)
         self._played = plant.sensors(self._modal)
+
+    def _truncation(self, u: np.ndarray) -> tuple[np.ndarray, float]:
+        """:func:`~modalctl.hil.plant.truncation`'s modes kept and dropped bound for the drive ``u``.
+        A drive on one channel is a waveform times that channel's gains: the waveform's bounds with
+        unit gains (its spectrum's integrals, the cost) are made once and scaled for each channel."""
+        active = np.flatnonzero(np.any(u != 0, axis=1))
+        if active.size != 1:
+            return truncation(self.truth, u, self.sample_rate, self.tol)[::2]
+        key = hashlib.blake2b(u[active[0]].tobytes(), digest_size=16).digest()
+        if self._unit_bounds is None or self._unit_bounds[0] != key:
+            unit = replace(self.truth, actuator_gains=np.ones((self.truth.n_modes, 1)))
+            self._unit_bounds = key, truncation(unit, u[active], self.sample_rate, self.tol)[1]
+        bounds = np.abs(self.truth.actuator_gains[:, active[0]]) * self._unit_bounds[1]
+        kept = np.flatnonzero(bounds >= self.tol * bounds.max())
+        return kept, float(np.delete(bounds, kept).sum())
 
     def phasor_board(self, level: float, control_rate: float, latency: int = 0):
         """The board in phasor mode (closed loop) on the same truth, for a shot whose field peaks
@@ -184,6 +218,26 @@ class SimDevice(Device):
         if noise is not None:
             noise.add_to(field)
         return field
+
+    def scan_spectrum(self, bins: slice, points=None) -> np.ndarray:
+        """The ``rfft`` at ``bins`` of the last shot's whole scan at ``points`` (default all):
+        ``rfft(scan(capture.times, points))[:, bins]`` (len(points), nb), complex (m/s), made from
+        the modes' spectra (once a shot, shared by all points: the structure is linear) as one
+        product, its noise drawn in the frequency domain
+        (:func:`~modalctl.hil.vibrometer.scan_spectrum`): no per-point record nor FFT. The FRF
+        survey's fast path (:func:`~modalctl.identify.acquire.measure_frf`)."""
+        if self._board is not None:
+            raise DeviceError(f"{self.url}: the scan's spectrum is of open-loop shots only")
+        if self._modal is None:
+            raise DeviceError(f"{self.url}: no shot to scan")
+        n = self._modal.shape[1]
+        index = np.arange(n // 2 + 1)[bins]
+        band = (int(index[0]), int(index[-1]) + 1) if index.size else (0, 0)
+        if band not in self._spectra:  # one band a shot kept (in place: a replayed drive keeps it too)
+            self._spectra.clear()
+            self._spectra[band] = scipy.fft.rfft(self._modal, axis=-1, workers=-1)[:, bins]
+        return scan_spectrum(self.truth.shapes[self._kept], self._spectra[band], index, n, points,
+                             self._noise_sigma or 0.0, (self.perturbation.seed, self._shots, SPECTRUM_KEY))
 
     def scan_noise_stream(self, times: np.ndarray, points=None) -> NoiseStream | None:
         """The vibrometer's noise in ``scan(times, points)`` (its stream's key, sigma, samples and

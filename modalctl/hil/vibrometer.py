@@ -24,7 +24,7 @@ import numpy as np
 
 from modalctl.model.noise_stream import NOISE_BLOCK, SAMPLES_MAX, NoiseStream, add_noise, shot_key
 
-__all__ = ["NOISE_BLOCK", "scan_noise", "scan_field", "scan_modes", "scan_noise_stream"]
+__all__ = ["NOISE_BLOCK", "scan_noise", "scan_field", "scan_modes", "scan_noise_stream", "scan_spectrum"]
 
 
 def scan_noise(key: tuple[int, ...], samples: np.ndarray, points: int, sigma: float, rows=None) -> np.ndarray:
@@ -67,6 +67,47 @@ def scan_modes(shapes: np.ndarray, velocity: np.ndarray, rows=None) -> tuple[np.
     """What :func:`scan_field` reads, less its noise, as made: the modes' shapes on the points ``rows``
     (default all) reads, shape (n, k), and their ``velocity`` at the instants scanned (k, nt)."""
     return shapes[:, _rows(shapes.shape[1], rows)].T, velocity
+
+
+def scan_spectrum(shapes: np.ndarray, velocity_spectrum: np.ndarray, bins: np.ndarray, samples: int, rows=None,
+                  sigma: float = 0.0, key: tuple[int, ...] = (0,)) -> np.ndarray:
+    """The ``rfft`` of a whole record's scan at ``bins`` (len(rows), nb), complex (m/s, summed over
+    the ``samples`` of the record as ``rfft`` sums): the field's, ``shapes[:, rows].T @
+    velocity_spectrum`` (the modes' spectra, shared by every point: one product), plus the
+    vibrometer's white noise of standard deviation ``sigma`` drawn where it is read, in the
+    frequency domain: its DFT, Gaussian, independent from bin to bin and point to point, of
+    variance ``samples sigma^2`` (halved between the real and imaginary parts, all real at 0 and
+    at the Nyquist bin). Same statistics as the DFT of :func:`scan_field`'s noise, not its values:
+    each point's from a generator keyed by ``key`` (the shot), the point and the first bin, so
+    that a point's noise does not depend on the other points asked with it.
+
+    Parameters
+    ----------
+    shapes : ndarray, shape (k, n)
+    velocity_spectrum : ndarray, shape (k, nb)
+        The ``rfft`` of the modes' velocities over the record at ``bins`` (m/s).
+    bins : ndarray of int, shape (nb,)
+        Consecutive.
+    samples : int
+        The record's length.
+    rows : index, optional
+        Grid points (default all n).
+    """
+    rows, bins = np.atleast_1d(_rows(shapes.shape[1], rows)), np.asarray(bins, np.int64).reshape(-1)
+    field = shapes[:, rows].T @ velocity_spectrum
+    if not sigma or not bins.size:
+        return field
+    scale = np.float32(sigma * np.sqrt(samples / 2))
+    real = np.flatnonzero((bins == 0) | (2 * bins == samples))  # a real record's DFT is real there
+    pair = np.empty(2 * bins.size, np.float32)
+    for i, row in enumerate(rows):
+        rng = np.random.default_rng([*key, int(row), int(bins[0])])
+        rng.standard_normal(out=pair, dtype=np.float32)
+        noise = pair.view(np.complex64)
+        noise[real] = np.sqrt(2) * noise[real].real
+        noise *= scale
+        field[i] += noise
+    return field
 
 
 def _rows(points: int, rows) -> np.ndarray:

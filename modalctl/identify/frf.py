@@ -209,19 +209,31 @@ class H1:
         self.shots = np.zeros(self.n_points, int)
         self.seconds = 0.0
 
+    def bins(self, n: int) -> tuple[np.ndarray, slice]:
+        """Frequencies (Hz) and slice of the ``rfft`` bins of an ``n``-sample shot inside the band."""
+        freqs = np.fft.rfftfreq(n, 1 / self.sample_rate)
+        keep = slice(np.searchsorted(freqs, self.band[0]), np.searchsorted(freqs, self.band[1], side="right"))
+        return freqs[keep], keep
+
     def add(self, u: np.ndarray, y: np.ndarray, rows=slice(None)) -> None:
         """Add one shot: drive ``u`` (n,) in V, responses ``y`` (len(rows), n) in m/s at ``rows``."""
         start = time.perf_counter()
         n = u.shape[-1]
         if y.shape[-1] != n:
             raise ModelError(f"frf: {y.shape[-1]} response samples for {n} drive samples")
-        freqs = np.fft.rfftfreq(n, 1 / self.sample_rate)
-        keep = slice(np.searchsorted(freqs, self.band[0]), np.searchsorted(freqs, self.band[1], side="right"))
+        freqs, keep = self.bins(n)
         # single precision: 7 digits, more than any ADC gives (16 bits), at half the cost
         uf = scipy.fft.rfft(u.astype(np.float32))[keep].astype(complex)
         yf = scipy.fft.rfft(np.atleast_2d(y).astype(np.float32), axis=-1, workers=-1)[:, keep].astype(complex)
+        self.seconds += time.perf_counter() - start
+        self.add_spectra(freqs, uf, yf, rows)
+
+    def add_spectra(self, freqs: np.ndarray, uf: np.ndarray, yf: np.ndarray, rows=slice(None)) -> None:
+        """Add one shot given as spectra at the band's bins ``freqs`` (nb,) (Hz, :meth:`bins`): the
+        drive's ``uf`` (nb,) and the responses' ``yf`` (len(rows), nb), both ``rfft`` of the records."""
+        start = time.perf_counter()
         if self._suu is None:
-            self.frequencies = freqs[keep]
+            self.frequencies = freqs
             shape = (self.n_points, uf.size)
             self._suu, self._syu, self._syy = np.zeros(shape), np.zeros(shape, complex), np.zeros(shape)
         elif uf.size != self._suu.shape[1]:
@@ -239,9 +251,10 @@ class H1:
         n = int(self.shots.min())
         with np.errstate(invalid="ignore", divide="ignore"):
             h = self._syu / self._suu
-            coherence = np.nan_to_num(np.abs(self._syu) ** 2 / (self._suu * self._syy))
+            cross = np.abs(self._syu) ** 2
+            coherence = np.nan_to_num(cross / (self._suu * self._syy))
             # scatter of Y not explained by H u, per shot, over the drive's energy: variance of H1
-            residual = np.maximum(self._syy - np.abs(self._syu) ** 2 / self._suu, 0)
+            residual = np.maximum(self._syy - cross / self._suu, 0)
             noise = np.sqrt(residual / ((n - 1) * self._suu)) if n > 1 else None
         return FRF(self.frequencies, h, np.clip(coherence, 0, 1),
                    np.asarray(points, float).reshape(self.n_points, -1), actuator, n, self.seconds, noise)

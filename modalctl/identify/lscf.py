@@ -37,6 +37,9 @@ DOUBTFUL = 0.25  # ...and to be reported as doubtful (fewer: a computational pol
 COMPONENTS = 12  # principal FRFs the denominator is fitted on (all rows share the poles)
 SCATTER = 0.5  # poles of one cluster lie within this share of their half-power half-width of each other
 SIGNIFICANT = 0.05  # principal FRFs below this share of the first are taken as noise
+DIRECT_ROWS = 256  # rows up to which the principal FRFs come from the whole Gram matrix (see _principal)
+SKETCH_EXTRA = 8  # directions the range of more rows is sketched with beyond the components kept
+SKETCH_ITERATIONS = 2  # subspace iterations of that sketch
 
 
 @dataclass(frozen=True)
@@ -60,11 +63,37 @@ class Stabilization:
 
 def _principal(values: np.ndarray, components: int) -> np.ndarray:
     """At most ``components`` principal FRFs of the rows, those above ``SIGNIFICANT`` of the
-    first, shape (kept, nf): the poles of every row, less the noise of the other directions."""
-    power, u = np.linalg.eigh(values @ values.conj().T)  # the rows' Gram matrix: far fewer rows than bins
+    first, shape (kept, nf): the poles of every row, less the noise of the other directions.
+
+    Up to ``DIRECT_ROWS`` rows, from the rows' whole Gram matrix; above (a plate's thousands of
+    points, whose Gram matrix and its eigen problem grow as rows^2 bins and rows^3), from the
+    Gram matrix of the rows projected on their dominant range (:func:`_dominant_range`)."""
+    if values.shape[0] <= DIRECT_ROWS:
+        power, u = np.linalg.eigh(values @ values.conj().T)  # the rows' Gram matrix: far fewer rows than bins
+    else:
+        basis = _dominant_range(values, components + SKETCH_EXTRA)
+        projected = basis.conj().T @ values
+        power, u = np.linalg.eigh(projected @ projected.conj().T)
+        values = projected
     s = np.sqrt(np.maximum(power[::-1], 0))
     keep = min(components, int(np.count_nonzero(s > SIGNIFICANT * s[0])))
     return u[:, ::-1][:, :keep].conj().T @ values
+
+
+def _dominant_range(values: np.ndarray, width: int) -> np.ndarray:
+    """Orthonormal basis (rows, width) of the dominant range of ``values`` (rows, nf): subspace
+    iteration from a seeded random start (Halko, Martinsson and Tropp 2011, Alg. 4.4), in single
+    precision (the basis, not the data it projects, which stays double): ``SKETCH_ITERATIONS``
+    passes make the directions above the noise converge to its level."""
+    rng = np.random.default_rng(0)
+    width = min(width, *values.shape)
+    single = values.astype(np.complex64)
+    start = (rng.standard_normal((values.shape[1], width)) + 1j * rng.standard_normal((values.shape[1], width)))
+    basis = np.linalg.qr(single @ start.astype(np.complex64))[0]
+    for _ in range(SKETCH_ITERATIONS):
+        across = np.linalg.qr((basis.conj().T @ single).conj().T)[0]  # (rows' range)^H: no conjugated copy
+        basis = np.linalg.qr(single @ across)[0]
+    return basis.astype(complex)
 
 
 def stabilization(frf: FRF, f_low: float, f_high: float, max_order: int,

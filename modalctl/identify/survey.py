@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from typing import Callable
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from modalctl.io.device import Device
 from modalctl.model.modes import Grid, ModalModel
@@ -86,7 +88,7 @@ def scan_subset(scan: np.ndarray, step: float) -> np.ndarray:
 
 def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: float,
                     options: SurveyOptions = SurveyOptions(), wavelength: float | None = None,
-                    progress: bool = False) -> Survey:
+                    progress: bool = False, stage: Callable[[str], None] | None = None) -> Survey:
     """Identify the structure behind ``device`` on the scan points ``points``.
 
     Parameters
@@ -104,6 +106,8 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
         The identifier, the primary actuator, the sparse grid, averages, Gram-Schmidt.
     wavelength : float, optional
         Shortest bending wavelength in the band (m) for the spatial-step check (Eq 3.15).
+    progress, stage : bool, callable or None
+        tqdm bars of the steps and sweeps; ``stage(text)`` told each step as it starts, with how long it expects.
     """
     identifier = pick("identifier", options.method)
     primary, sparse, averages = options.primary, options.sparse, options.averages
@@ -117,26 +121,30 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     if wavelength is not None:
         check_spatial_step(positions, wavelength)
     few = np.unique(np.r_[np.arange(0, points.size, sparse), points.size - 1])
-    acquisition = compute = 0.0
+    steps = _Steps(caps.channels + 3, progress, stage)  # the sparse sweeps, poles, full scan(s), shapes
 
     t0 = time.perf_counter()
-    sparse_frf = {a: measure_frf(device, sweep, a, points[few], averages, progress=progress)
-                  for a in range(caps.channels)}
-    acquisition += time.perf_counter() - t0
+    last = [*(a for a in range(caps.channels) if a != primary), primary]  # the primary's full scan next: one drive
+    sparse_frf = dict(sorted(steps.sweeps(device, sweep, last, points[few], averages, "sparse").items()))
+    acquisition = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    steps.say(f"poles on {few.size * caps.channels} FRFs ({few.size} points x {caps.channels} actuators) x "
+              f"{sparse_frf[0].frequencies.size} lines ({options.method})")
     poles = identifier.identify(FRF.stack(list(sparse_frf.values())), threshold_db=options.threshold_db)
     good = poles.only_resolved()
     drive = _drives(good, sparse_frf, caps.channels)
     weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
     chooser = np.where(weak, np.argmax(drive, axis=1), primary)
-    compute += time.perf_counter() - t0
+    compute = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    full_frf = {a: measure_frf(device, sweep, a, points, averages, progress=progress) for a in np.unique(chooser)}
+    full_frf = steps.sweeps(device, sweep, sorted(np.unique(chooser), key=lambda a: a != primary), points, averages,
+                            "full scan")
     acquisition += time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    steps.say(f"shapes of {good.n_modes} modes on {points.size} points, every actuator's gains")
     constants, misfit, resolved = _shape_constants(good, full_frf, chooser, points.size)
     grid = Grid.measured(positions, density)
     notes = _notes(poles, good, drive, weak, primary, sweep)
@@ -152,11 +160,50 @@ def identify_device(device: Device, sweep: Sweep, points: np.ndarray, density: f
     notes += [note] if note else []
     after = crosstalk(model.shapes, model.grid.mass)
     compute += time.perf_counter() - t0
+    steps.close()
     device.deactivate()
     frf_seconds = sum(f.seconds for f in [*sparse_frf.values(), *full_frf.values()])
     return Survey(model, poles, drive[resolved][order], chooser[resolved][order], before, after, notes,
                   {"acquisition": acquisition - frf_seconds, "frf": frf_seconds, "modal": compute},
                   {"sparse": sparse_frf, "full": full_frf}, mac, bool(model.meta.get("orthonormalized")))
+
+
+class _Steps:
+    """The survey's steps told as they start (``stage``) and drawn as a tqdm bar (``progress``),
+    each sweep with the time it expects from the point-shots measured so far."""
+
+    def __init__(self, total: int, progress: bool, stage: Callable[[str], None] | None):
+        self.stage, self.started, self.progress = stage, False, progress
+        self.shots, self.seconds = 0, 0.0  # point-shots measured so far, and in how long (s)
+        self.bar = tqdm(total=total, desc="survey", unit="step", disable=not progress, leave=False)
+
+    def say(self, text: str) -> None:
+        """A step starts (the one before it is done): one line for ``stage``, the bar's postfix."""
+        if self.started:
+            self.bar.update(1)
+        self.started = True
+        self.bar.set_postfix_str(text, refresh=True)
+        if self.stage is not None:
+            self.stage(text)
+
+    def sweeps(self, device: Device, sweep: Sweep, actuators, points: np.ndarray, averages: int, which: str) -> dict:
+        """``{actuator: FRF}`` of each of ``actuators`` on ``points``, ``averages`` shots each
+        (:func:`~.acquire.measure_frf`), each said with the time it expects (at the rate of the
+        sweeps before it), and timed."""
+        frfs = {}
+        for a in actuators:
+            shots = points.size * averages
+            expect = f", about {shots * self.seconds / self.shots:.0f} s" if self.shots else ""
+            self.say(f"FRFs of actuator {a} ({which}): {points.size} points x {averages} shots{expect}")
+            start = time.perf_counter()
+            frfs[int(a)] = measure_frf(device, sweep, int(a), points, averages, progress=self.progress)
+            self.seconds += time.perf_counter() - start
+            self.shots += shots
+        return frfs
+
+    def close(self) -> None:
+        self.bar.update(1)
+        self.bar.close()
 
 
 def _drives(good: Modes, sparse_frf: dict, channels: int) -> np.ndarray:

@@ -1,0 +1,164 @@
+"""The survey's fast paths (issue 39) against the slower ones they replace: the simulator's scan
+spectrum against the FFT of its scan, grouped FRFs against one group, the randomized principal FRFs
+against the whole Gram matrix's, and the identified plate against its scene and the record path."""
+
+import numpy as np
+import pytest
+
+from modalctl.hil.scenario import Perturbation
+from modalctl.hil.sim_device import SimDevice
+from modalctl.identify import acquire, lscf
+from modalctl.identify.acquire import measure_frf
+from modalctl.identify.frf import Sweep
+from modalctl.identify.survey import identify_device, mac, scan_subset
+from modalctl.model.scenes import load_scene
+from modalctl.options import SurveyOptions
+
+
+class RecordsOnly:
+    """A device that gives its scan's records only (as a board would): the FRFs' slower path."""
+
+    def __init__(self, device):
+        self._device = device
+
+    def __getattr__(self, name):
+        if name == "scan_spectrum":
+            raise AttributeError(name)
+        return getattr(self._device, name)
+
+
+def _device(scene: str, snr=None, seed=3, rate=None):
+    device = SimDevice(load_scene(scene), Perturbation(snr_db=snr, seed=seed))
+    if rate is not None:
+        device.configure(rate)
+        device.activate()
+    return device
+
+
+def test_scan_spectrum_is_the_fft_of_the_scan_and_its_noise_has_the_dft_statistics():
+    """Noise-free: the spectrum the simulator makes from its modes' spectra equals the rfft of its
+    scan (to the scan's float32); noisy: each bin's noise has variance n sigma^2, real at DC."""
+    sweep = Sweep.design(100, 6e3, 4.0)
+    device = _device("thesis-al-cc", rate=sweep.sample_rate)
+    wave = np.zeros((device.capabilities.channels, sweep.samples))
+    wave[1] = sweep.waveform()
+    device.upload(wave)
+    capture = device.trigger()
+    points = np.array([3, 40, 77, 100])
+    bins = slice(10, 2000)
+    record = np.fft.rfft(device.scan(capture.times, points).astype(float), axis=-1)[:, bins]
+    spectrum = device.scan_spectrum(bins, points)
+    assert np.abs(spectrum - record).max() < 1e-5 * np.abs(record).max()
+
+    noisy = _device("thesis-al-cc", snr=20, rate=sweep.sample_rate)
+    noisy.upload(wave)
+    noisy.trigger()
+    bins = slice(0, 4000)
+    many = np.arange(0, noisy.capabilities.scan_points.shape[0], 2)
+    noise = noisy.scan_spectrum(bins, many) - device.scan_spectrum(bins, many)
+    n, sigma = sweep.samples, noisy._noise_sigma
+    assert abs(np.mean(np.abs(noise[:, 1:]) ** 2) / (n * sigma**2) - 1) < 0.02
+    assert np.all(noise[:, 0].imag == 0) and abs(np.mean(noise[:, 0].real ** 2) / (n * sigma**2) - 1) < 0.3
+    again = noisy.scan_spectrum(bins, many[5:9])  # a point's noise whatever the points asked with it
+    assert np.array_equal(again, noisy.scan_spectrum(bins, many)[5:9])
+
+
+def test_frfs_through_the_spectrum_and_in_groups_equal_those_through_the_records(monkeypatch):
+    """measure_frf: the spectrum path against the record path (same shot, noise-free, to float32),
+    and points measured a few at a time against all at once (to the last bits BLAS's blocking moves)."""
+    sweep = Sweep.design(100, 6e3, 4.0)
+    device = _device("thesis-al-cc", rate=sweep.sample_rate)
+    points = np.arange(0, device.capabilities.scan_points.shape[0], 9)
+    fast = measure_frf(device, sweep, 2, points, averages=2)
+    slow = measure_frf(RecordsOnly(device), sweep, 2, points, averages=2)
+    assert np.array_equal(fast.frequencies, slow.frequencies)
+    assert np.abs(fast.values - slow.values).max() < 1e-6 * np.abs(slow.values).max()
+    monkeypatch.setattr(acquire, "GROUP", 5)
+    grouped = measure_frf(device, sweep, 2, points, averages=2, batch=2)
+    assert np.allclose(grouped.values, fast.values, rtol=1e-12, atol=0) and np.array_equal(grouped.points, fast.points)
+    assert np.allclose(grouped.coherence, fast.coherence, rtol=1e-12) and grouped.averages == 2
+
+
+def test_randomized_principal_frfs_span_the_gram_matrix_s():
+    """Above DIRECT_ROWS rows the principal FRFs come from a sketch of the rows' range: the same
+    subspace as the whole Gram matrix's eigenvectors give, on rows of a few modes and noise."""
+    rng = np.random.default_rng(2)
+    rows, bins, modes = 600, 900, 5
+    signal = (rng.standard_normal((rows, modes)) * np.geomspace(10, 1, modes)) @ \
+        (rng.standard_normal((modes, bins)) + 1j * rng.standard_normal((modes, bins)))
+    values = signal + 0.05 * (rng.standard_normal((rows, bins)) + 1j * rng.standard_normal((rows, bins)))
+    assert rows > lscf.DIRECT_ROWS
+    fast = lscf._principal(values, lscf.COMPONENTS)
+    power, u = np.linalg.eigh(values @ values.conj().T)  # the whole Gram matrix, independently
+    slow = u[:, ::-1][:, :fast.shape[0]].conj().T @ values
+    assert fast.shape[0] == modes
+    q_fast, q_slow = np.linalg.qr(fast.T)[0], np.linalg.qr(slow.T)[0]
+    assert np.linalg.svd(q_fast.conj().T @ q_slow, compute_uv=False).min() > 1 - 1e-8  # cosines of the angles
+
+
+@pytest.fixture(scope="module")
+def plates():
+    """The plate identified on a 3 mm lattice (816 points, 656 sparse FRFs: the randomized
+    principal FRFs) up to 3.5 kHz, fast; and by the slower paths (records and FFTs per point, the
+    whole Gram matrix), the same shots."""
+    sweep = Sweep.design(300, 3.5e3, 4.0)
+    truth = load_scene("plate-glass")
+    density = truth.meta["density_kg_m3"] * truth.meta["thickness_m"]
+    points = scan_subset(truth.grid.points, 3e-3)
+    fast = identify_device(_device("plate-glass", snr=40), sweep, points, density, SurveyOptions())
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(lscf, "DIRECT_ROWS", 10**6)
+        slow = identify_device(RecordsOnly(_device("plate-glass", snr=40)), sweep, points, density, SurveyOptions())
+    return truth, points, fast, slow
+
+
+def test_the_fast_survey_identifies_the_plate_as_the_slow_one_and_the_scene(plates):
+    """Frequencies to 1e-4 of the scene's (the existing plate test's tolerance), damping to 5%,
+    shapes MAC above 0.99; and the same modes as the slower paths find (their noise differs)."""
+    truth, points, fast, slow = plates
+    model = fast.model
+    assert model.n_modes == slow.model.n_modes == 5
+    assert np.allclose(model.frequencies, truth.frequencies[:5], rtol=1e-4)
+    assert np.allclose(model.damping, truth.damping[:5], rtol=0.05)
+    assert np.all(mac(model.shapes, truth.shapes[:5, points]) > 0.99)
+    assert np.allclose(model.frequencies, slow.model.frequencies, rtol=1e-4)
+    assert np.allclose(model.damping, slow.model.damping, rtol=0.05)
+    assert np.all(mac(model.shapes, slow.model.shapes) > 0.999)
+    assert np.array_equal(fast.shape_actuator, slow.shape_actuator)
+
+
+def test_the_survey_says_each_step_with_what_it_expects(tmp_path, capsys):
+    """Not on a terminal: one line per step (each sweep, the poles, the shapes), the sweeps after
+    the first with the time they expect."""
+    from modalctl.cli import main
+
+    assert main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--step", "2mm", "--no-plots", "--json",
+                 "--out", str(tmp_path / "m.npz")]) == 0
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("modalctl identify: ")]
+    assert lines[0].startswith("modalctl identify: the survey: 100 to 6000 Hz")
+    sweeps = [line for line in lines if "FRFs of actuator" in line]
+    assert len(sweeps) >= 9 and "about" not in sweeps[0] and all(" s" in line and "about" in line
+                                                                   for line in sweeps[1:])
+    assert any("poles on" in line for line in lines) and "shapes of" in lines[-1]
+    assert "\r" not in "".join(lines)
+
+
+@pytest.mark.parametrize("tol", [1e-4, 0.05])
+def test_one_channel_truncation_from_the_waveform_s_bounds_is_the_plant_s(tol):
+    """The simulator's modes kept for a drive on one channel (the waveform's bounds, scaled by the
+    channel's gains) are those :func:`truncation` keeps, its dropped bound the same; two channels
+    go to it."""
+    from modalctl.hil.plant import truncation
+
+    sweep = Sweep.design(100, 20e3, 8.0)
+    device = SimDevice(load_scene("thesis-al-cc"), Perturbation(), tol=tol)
+    device.configure(sweep.sample_rate)
+    channels = device.capabilities.channels
+    dropped_any = False
+    for drive in [*np.eye(channels), np.r_[1.0, 0.5, np.zeros(channels - 2)]]:
+        u = drive[:, None] * sweep.waveform()
+        kept, _, dropped = truncation(device.truth, u, sweep.sample_rate, tol)
+        ours, our_dropped = device._truncation(u)
+        assert np.array_equal(ours, kept) and our_dropped == pytest.approx(dropped, rel=1e-9, abs=1e-300)
+        dropped_any |= kept.size < device.truth.n_modes
+    assert dropped_any == (tol > 1e-3)
