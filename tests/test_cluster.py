@@ -323,6 +323,44 @@ def test_the_clusters_say_which_modes_and_why_in_words_and_in_numbers():
     assert apart.summary() == ["no cluster: the nearest to one, modes 0 and 1, 121.0 Hz apart, above 120.0 Hz"]
 
 
+def test_the_margin_rule_links_a_pair_where_its_lock_ins_pass_more_than_its_gain_margin():
+    """The threshold's spacing is where the two lock-ins' responses (design.lockin_filter's, evaluated)
+    multiply to 1 - 10^(-GM/20) with the smaller gain margin GM; a pair a hertz inside it is linked, a hertz
+    outside not; loops with more margin link less far."""
+    import control
+
+    from modalctl.loops.design import lockin_filter
+
+    bands, fc, margins = np.array([100.0, 150.0, 100.0]), np.array([20.0, 30.0, 20.0]), np.array([6.0, 8.0, 6.0])
+    far = find_clusters([1000, 5000, 9000], bands, fc, margins)
+    threshold = far.pairs[0][3] - 30.0  # less the larger crossover: the spacing where the lock-ins meet the margin
+    gain = np.prod([abs(complex(control.evalfr(lockin_filter(b), 2j * np.pi * threshold))) for b in bands[:2]])
+    assert gain == pytest.approx(1 - 10 ** (-6 / 20), rel=1e-6)
+    edge = far.pairs[0][3]
+    assert find_clusters([1000, 1000 + edge - 1, 9000], bands, fc, margins).groups == ((0, 1),)
+    assert find_clusters([1000, 1000 + edge + 1, 9000], bands, fc, margins).groups == ()
+    assert find_clusters([1000, 5000, 9000], bands, fc, margins + 6).pairs[0][3] < edge
+
+
+def test_a_cluster_whose_observer_has_no_solution_keeps_per_mode_loops(plate, monkeypatch):
+    """dlqe refusing a cluster (panel-rounded's modes 30-31 under the margin rule): the controller says so
+    and those modes are per-mode LQG's, period after period."""
+    import modalctl.loops.cluster as cluster
+
+    def refuse(*args):
+        raise np.linalg.LinAlgError("The associated symplectic pencil has eigenvalues too close to the unit circle")
+
+    monkeypatch.setattr(cluster, "_design", refuse)
+    plant = _pair_plant(plate.select(_pair(plate)))
+    controller, lqg = ClusterControl(plant), LQGControl(plant)
+    assert controller.clusters.groups == () and [g for g, _ in controller.refused] == [(0, 1)]
+    rng = np.random.default_rng(4)
+    for n in range(20):
+        error = 1e-3 * (rng.standard_normal(2) + 1j * rng.standard_normal(2))
+        controller.observe(n, error, np.zeros(2))
+        assert np.array_equal(controller.update(error, np.full(2, 1e-2)), lqg.update(error, np.full(2, 1e-2)))
+
+
 @pytest.mark.parametrize("controller, together", [(None, False), ("cluster", True)])
 def test_a_closed_loop_run_reports_the_clusters_whatever_the_controller(tmp_path, capsys, controller, together):
     """metrics.json's loop.clusters: the kept modes (labels) whose loops read each other, every pair's carrier

@@ -439,8 +439,8 @@ def _print_loop(m: dict, shot, out: Path) -> None:
         if lp.get("clusters"):
             c = lp["clusters"]
             how = "each controlled as one" if c["together"] else "per-mode loops that read each other"
-            print(f"clusters ({len(c['groups'])}, {how}; carriers closer than one loop's lock-in corner plus the "
-                  "other's crossover): " + ("" if c["groups"] else c["lines"][0]))
+            print(f"clusters ({len(c['groups'])}, {how}; linked when {c['rule']}): "
+                  + ("" if c["groups"] else c["lines"][0]))
             for line in c["lines"] if c["groups"] else ():
                 print("  " + line)
     if shot.learning is not None:

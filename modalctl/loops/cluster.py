@@ -61,11 +61,14 @@ class Clusters:
         of kept modes adjacent in frequency: carrier spacing and the rule's threshold (Hz).
     frequencies : tuple of float
         The kept modes' carriers (Hz; empty if not given): the order :meth:`summary` reads a cluster in.
+    rule : str
+        The rule that linked them, in words (:data:`BAND_RULE` or :data:`MARGIN_RULE`).
     """
 
     groups: tuple
     pairs: tuple
     frequencies: tuple = ()
+    rule: str = ""
 
     def lines(self, labels=None) -> list[str]:
         """One line per pair: what the planner or the report prints (``labels``: the kept modes' names)."""
@@ -78,7 +81,7 @@ class Clusters:
         """JSON-ready (the run's ``metrics.json``): ``groups`` as lists of the kept modes' names (their
         positions without ``labels``), ``pairs`` with ``modes``, ``spacing_hz``, ``threshold_hz`` and ``linked``."""
         name = (lambda i: int(i)) if labels is None else (lambda i: labels[i])
-        return {"rule": RULE, "groups": [[name(i) for i in g] for g in self.groups],
+        return {"rule": self.rule, "groups": [[name(i) for i in g] for g in self.groups],
                 "pairs": [{"modes": [name(i), name(j)], "spacing_hz": spacing, "threshold_hz": threshold,
                            "linked": bool(spacing < threshold)} for i, j, spacing, threshold in self.pairs]}
 
@@ -103,10 +106,12 @@ class Clusters:
         return out
 
 
-RULE = "modes i and j read each other when |f_i - f_j| < max(B_i + fc_j, B_j + fc_i) (B: lock-in corner, fc: crossover)"
+BAND_RULE = "|f_i - f_j| < max(B_i + fc_j, B_j + fc_i) (B: lock-in corner, fc: crossover)"
+MARGIN_RULE = "|f_i - f_j| < max(fc_i, fc_j) + the spacing where the lock-ins' attenuations |H_i| |H_j| fall to " \
+              "1 - 10^(-GM/20), GM the pair's smaller gain margin (fc: crossover)"
 
 
-def find_clusters(frequencies, bandwidths, crossovers) -> Clusters:
+def find_clusters(frequencies, bandwidths, crossovers, margins_db=None) -> Clusters:
     """The kept modes whose loops read each other.
 
     Loop j's feedback moves its envelope within its crossover ``fc_j``; in loop i's frame that motion
@@ -114,13 +119,24 @@ def find_clusters(frequencies, bandwidths, crossovers) -> Clusters:
     passes what lies below its corner ``B_i``. So modes i and j are linked when
     ``|f_i - f_j| < max(B_i + fc_j, B_j + fc_i)`` and a cluster is a connected group of links.
 
+    With the loops' gain margins, a pair is linked only where the path around both loops could take a loop
+    to its stability limit: each lock-in (:func:`~modalctl.loops.design.lockin_filter`, a Butterworth of
+    order ``LOCKIN_ORDER``) attenuates the other's carrier by ``|H_i(f_i - f_j)|``; at its phase crossover a
+    loop's gain is ``10^(-GM / 20)``, ``1 - 10^(-GM / 20)`` from -1, and the pair is linked when
+    ``|H_i| |H_j| > 1 - 10^(-min(GM_i, GM_j) / 20)`` a crossover nearer: the threshold (Hz) is the spacing
+    where the product meets that distance, plus ``max(fc_i, fc_j)``. The paths' own gains (how much each
+    loop's sensors read the other's mode) are taken as one: an upper bound for clean readings.
+
     Parameters
     ----------
     frequencies, bandwidths, crossovers : array_like, shape (k,)
         Carriers, lock-in corners and the loops' crossovers (Hz), e.g. the PI design's
         (:func:`~modalctl.loops.design.design_loops`), which the LQ loops aim at.
+    margins_db : array_like, shape (k,), optional
+        The loops' gain margins (dB): the attenuation rule above instead of the corners'.
     """
     f, b, fc = (np.asarray(x, float) for x in (frequencies, bandwidths, crossovers))
+    limit = None if margins_db is None else _attenuation_spacing(b, np.asarray(margins_db, float))
     order = np.argsort(f)
     adjacent = {tuple(sorted(map(int, pair))) for pair in zip(order[:-1], order[1:])}
     parent = list(range(f.size))
@@ -133,7 +149,8 @@ def find_clusters(frequencies, bandwidths, crossovers) -> Clusters:
     pairs = []
     for i in range(f.size):
         for j in range(i + 1, f.size):
-            spacing, threshold = abs(f[i] - f[j]), max(b[i] + fc[j], b[j] + fc[i])
+            spacing = abs(f[i] - f[j])
+            threshold = max(b[i] + fc[j], b[j] + fc[i]) if limit is None else limit[i, j] + max(fc[i], fc[j])
             if spacing < threshold:
                 parent[root(j)] = root(i)
             if spacing < threshold or (i, j) in adjacent:
@@ -141,14 +158,34 @@ def find_clusters(frequencies, bandwidths, crossovers) -> Clusters:
     groups: dict = {}
     for i in range(f.size):
         groups.setdefault(root(i), []).append(i)
-    return Clusters(tuple(tuple(g) for g in groups.values() if len(g) > 1), tuple(pairs), tuple(f.tolist()))
+    return Clusters(tuple(tuple(g) for g in groups.values() if len(g) > 1), tuple(pairs), tuple(f.tolist()),
+                    BAND_RULE if limit is None else MARGIN_RULE)
+
+
+LOCKIN_ORDER = 4  # lockin_filter's
+
+
+def _attenuation_spacing(bandwidths: np.ndarray, margins_db: np.ndarray) -> np.ndarray:
+    """The spacing (Hz) at which two lock-ins' attenuations multiply to ``m = 1 - 10^(-GM / 20)`` (the pair's
+    smaller gain margin GM, dB), (k, k).
+
+    ``|H(x)|^2 = 1 / (1 + (x / B)^(2n))`` for a Butterworth of order n, so with ``y = x^(2n)``,
+    ``p = B_i^(-2n)``, ``q = B_j^(-2n)`` and ``c = 1 / m^2 - 1``: ``p q y^2 + (p + q) y - c = 0``."""
+    n2 = 2 * LOCKIN_ORDER
+    scale = np.max(bandwidths)
+    p = (scale / bandwidths) ** n2  # in units of the largest corner: no overflow
+    pq, total = p[:, None] * p[None, :], p[:, None] + p[None, :]
+    gm = np.minimum(margins_db[:, None], margins_db[None, :])
+    c = 1 / (1 - 10 ** (-np.where(np.isfinite(gm), gm, 200.0) / 20)) ** 2 - 1
+    y = 2 * c / (total + np.sqrt(total ** 2 + 4 * pq * c))
+    return scale * y ** (1 / n2)
 
 
 def clusters_of(controller, frequencies, bandwidths) -> tuple[Clusters, bool]:
     """The clusters a run reports, whatever its controller: ``(clusters, together)``. A controller that
     controls clusters together (its own ``clusters``, or an inner controller's: the touch controller's)
     gives its own and ``together`` True; for per-mode loops, :func:`find_clusters` on their design's
-    crossovers says which of them read each other (``together`` False).
+    crossovers and gain margins says which of them read each other (``together`` False).
 
     Parameters
     ----------
@@ -162,7 +199,8 @@ def clusters_of(controller, frequencies, bandwidths) -> tuple[Clusters, bool]:
             found = inner.clusters
             return (found if found.frequencies else replace(found, frequencies=tuple(map(float, frequencies)))), True
         inner = getattr(inner, "inner", None)
-    return find_clusters(frequencies, bandwidths, controller.design.crossover_hz), False
+    design = controller.design
+    return find_clusters(frequencies, bandwidths, design.crossover_hz, design.gain_margin_db), False
 
 
 @dataclass(frozen=True)
@@ -263,11 +301,16 @@ class ClusterControl(Controller):
     plant : LoopPlant
         With ``model``, ``modes`` and ``schedule`` (as :func:`~modalctl.loops.shot.parts_for` makes it).
     clusters : Clusters, optional
-        The groups to control together (default: :func:`find_clusters` on the LQG loops' crossovers).
+        The groups to control together (default: :func:`find_clusters` on the LQG loops' crossovers, and
+        their gain margins with ``rule`` "margin"; "band": the lock-in corners' rule).
+    rule : {"margin", "band"}
 
     Attributes
     ----------
     clusters : Clusters
+        The groups controlled together.
+    refused : list of (tuple, str)
+        The groups asked for whose observer (dlqe) has no solution, and why: their modes keep per-mode loops.
     spectral_radius : ndarray, shape (c,)
         Each cluster's nominal closed loop (:func:`closed_loop_radius`; below 1: stable).
     innovation : ndarray, shape (c,)
@@ -280,19 +323,25 @@ class ClusterControl(Controller):
     # commands for those sent
     observes = True
 
-    def __init__(self, plant: LoopPlant, clusters: Clusters | None = None):
+    def __init__(self, plant: LoopPlant, clusters: Clusters | None = None, rule: str = "margin"):
         self.inner = LQGControl(plant)
         self.design = self.inner.design
         modelled = plant.model is not None and plant.schedule is not None and plant.modes is not None
         if clusters is None:
-            clusters = find_clusters(plant.frequencies, plant.bandwidths, self.design.crossover_hz) if modelled \
-                else Clusters((), ())
+            margins = self.design.gain_margin_db if rule == "margin" else None
+            clusters = find_clusters(plant.frequencies, plant.bandwidths, self.design.crossover_hz, margins) \
+                if modelled else Clusters((), ())
         if clusters.groups and not modelled:
             raise ValueError("cluster controller: clusters need the plant's model, modes and schedule")
-        self.clusters = clusters
         level = np.ones(plant.frequencies.size) if plant.level is None else plant.level
         noise = np.maximum(level * NOISE_FLOOR, 0 if plant.noise is None else plant.noise)  # as lqg's
-        self.laws = [_design(plant, np.array(g), self.design.crossover_hz, noise) for g in clusters.groups]
+        self.laws, self.refused = [], []  # refused: (group, why) of clusters whose observer has no solution
+        for group in clusters.groups:
+            try:
+                self.laws.append(_design(plant, np.array(group), self.design.crossover_hz, noise))
+            except np.linalg.LinAlgError as error:  # its modes keep their per-mode loops
+                self.refused.append((group, str(error)))
+        self.clusters = replace(clusters, groups=tuple(tuple(law.loops.tolist()) for law in self.laws))
         self.spectral_radius = np.array([closed_loop_radius(law) for law in self.laws])
         self._stack(1 / plant.control_rate)
         self.reset()
