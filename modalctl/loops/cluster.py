@@ -11,7 +11,8 @@ The cluster's model is :func:`~modalctl.loops.design.cluster_model` (the one
 :func:`~modalctl.loops.design.cluster_poles` predicts stability with): every mode of the model near
 the cluster's carriers (unkept modes too) as a state driven by the loops' commands through its
 actuator gains, read through each loop's sensor weights, then each loop's lock-in low-pass; the
-static leak the runtime removes is taken off after the lock-in, as the runtime does.
+static leak the runtime removes is taken off after the lock-in, as the runtime does, on the command
+last sent (the newest in flight; the plant takes the oldest).
 
 The frame. In each loop's own frame a neighbour's contribution turns at the carriers' difference:
 the cluster's model is time-varying there. In one common frame, rotating at the cluster's mean
@@ -233,10 +234,9 @@ def _observed_model(plant: LoopPlant, loops: np.ndarray, carrier: float) -> tupl
     s, model = plant.schedule, plant.model
     modes = np.asarray(plant.modes)[loops]
     leak = feedthrough(model, modes, np.asarray(s.sensors)[loops], np.asarray(s.weights)[:, loops])
-    near, filters, offsets = cluster_model(s, loops, model, np.zeros(loops.size), carrier)
+    near, filters, offsets = cluster_model(s, loops, model, carrier)
     sampled = control.c2d(control.ss(*_real(*_series(near, filters))), 1 / s.control_rate, method="foh")
     a, b, c, d = (np.asarray(x, float) for x in (sampled.A, sampled.B, sampled.C, sampled.D))
-    d = d - _real(np.diag(leak))[0]  # the runtime removes leak x the command last sent, after the lock-in
     k2, n, lead = 2 * loops.size, a.shape[0], max(1, int(round(plant.latency)))
     size = n + lead * k2
     big_a, big_b, big_c = np.zeros((size, size)), np.zeros((size, k2)), np.zeros((k2, size))
@@ -244,6 +244,10 @@ def _observed_model(plant: LoopPlant, loops: np.ndarray, carrier: float) -> tupl
     big_a[n + k2:, n:size - k2] = np.eye((lead - 1) * k2)  # the delay line moves on
     big_b[n:n + k2] = np.eye(k2)
     big_c[:, :n], big_c[:, size - k2:] = c, d
+    # the runtime takes leak x the command last sent (the newest in flight) off the readings, after the lock-in, in
+    # each loop's frame: the slot holds it turned to when it is reached, lead - 1 periods after this reading
+    unturn = np.exp(-1j * offsets * (lead - 1) / s.control_rate)
+    big_c[:, n:n + k2] -= _real(np.diag(leak * unturn))[0]
     g = np.zeros((size, 2 * near[0].shape[0]))
     g[:g.shape[1]] = np.eye(g.shape[1])  # the modes' states come first in the series
     return big_a, big_b, big_c, g, offsets, lead

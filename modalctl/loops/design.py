@@ -136,25 +136,31 @@ def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     All in the first loop's carrier frame ``w0``: the loops' drives reach mode m of the truth, poles
     ``p_m``, through its actuator gains as ``r_m / (s - (p_m - j w0))``, ``r_m = p_m / (p_m -
     conj(p_m))`` (the partner term at ``conj(p_m)``, twice the carrier away, as its static gain), and
-    each loop's reading through its sensor weights, less the leak the runtime removes (static), then
-    its lock-in's low-pass centred on its own carrier. This is sampled at the control rate with the
-    board's ramp between commands (first-order hold; a loop's carrier turns ``(w_k - w0) T`` in a
-    period, little within a cluster), and each loop's discrete PI (as the runtime's, its gains times
-    ``scale``) and the lead's periods of delay act in its own frame: ``z -> z e^{-j (w_k - w0) T}``.
+    each loop's reading through its sensor weights, then its lock-in's low-pass centred on its own carrier.
+    This is sampled at the control rate with the board's ramp between commands (first-order hold; a loop's
+    carrier turns ``(w_k - w0) T`` in a period, little within a cluster), and each loop's discrete PI (as
+    the runtime's, its gains times ``scale``) and the lead's periods of delay act in its own frame:
+    ``z -> z e^{-j (w_k - w0) T}``. The leak the runtime removes (static) it takes off each reading after
+    the lock-in, in the loop's own frame, times the command last sent (one period old, whatever the lead;
+    the plant takes the command ``lead`` periods old): inside each loop's controller, its PI's input plus
+    ``leak z^-1`` times its output.
     A mode more than :data:`NEAR` lock-in corners from the cluster's carriers stands as its static
     gain (the lock-ins take its turning away): the cost stays a cluster's, not a truth's. Complex
     systems as their real I/Q pairs: python-control's are real."""
     loops = np.atleast_1d(np.asarray(loops, int))
     s, design = parts.schedule, parts.design
     period = 1 / s.control_rate
-    modes, filters, offsets = cluster_model(s, loops, truth, np.asarray(parts.leak)[loops])
+    modes, filters, offsets = cluster_model(s, loops, truth)
     plant = control.c2d(control.ss(*_real(*_series(modes, filters))), period, method="foh")
-    late = control.ss(control.tf([1], [1] + [0] * max(1, int(parts.lead)), period))
+    late = _turned(control.ss(control.tf([1], [1] + [0] * max(1, int(parts.lead)), period)), 0.0)
     controllers = []
     for i, offset in zip(loops, offsets):
         kp, ki = scale * design.kp[i], scale * design.ki[i] * period
         pi = control.ss(control.tf([kp + ki, -kp], [1, -1], period))  # kp e + the integral of ki e, as the runtime
-        a, b, c, d = _turned(control.series(pi, late), 0.0)
+        a, b, c, d = _turned(pi, 0.0)
+        leak = complex(parts.leak[i])  # the error is the reading's negative plus leak x the command last sent
+        a, b, c, d = _series((np.block([[a, b * leak], [c, d * leak]]), np.vstack([b, d]),
+                              np.hstack([c, d * leak]), d), late)
         turn = np.exp(1j * offset * period)  # H(z e^{-j theta}) = (A e^{j theta}, B, C e^{j theta}, D)
         controllers.append((a * turn, b, c * turn, d))
     loop = control.series(control.ss(*_real(*_stacked(controllers)), period), plant)
@@ -162,15 +168,12 @@ def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     return np.log(z.astype(complex)) * s.control_rate
 
 
-def cluster_model(s, loops, truth, leak, carrier: float | None = None) -> tuple:
+def cluster_model(s, loops, truth, carrier: float | None = None) -> tuple:
     """The continuous model of :func:`cluster_poles` (its description holds), complex, in the frame of
     ``carrier`` (Hz; the first loop's by default): what the readings of loops ``loops`` of schedule ``s``
-    (a :class:`~.schedule.Schedule`) hold of ``truth``'s answer to their drives.
-
-    Parameters
-    ----------
-    leak : ndarray, shape (k,)
-        The static leak the runtime removes from each loop's reading, taken off before its lock-in.
+    (a :class:`~.schedule.Schedule`) hold of ``truth``'s answer to their drives, before the runtime takes
+    its static leak off them (it does so after the lock-ins, on the command last sent: :func:`cluster_poles`
+    and :mod:`modalctl.loops.cluster` add it where the commands in flight are known).
 
     Returns
     -------
@@ -189,7 +192,7 @@ def cluster_model(s, loops, truth, leak, carrier: float | None = None) -> tuple:
     r = p / (p - p.conj())
     drive = truth.actuator_gains @ np.asarray(s.weights)[:, loops]  # (M, k): each loop's unit force on each mode
     seen = np.asarray(s.sensors)[loops] @ truth.sensor_gains.T  # (k, M): each loop's reading of each mode
-    static = seen @ ((r.conj() / (w0 - p.conj()))[:, None] * drive) - np.diag(leak)
+    static = seen @ ((r.conj() / (w0 - p.conj()))[:, None] * drive)
     # a mode far from every loop's carrier (beyond NEAR lock-in corners) answers within the loops'
     # band as its static gain: the state space holds the modes near the cluster, whatever the truth's size
     reach = np.abs(offsets).max() + 2 * np.pi * NEAR * np.max(np.asarray(s.bandwidths)[loops])
