@@ -379,7 +379,18 @@ class ClusterControl(Controller):
         self._K, self._Ki = self._K * factor, self._Ki * factor
 
     def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
-        self._n, self._sent = period, np.array(sent, complex)
+        """The period (its reading's) and the commands sent (k,) before it. Readings lost since the last
+        update (the runtime skipped it and held ``sent``): each law's state moves on by its model, the held
+        command going out every period lost, as a period without a reading would."""
+        sent = np.array(sent, complex)
+        if self.laws and period > self._n:
+            held, x = sent[self._idx], self._x
+            for lost in range(self._n, period):
+                now = self._spin ** (lost + 1)  # as update's: the frames' turn at that period's reading
+                x[self._slot] = (held * now * self._sent_ahead).view(float)
+                x = self._A @ x + self._B @ (held * now * self._ahead).view(float)
+            self._x = x
+        self._n, self._sent = period, sent
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         """Commands (k,): the isolated modes' from per-mode LQG, the clusters' from their own laws."""
