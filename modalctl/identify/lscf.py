@@ -114,7 +114,9 @@ def stabilization(frf: FRF, f_low: float, f_high: float, max_order: int,
     keep = (frf.frequencies >= f_low) & (frf.frequencies <= f_high)
     if np.count_nonzero(keep) < max_order + 2:
         raise ModelError(f"lscf: {np.count_nonzero(keep)} bins in {f_low:g}-{f_high:g} Hz for order {max_order}")
-    freqs = frf.frequencies[keep]
+    freqs, inside = frf.frequencies[keep], np.flatnonzero(keep)
+    if inside[-1] - inside[0] + 1 == inside.size:  # sorted lines: the band a view of the rows, not a copy
+        keep = slice(inside[0], inside[-1] + 1)
     h = _principal(frf.values[:, keep], components)
     h = h / np.sqrt(np.mean(np.abs(h) ** 2))
     dt = 1 / (2 * freqs[-1])
