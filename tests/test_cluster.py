@@ -304,7 +304,7 @@ def test_each_clusters_nominal_loop_decays_at_its_spectral_radius_and_past_its_m
         ClusterControl(plant, Clusters(((0, 1),), ()))
     assert ClusterControl(plant).laws == []
     controller = ClusterControl(_pair_plant(model))
-    assert controller.clusters.groups == ((0, 1),)
+    assert controller.clusters.groups == ((0, 1),) and controller.inner is None  # no per-mode LQG on a cluster
     rate = _simulated_rate(controller, 16000, 14000)  # two slow modes close: 3000 periods in, 0.99921
     assert rate < 1 and rate == pytest.approx(controller.spectral_radius[0], abs=1e-6)
     scaled = ClusterControl(_pair_plant(model))

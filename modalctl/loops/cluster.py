@@ -38,9 +38,9 @@ import control
 import numpy as np
 from scipy.linalg import block_diag
 
-from .controller import Controller, LoopPlant
-from .design import _real, _series, cluster_model
-from .lqg import NOISE_FLOOR, LQGControl
+from .controller import Controller, LoopDesign, LoopPlant
+from .design import _real, _series, cluster_model, design_loops
+from .lqg import NOISE_FLOOR, LQGControl, observer_loop_radius
 from .sensing import feedthrough
 
 __all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl"]
@@ -278,20 +278,18 @@ def _design(plant: LoopPlant, loops: np.ndarray, crossover: np.ndarray, noise: n
     return _Law(loops, a, b, c, m, gain[:, :size], gain[:, size:], turn, offsets, lead)
 
 
-def closed_loop_radius(law: _Law) -> float:
-    """Largest |eigenvalue| of the cluster's nominal model under its observer-based law (below 1: stable).
+def _subplant(plant: LoopPlant, loops: np.ndarray) -> LoopPlant:
+    """What per-mode LQG needs of ``plant``'s loops ``loops`` (positions in the kept modes)."""
+    pick = lambda x: None if x is None else np.asarray(x)[loops]  # noqa: E731
+    return LoopPlant(plant.frequencies[loops], plant.damping[loops], plant.bandwidths[loops], plant.control_rate,
+                     plant.latency, pick(plant.noise), pick(plant.level), plant.drift, pick(plant.detuning))
 
-    With ``xh = xp + M (C x - C xp)``, ``u = -K xh - Ki I``, ``I' = turn (I + C x)`` and ``xp' = A xh + B u``,
-    the state ``(x, xp, I)`` evolves by the block matrix below."""
-    a, b, c, m = law.A, law.B, law.C, law.M
-    n, k2 = a.shape[0], c.shape[0]
-    mc = m @ c
-    rest = np.eye(n) - mc
-    u_x, u_p, u_i = -law.K @ mc, -law.K @ rest, -law.Ki
-    top = np.hstack([a + b @ u_x, b @ u_p, b @ u_i])
-    middle = np.hstack([a @ mc + b @ u_x, a @ rest + b @ u_p, b @ u_i])
-    bottom = np.hstack([law.turn @ c, np.zeros((k2, n)), law.turn])
-    return float(np.max(np.abs(np.linalg.eigvals(np.vstack([top, middle, bottom])))))
+
+def closed_loop_radius(law: _Law) -> float:
+    """Largest |eigenvalue| of the cluster's nominal model under its observer-based law (below 1: stable):
+    :func:`~modalctl.loops.lqg.observer_loop_radius` with the integrators' turn (each loop integrates in its
+    own frame, which turns in the common one)."""
+    return observer_loop_radius(law.A, law.B, law.C, law.K, law.Ki, law.M, law.turn)
 
 
 class ClusterControl(Controller):
@@ -315,6 +313,8 @@ class ClusterControl(Controller):
         The groups controlled together.
     refused : list of (tuple, str)
         The groups asked for whose observer (dlqe) has no solution, and why: their modes keep per-mode loops.
+    inner : LQGControl or None
+        The per-mode LQG loops of the modes in no cluster (None when every mode is in one).
     spectral_radius : ndarray, shape (c,)
         Each cluster's nominal closed loop (:func:`closed_loop_radius`; below 1: stable).
     innovation : ndarray, shape (c,)
@@ -328,8 +328,10 @@ class ClusterControl(Controller):
     observes = True
 
     def __init__(self, plant: LoopPlant, clusters: Clusters | None = None, rule: str = "margin"):
-        self.inner = LQGControl(plant)
-        self.design = self.inner.design
+        pi = design_loops(plant.frequencies, plant.damping, plant.bandwidths, plant.control_rate,
+                          latency=plant.latency)  # the crossovers the LQ loops aim at (as per-mode LQG's design)
+        nan = np.full(plant.frequencies.size, np.nan)
+        self.design = LoopDesign(nan, nan, pi.crossover_hz, pi.phase_margin_deg, pi.gain_margin_db)
         modelled = plant.model is not None and plant.schedule is not None and plant.modes is not None
         if clusters is None:
             margins = self.design.gain_margin_db if rule == "margin" else None
@@ -346,6 +348,9 @@ class ClusterControl(Controller):
             except np.linalg.LinAlgError as error:  # its modes keep their per-mode loops
                 self.refused.append((group, str(error)))
         self.clusters = replace(clusters, groups=tuple(tuple(law.loops.tolist()) for law in self.laws))
+        clustered = np.concatenate([law.loops for law in self.laws] or [np.zeros(0, int)])
+        self._alone = np.setdiff1d(np.arange(plant.frequencies.size), clustered)  # per-mode LQG's loops
+        self.inner = LQGControl(_subplant(plant, self._alone)) if self._alone.size else None
         self.spectral_radius = np.array([closed_loop_radius(law) for law in self.laws])
         self._stack(1 / plant.control_rate)
         self.reset()
@@ -367,7 +372,8 @@ class ClusterControl(Controller):
         self._slot = np.concatenate(slots) if slots else np.zeros(0, int)
 
     def reset(self) -> None:
-        self.inner.reset()
+        if self.inner is not None:
+            self.inner.reset()
         self._n, self._sent = 0, None
         self._x = np.zeros(sum(law.A.shape[0] for law in self.laws))  # every cluster's predicted state, real I/Q
         self._integral = np.zeros(self._idx.size, complex)  # in each loop's own frame
@@ -375,7 +381,8 @@ class ClusterControl(Controller):
 
     def scale(self, factor: float) -> None:
         """Multiply every feedback gain, the clusters' and the isolated loops' (a stability test)."""
-        self.inner.scale(factor)
+        if self.inner is not None:
+            self.inner.scale(factor)
         self._K, self._Ki = self._K * factor, self._Ki * factor
 
     def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
@@ -394,7 +401,9 @@ class ClusterControl(Controller):
 
     def update(self, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         """Commands (k,): the isolated modes' from per-mode LQG, the clusters' from their own laws."""
-        command = self.inner.update(error, limit)
+        command = np.zeros(error.shape, complex)
+        if self.inner is not None:
+            command[self._alone] = self.inner.update(error[self._alone], limit[self._alone])
         if not self.laws:
             self._n += 1
             return command

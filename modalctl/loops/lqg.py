@@ -25,7 +25,7 @@ import numpy as np
 from .controller import Controller, LoopDesign, LoopPlant
 from .design import design_loops, lockin_filter
 
-__all__ = ["LQGControl"]
+__all__ = ["LQGControl", "observer_loop_radius"]
 
 NOISE_FLOOR = 3e-3  # least envelope noise the observer is designed for, relative to the planned level
 
@@ -70,18 +70,30 @@ def _with_integrator(a, b, c):
     return big_a, np.vstack([b, np.zeros((1, 1))])
 
 
-def _spectral_radius(a, b, c, k, ki, m) -> float:
-    """Largest |eigenvalue| of the model under the observer-based feedback (below 1: stable).
+def observer_loop_radius(a, b, c, k, ki, m, turn=None) -> float:
+    """Largest |eigenvalue| of a model under its observer-based feedback with integral action (below 1: stable).
 
-    With ``xh = xp + M (C x - C xp)``, ``u = -K xh - ki i``, ``i' = i + C x`` and ``xp' = A xh + B u``,
-    the state ``(x, xp, i)`` evolves by the block matrix below."""
-    n = a.shape[0]
+    With ``xh = xp + M (C x - C xp)``, ``u = -K xh - Ki i``, ``i' = turn (i + C x)`` and ``xp' = A xh + B u``,
+    the state ``(x, xp, i)`` evolves by the block matrix below.
+
+    Parameters
+    ----------
+    a, b, c : ndarray, shapes (n, n), (n, p), (q, n)
+        The model (complex, or real I/Q), per period.
+    k, ki, m : ndarray, shapes (p, n), (p, q), (n, q)
+        The state and integrator feedback and the current-estimate Kalman gain.
+    turn : ndarray, shape (q, q), optional
+        The integrators' turn per period (the cluster's common frame: each loop integrates in its own);
+        the identity by default (each integrator in its own frame, as per-mode LQG's).
+    """
+    n, q = a.shape[0], c.shape[0]
+    turn = np.eye(q) if turn is None else turn
     mc = m @ c
     rest = np.eye(n) - mc
     u_x, u_p, u_i = -k @ mc, -k @ rest, -ki  # u = u_x x + u_p xp + u_i i
     top = np.hstack([a + b @ u_x, b @ u_p, b @ u_i])
     middle = np.hstack([a @ mc + b @ u_x, a @ rest + b @ u_p, b @ u_i])
-    bottom = np.hstack([c, np.zeros((1, n)), np.ones((1, 1))])
+    bottom = np.hstack([turn @ c, np.zeros((q, n)), turn])
     return float(np.max(np.abs(np.linalg.eigvals(np.vstack([top, middle, bottom])))))
 
 
@@ -124,7 +136,7 @@ class LQGControl(Controller):
             _, prior, _ = control.dlqe(_iq(a), _iq(g), _iq(c), w * np.eye(2), noise[i] ** 2 * np.eye(2))
             ci = _iq(c)  # the current-estimate gain from the a-priori covariance: M = P C' (C P C' + R)^-1
             m = _complex(prior @ ci.T @ np.linalg.inv(ci @ prior @ ci.T + noise[i] ** 2 * np.eye(2)))
-            radius.append(_spectral_radius(a, b, c, gain[:, :n], gain[:, n:], m))
+            radius.append(observer_loop_radius(a, b, c, gain[:, :n], gain[:, n:], m))
             for name, value in zip(("A", "B", "C", "K", "Ki", "M"),
                                    (a, b[:, 0], c[0], gain[0, :n], gain[0, n], m[:, 0])):
                 mats[name].append(value)
