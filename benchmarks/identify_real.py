@@ -41,7 +41,7 @@ from common import RESULTS, machine, read_json, save_figure, write_json  # noqa:
 sys.path.insert(0, str(Path(__file__).resolve().parent / "real_data"))
 import convert  # noqa: E402
 
-from modalctl.identify.coarse import fitted_pole, joint_pole, under_resolved  # noqa: E402
+from modalctl.identify.coarse import joint_pole, under_resolved  # noqa: E402
 from modalctl.identify.estimators import constants_of  # noqa: E402
 from modalctl.identify.frf import FRF  # noqa: E402
 from modalctl.identify.survey import identify_frf, mac  # noqa: E402
@@ -218,16 +218,19 @@ def shape_mac(shape: np.ndarray, peer_shapes: np.ndarray, j: int, n: int) -> flo
     return float(max(mac(shape[None], b[None])[0] for b in peer_shapes[j].reshape(-1, n)))
 
 
-def file_says(frfs: list, model, i: int) -> dict:
+def file_says(frfs: list, survey, i: int) -> dict:
     """What the file itself says of returned mode ``i``: where its peak spans fewer lines than
     resolve a pole, its frequency's jackknife standard error over the FRFs (Hz); with several
     inputs, the MAC between the shapes each input gives (the same mode: they should agree)."""
+    model = survey.model
     f, zeta = float(model.frequencies[i]), float(model.damping[i])
     df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
     out = {}
-    if under_resolved(f, zeta, df):
-        frf = FRF.stack(frfs) if len(frfs) > 1 else frfs[0]  # the pole identify fitted it as, else fitted here
-        out["sigma_hz"] = (fitted_pole(frf, f, zeta) or joint_pole(frf, f, zeta)).sigma_hz
+    if under_resolved(f, zeta, df):  # the joint fit identify made the mode of, else fitted here
+        good = survey.poles.only_resolved()
+        pole = good.poles[int(np.argsort(good.frequencies)[i])]
+        frf = FRF.stack(frfs) if len(frfs) > 1 else frfs[0]
+        out["sigma_hz"] = (pole or joint_pole(frf, f, zeta)).sigma_hz
     if len(frfs) > 1:
         shapes = [constants_of(x, model.frequencies, model.damping, i, frequency_check=False).constants for x in frfs]
         out["mac_between_inputs"] = float(mac(shapes[0][None], shapes[1][None])[0])
@@ -254,7 +257,7 @@ def mode_row(spec: dict, k: int, survey, ref: dict, forced, frfs: list) -> dict:
            if hit and peer_hit and forced is not None else None,
            "left_out_because": why[0] if why and not hit else "",
            "nearest_returned_hz": float(model.frequencies[i]) if i >= 0 else None,
-           **(file_says(frfs, model, i) if hit else {})}
+           **(file_says(frfs, survey, i) if hit else {})}
     where, shape = published_points(spec), spec.get("published_shapes", {}).get(f)
     if shape is not None and where is not None:
         shape = np.array(shape)[[int(np.argmin(np.linalg.norm(where - p, axis=1))) for p in points]]

@@ -8,7 +8,7 @@ import pytest
 
 import modalctl.identify.coarse as coarse
 from modalctl.identify.coarse import _chi, coarse_rows, file_notes, joint_pole
-from modalctl.identify.estimators import NO_HALF_POWER, one_pole_stands, pole_basis
+from modalctl.identify.estimators import NO_HALF_POWER, modes_from_rows, one_pole_stands, pole_basis
 from modalctl.identify.frf import FRF, mobility
 from modalctl.identify.noise import with_noise_estimate
 from modalctl.identify.survey import identify_frf
@@ -162,11 +162,10 @@ def test_file_notes_uses_the_pole_coarse_rows_fitted(monkeypatch):
         raise AssertionError("file_notes fitted the pole again")
 
     monkeypatch.setattr(coarse, "joint_pole", refit)
-    # the rows leave as arrays (Modes, the model): the same floats, any FRF object holding the same values
-    again = FRF(frf.frequencies.copy(), frf.values.copy(), frf.coherence, frf.points, noise_std=frf.noise_std,
-                input_unit="N")
-    notes = file_notes([again], np.array([row[0]]), np.array([row[1]]))
-    assert row.pole.f_hz == row[0] and notes == [row.pole.note()]  # the row carries its pole
+    modes = modes_from_rows(out, n, "auto")  # the rows leave the identifiers as Modes, each with its pole
+    assert modes.poles == (row.pole,) and modes.select([0]).poles == (row.pole,)
+    notes = file_notes([frf], modes.frequencies, modes.damping, modes.poles)
+    assert row.pole.f_hz == row[0] and notes == [row.pole.note()]
 
 
 def test_chi_agrees_with_pole_basis():

@@ -30,7 +30,7 @@ from .estimators import (FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, 
 from .frf import FRF
 from .noise import SIGNIFICANCE, noise_weights
 
-__all__ = ["JointPole", "joint_pole", "coarse_rows", "CoarseRow", "fitted_pole", "under_resolved", "file_notes",
+__all__ = ["JointPole", "joint_pole", "coarse_rows", "CoarseRow", "under_resolved", "file_notes",
            "LINES_SEARCHED", "HALF_LINES", "AGREE", "JACKKNIFE_ROWS"]
 
 LINES_SEARCHED = 1.0  # the frequency is searched this many lines either side of the start
@@ -250,32 +250,6 @@ class CoarseRow(tuple):
         return self
 
 
-_FITTED: dict = {}  # (f_hz, zeta, FRFs' fingerprint) -> JointPole, what coarse_rows fitted last
-_FITTED_MAX = 256
-
-
-def _fingerprint(frf: FRF) -> tuple:
-    """What tells one set of FRFs from another, cheaply: shape, lines and a hash of the values."""
-    return frf.values.shape, float(frf.frequencies[0]), float(frf.frequencies[-1]), hash(frf.values.tobytes())
-
-
-def fitted_pole(frf: FRF, f: float, zeta: float) -> JointPole | None:
-    """The :class:`JointPole` :func:`coarse_rows` returned for the mode at exactly ``(f, zeta)``
-    (Hz, ratio: the row's own values) on these FRFs (the same values, any FRF object), or None.
-
-    The rows leave the identifiers as :class:`~.estimators.Modes`, which keeps no pole; this is
-    how :func:`file_notes` gets the fit that made a mode instead of fitting it again.
-    """
-    return _FITTED.get((float(f), float(zeta), _fingerprint(frf)))
-
-
-def _keep(frf: FRF, pole: JointPole) -> None:
-    """Remember ``pole``, fitted on ``frf``, for :func:`fitted_pole` (the oldest forgotten past ``_FITTED_MAX``)."""
-    while len(_FITTED) >= _FITTED_MAX:
-        _FITTED.pop(next(iter(_FITTED)))
-    _FITTED[(pole.f_hz, pole.zeta, _fingerprint(frf))] = pole
-
-
 def _same_peak(r, f: float, near: float):
     """Row ``r`` left out as the peak of the mode returned at ``f`` (Hz), within ``near`` (Hz) of it."""
     return (*r[:4], False, f"the peak of the mode at {f:.2f} Hz (within {near:g} Hz, {LINES_SEARCHED + 1:g} lines, "
@@ -327,7 +301,6 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
             out.extend((*r[:4], False, r[5] or "at the measurement's edge: too few lines to fit its peak jointly")
                        for r in group)
             continue
-        _keep(frf, pole)
         joint.append(CoarseRow((pole.f_hz, pole.zeta, fit.constants, fit.misfit, pole.fixed,
                                 "" if pole.fixed else pole.reason()), pole))
     kept = np.array([r[0] for r in [*out, *joint] if r[4]])
@@ -340,19 +313,20 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
 AGREE = 0.9  # MAC below which two inputs' shapes of one mode are said to disagree
 
 
-def file_notes(frfs: list, frequencies: np.ndarray, damping: np.ndarray) -> list[str]:
+def file_notes(frfs: list, frequencies: np.ndarray, damping: np.ndarray, poles=()) -> list[str]:
     """What the FRFs say of the returned modes ``(frequencies, damping)``: for each whose peak the
     lines under-resolve, its frequency's jackknife standard error over the FRFs
-    (:func:`joint_pole`, the fit :func:`coarse_rows` made when it made the mode:
-    :func:`fitted_pole`; :meth:`JointPole.note`); with several inputs, each mode whose shapes from the two inputs that
-    drive it most agree to a MAC below ``AGREE`` (the same mode: they should agree)."""
+    (:meth:`JointPole.note` of ``poles[k]``, the joint fit :func:`coarse_rows` made the mode of,
+    :attr:`~.estimators.Modes.poles`; fitted here where there is none); with several inputs, each mode
+    whose shapes from the two inputs that drive it most agree to a MAC below ``AGREE`` (the same mode:
+    they should agree)."""
     frf = frfs[0] if len(frfs) == 1 else FRF.stack(frfs)
     df = float(frf.frequencies[1] - frf.frequencies[0])
+    poles = list(poles) + [None] * (len(frequencies) - len(poles))
     notes = []
     for k, (f, zeta) in enumerate(zip(frequencies, damping)):
-        if under_resolved(f, zeta, df):  # the pole coarse_rows fitted the mode as, else fitted here
-            pole = fitted_pole(frf, f, zeta) or joint_pole(frf, f, zeta)
-            notes.append(pole.note())
+        if under_resolved(f, zeta, df):
+            notes.append((poles[k] or joint_pole(frf, f, zeta)).note())
         if len(frfs) > 1:
             c = [constants_of(x, frequencies, damping, k, frequency_check=False).constants for x in frfs]
             a, b = np.argsort([-np.sqrt(np.mean(x**2)) for x in c])[:2]

@@ -8,25 +8,23 @@ constant at each measured point, ``A_p = phi(p) b`` with the mobility model
 so that at resonance ``H_p(w_k) = A_pk / (2 zeta_k w_k)`` (Eq 3.9). A mode is *unresolved*
 when one pole cannot explain the FRFs around its peak (two modes within their half-power
 bandwidths, or a peak with no half-power points): it is reported, never silently fitted.
-:func:`to_model` turns modes into a :class:`~modalctl.model.modes.ModalModel` (Eqs 3.13-3.14,
-then mass normalization).
+:func:`modalctl.identify.survey.to_model` turns them into a model.
 """
 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from modalctl.model.modes import Grid, ModalModel, ModelError
-from modalctl.model.projection import mass_normalize
+from modalctl.model.modes import ModelError
 
 from .frf import FRF, mobility
 from .noise import NOISE_EXCESS, SIGNIFICANCE, NoiseFigures, noise_figures, noise_weights, within_noise
 
 __all__ = ["Identifier", "Modes", "BandFit", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "one_pole_stands",
-           "half_width", "neighbours", "constants_of", "to_model", "actuator_gains", "UNRESOLVED_ERROR",
+           "half_width", "neighbours", "constants_of", "UNRESOLVED_ERROR",
            "NOISE_EXCESS", "SIGNIFICANCE", "within_noise", "noise_figures", "NoiseFigures", "noise_weights",
            "FAIR_ERROR", "SPLIT_GAIN", "NOISE_PEAK", "RESOLVED_LINES", "misfit_reason", "modes_from_rows",
            "frequency_fixed", "FREQUENCY_TOLERANCE", "CONFIDENCE", "UNCERTAIN"]
@@ -70,6 +68,9 @@ class Modes:
     method : str
     reasons : tuple of str, length k
         Why each mode left out was left out ("" for a resolved mode).
+    poles : tuple, length k
+        The joint fit each mode was made of (:class:`~.coarse.JointPole`, a peak the lines
+        under-resolve), or None.
     """
 
     frequencies: np.ndarray
@@ -79,11 +80,14 @@ class Modes:
     resolved: np.ndarray
     method: str
     reasons: tuple = ()
+    poles: tuple = ()
 
     def __post_init__(self):
         if len(self.reasons) != self.frequencies.size:
             why = tuple("" if r else "one pole cannot explain the peak (close modes?)" for r in self.resolved)
             object.__setattr__(self, "reasons", why)
+        if len(self.poles) != self.frequencies.size:
+            object.__setattr__(self, "poles", (None,) * self.frequencies.size)
 
     @property
     def n_modes(self) -> int:
@@ -95,8 +99,10 @@ class Modes:
 
     def select(self, keep) -> "Modes":
         """The modes at ``keep`` (a mask or indices), in that order."""
-        return Modes(self.frequencies[keep], self.damping[keep], self.constants[keep], self.misfit[keep],
-                     self.resolved[keep], self.method, tuple(np.array(self.reasons, object)[keep]))
+        kept = np.arange(self.n_modes)[keep]
+        return Modes(self.frequencies[kept], self.damping[kept], self.constants[kept], self.misfit[kept],
+                     self.resolved[kept], self.method, tuple(self.reasons[i] for i in kept),
+                     tuple(self.poles[i] for i in kept))
 
     def row(self, i: int) -> tuple:
         """Mode ``i`` as ``(f, zeta, constants, misfit, resolved, reason)`` (see :func:`modes_from_rows`)."""
@@ -560,41 +566,6 @@ def modes_from_rows(rows, n_points: int, method: str) -> Modes:
     if not rows:
         empty = np.zeros(0)
         return Modes(empty, empty, np.zeros((0, n_points)), empty, np.zeros(0, bool), method, ())
-    f, z, c, e, r, why = zip(*rows)
-    return Modes(np.array(f), np.array(z), np.array(c), np.array(e), np.array(r, bool), method, tuple(why))
-
-
-def to_model(modes: Modes, grid: Grid, channels: int = 1, **meta) -> ModalModel:
-    """A modal model (shapes, no gains yet) from modes whose constants were measured on ``grid``.
-
-    Shapes are scaled to a positive maximum of one (Eq 3.13), then mass-normalized with the
-    grid's mass weights. Unresolved modes are left out and listed in ``meta``. The gains of
-    each channel come from :func:`actuator_gains`.
-    """
-    good = modes.only_resolved()
-    if good.n_modes == 0:
-        raise ModelError("identify: no resolved mode to build a model from")
-    peak = np.argmax(np.abs(good.constants), axis=1)
-    sign = np.sign(good.constants[np.arange(good.n_modes), peak])
-    unit = good.constants / (sign * np.abs(good.constants).max(axis=1))[:, None]  # Eq 3.13
-    shapes = mass_normalize(unit, grid.mass)
-    order = np.argsort(good.frequencies)
-    info = {"identified_by": good.method, "unresolved_hz": modes.frequencies[~modes.resolved].tolist(),
-            "misfit": good.misfit[order].tolist(), **meta}
-    return ModalModel(grid, good.frequencies[order], good.damping[order], shapes[order],
-                      np.zeros((good.n_modes, channels)), meta=info)
-
-
-def actuator_gains(model: ModalModel, frf: FRF, point_index: np.ndarray) -> ModalModel:
-    """Fill one actuator's gains from its FRFs at a few grid points (``point_index`` into the grid).
-
-    With the poles and shapes known, the modal constants at those points are ``phi(p) b``: ``b``
-    is their least-squares fit on the shapes at the points (Eq 3.14 with mass-normalized shapes,
-    so the gain is in SI units: m/s^2/V per square root of kilogram).
-    """
-    gains = np.array(model.actuator_gains, copy=True)
-    phi = model.shapes[:, point_index]
-    for k in range(model.n_modes):
-        constants = constants_of(frf, model.frequencies, model.damping, k, frequency_check=False).constants
-        gains[k, frf.actuator] = float(phi[k] @ constants / (phi[k] @ phi[k]))
-    return replace(model, actuator_gains=gains)
+    f, z, c, e, r, why = zip(*(row[:6] for row in rows))
+    return Modes(np.array(f), np.array(z), np.array(c), np.array(e), np.array(r, bool), method, tuple(why),
+                 tuple(getattr(row, "pole", None) for row in rows))

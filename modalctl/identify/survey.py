@@ -19,8 +19,8 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from modalctl.io.device import Device
-from modalctl.model.modes import Grid, ModalModel
-from modalctl.model.projection import crosstalk, orthonormalize_model
+from modalctl.model.modes import Grid, ModalModel, ModelError
+from modalctl.model.projection import crosstalk, mass_normalize, orthonormalize_model
 from modalctl.model.scenes import ORTHONORMAL_TOLERANCE, resolved_modes
 from modalctl.options import SurveyOptions
 from modalctl.plugin.manager import pick
@@ -28,11 +28,12 @@ from modalctl.threads import serial_blas
 
 from .acquire import measure_frf
 from .coarse import file_notes
-from .estimators import Modes, actuator_gains, constants_of, to_model
+from .estimators import Modes, constants_of
 from .frf import FRF, Sweep, bending_wavelength, check_spatial_step
 from .noise import with_noise_estimate
 
-__all__ = ["Survey", "identify_device", "identify_frf", "scan_subset", "orthogonalize_if_integrated", "mac"]
+__all__ = ["Survey", "identify_device", "identify_frf", "scan_subset", "orthogonalize_if_integrated", "mac",
+           "to_model", "actuator_gains"]
 
 
 @dataclass
@@ -344,7 +345,7 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
              f"{np.median(frfs[0].noise_std) / np.max(np.abs(frfs[0].values)):.1e} of the largest |H|"] \
         if frfs[0].noise_source else []
     notes = [*frfs[0].notes, *noise, *([note] if note else []),
-             *file_notes(frfs, model.frequencies, model.damping), *poles.left_out()]
+             *file_notes(frfs, model.frequencies, model.damping, _in_model_order(poles)), *poles.left_out()]
     table = dict(enumerate(frfs))
     return Survey(model, poles, drive, np.zeros(model.n_modes, int), before, crosstalk(model.shapes, model.grid.mass),
                   notes, {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},
@@ -358,3 +359,45 @@ def beam_wavelength(model_meta: dict, f_high: float) -> float | None:
                                   model_meta["thickness_m"])
     except KeyError:
         return None
+
+
+
+def _in_model_order(modes: Modes) -> tuple:
+    """The joint fits of the resolved modes (:attr:`Modes.poles`), in the order :func:`to_model` keeps them."""
+    good = modes.only_resolved()
+    return tuple(good.poles[i] for i in np.argsort(good.frequencies))
+
+def to_model(modes: Modes, grid: Grid, channels: int = 1, **meta) -> ModalModel:
+    """A modal model (shapes, no gains yet) from modes whose constants were measured on ``grid``.
+
+    Shapes are scaled to a positive maximum of one (Eq 3.13), then mass-normalized with the
+    grid's mass weights. Unresolved modes are left out and listed in ``meta``. The gains of
+    each channel come from :func:`actuator_gains`.
+    """
+    good = modes.only_resolved()
+    if good.n_modes == 0:
+        raise ModelError("identify: no resolved mode to build a model from")
+    peak = np.argmax(np.abs(good.constants), axis=1)
+    sign = np.sign(good.constants[np.arange(good.n_modes), peak])
+    unit = good.constants / (sign * np.abs(good.constants).max(axis=1))[:, None]  # Eq 3.13
+    shapes = mass_normalize(unit, grid.mass)
+    order = np.argsort(good.frequencies)
+    info = {"identified_by": good.method, "unresolved_hz": modes.frequencies[~modes.resolved].tolist(),
+            "misfit": good.misfit[order].tolist(), **meta}
+    return ModalModel(grid, good.frequencies[order], good.damping[order], shapes[order],
+                      np.zeros((good.n_modes, channels)), meta=info)
+
+
+def actuator_gains(model: ModalModel, frf: FRF, point_index: np.ndarray) -> ModalModel:
+    """Fill one actuator's gains from its FRFs at a few grid points (``point_index`` into the grid).
+
+    With the poles and shapes known, the modal constants at those points are ``phi(p) b``: ``b``
+    is their least-squares fit on the shapes at the points (Eq 3.14 with mass-normalized shapes,
+    so the gain is in SI units: m/s^2/V per square root of kilogram).
+    """
+    gains = np.array(model.actuator_gains, copy=True)
+    phi = model.shapes[:, point_index]
+    for k in range(model.n_modes):
+        constants = constants_of(frf, model.frequencies, model.damping, k, frequency_check=False).constants
+        gains[k, frf.actuator] = float(phi[k] @ constants / (phi[k] @ phi[k]))
+    return replace(model, actuator_gains=gains)
