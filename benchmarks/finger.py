@@ -288,8 +288,9 @@ def controllers(names: list[str], cases: list[str]) -> None:
     """``--controllers pi,lqg,...``: each named controller plugin on ``cases`` (labels of :data:`CASES`
     containing one of them; ``--cases plate,panel``), the finger resting and without a finger, in one
     sitting: tau, margin and the share of the lost peak given back. Writes results/finger_controllers.*."""
+    chosen = _chosen_cases(names, cases)  # before any shot: a mistyped name must not overwrite the results
     rows, start = [], time.perf_counter()
-    for case in (c for c in CASES if any(c.startswith(word) for word in cases)):
+    for case in chosen:
         model, target, peak = _setup(*CASES[case])
         plans: dict = {}
         shots = {}
@@ -314,6 +315,32 @@ def controllers(names: list[str], cases: list[str]) -> None:
         md.append(f"| {r['case']} | {r['method']} | {r['finger']:g} | {r['tau']:.4f} | {r['margin_ratio']:.3f} | "
                   f"{back} | {r['state']} | {r['seconds']:.1f} |")
     write_markdown("finger_controllers", md, write_json("finger_controllers", {"rows": rows}))
+
+
+def _chosen_cases(names: list[str], cases: list[str]) -> list[str]:
+    """The labels of :data:`CASES` that ``cases`` name; SystemExit (exit 2, with what is wrong) for a
+    controller no plugin provides (``touch+NAME``: both parts) or a word that names no case."""
+    from modalctl.plugin.manager import controllers as installed
+
+    known = installed()
+    unknown = [n for n in names if not n or any(part not in known for part in n.split("+"))]
+    if unknown:
+        _refuse(f"unknown controller(s) {', '.join(map(repr, unknown))}; installed: {', '.join(known)} "
+                "(and touch+NAME)")
+    chosen = [c for c in CASES if any(word and c.startswith(word) for word in cases)]
+    missed = [w for w in cases if not any(w and c.startswith(w) for c in CASES)]
+    if missed or not chosen:
+        _refuse(f"--cases {', '.join(map(repr, missed or cases))} names no case; cases start with: "
+                f"{', '.join(CASES)}")
+    return chosen
+
+
+def _refuse(message: str) -> None:
+    """Bad input: the message on stderr, exit 2 (the project's code for it), nothing written."""
+    import sys
+
+    print(f"finger.py: {message}", file=sys.stderr)
+    raise SystemExit(2)
 
 
 def _argument(flag: str, default: str) -> list[str]:
