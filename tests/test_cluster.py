@@ -510,3 +510,13 @@ def test_a_pi_loops_poles_are_those_of_its_pi_closed_on_the_observers_model(plat
         by_hand = np.sort(np.abs(np.linalg.eigvals(closed)))[::-1][:6]
         poles = np.sort(np.abs(np.exp(cluster_poles(parts, [1], model, scale) * period)))[::-1][:6]
         assert poles == pytest.approx(by_hand, rel=1e-6, abs=1e-9)
+
+
+def test_a_rule_the_controller_does_not_know_is_refused(plate):
+    from modalctl.loops.controller import LoopPlant
+
+    kept = np.arange(3)
+    bands = lockin_bandwidths(plate.frequencies, 20e3, 0.4, 0.5)[kept]
+    plant = LoopPlant(plate.frequencies[kept], plate.damping[kept], bands, 20e3)
+    with pytest.raises(ValueError, match="rule must be 'margin' or 'band', got 'margn'"):
+        ClusterControl(plant, rule="margn")

@@ -328,6 +328,8 @@ class ClusterControl(Controller):
     observes = True
 
     def __init__(self, plant: LoopPlant, clusters: Clusters | None = None, rule: str = "margin"):
+        if rule not in ("margin", "band"):  # a misspelt rule would otherwise be the corners' rule, unsaid
+            raise ValueError(f"cluster controller: rule must be 'margin' or 'band', got {rule!r}")
         pi = design_loops(plant.frequencies, plant.damping, plant.bandwidths, plant.control_rate,
                           latency=plant.latency)  # the crossovers the LQ loops aim at (as per-mode LQG's design)
         nan = np.full(plant.frequencies.size, np.nan)
