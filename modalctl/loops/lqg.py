@@ -23,20 +23,16 @@ import control
 import numpy as np
 
 from .controller import Controller, LoopDesign, LoopPlant
-from .design import design_loops, lockin_filter
+from .design import _real, design_loops, lockin_filter
 
 __all__ = ["LQGControl", "observer_loop_radius"]
 
 NOISE_FLOOR = 3e-3  # least envelope noise the observer is designed for, relative to the planned level
 
 
-def _iq(m: np.ndarray) -> np.ndarray:
+def _iq(m) -> np.ndarray:
     """A complex matrix (p, q) as the real (2p, 2q) matrix acting on interleaved (re, im) pairs."""
-    m = np.atleast_2d(m)
-    out = np.zeros((2 * m.shape[0], 2 * m.shape[1]))
-    out[0::2, 0::2], out[0::2, 1::2] = m.real, -m.imag
-    out[1::2, 0::2], out[1::2, 1::2] = m.imag, m.real
-    return out
+    return _real(np.atleast_2d(m))[0]
 
 
 def _complex(r: np.ndarray) -> np.ndarray:
