@@ -422,13 +422,18 @@ def test_the_margin_rule_links_a_pair_where_its_lock_ins_pass_more_than_its_gain
     assert find_clusters([1000, 5000, 9000], bands, fc, margins + 6).pairs[0][3] < edge
 
 
-def test_a_cluster_whose_observer_has_no_solution_keeps_per_mode_loops(plate, monkeypatch):
-    """dlqe refusing a cluster (panel-rounded's modes 30-31 under the margin rule): the controller says so
-    and those modes are per-mode LQG's, period after period."""
+@pytest.mark.parametrize("error", [
+    np.linalg.LinAlgError("The associated symplectic pencil has eigenvalues too close to the unit circle"),
+    ValueError("Reordering of (A, B) failed because the transformed matrix pair (A, B) would be too far from "
+               "generalized Schur form; the problem is very ill-conditioned.")])
+def test_a_cluster_whose_observer_has_no_solution_keeps_per_mode_loops(plate, monkeypatch, error):
+    """dlqe or dlqr refusing a cluster (panel-rounded's modes 30-31 under the margin rule: dlqe's pencil with
+    every near mode observed, dlqr's reordering (scipy's ValueError) with the modes near it: the run ended
+    in an error): the controller says so and those modes are per-mode LQG's, period after period."""
     import modalctl.loops.cluster as cluster
 
     def refuse(*args):
-        raise np.linalg.LinAlgError("The associated symplectic pencil has eigenvalues too close to the unit circle")
+        raise error
 
     monkeypatch.setattr(cluster, "_design", refuse)
     plant = _pair_plant(plate.select(_pair(plate)))

@@ -168,12 +168,14 @@ def cluster_poles(parts, loops, truth, scale: float = 1.0) -> np.ndarray:
     return np.log(z.astype(complex)) * s.control_rate
 
 
-def cluster_model(s, loops, truth, carrier: float | None = None) -> tuple:
+def cluster_model(s, loops, truth, carrier: float | None = None, near: float = NEAR) -> tuple:
     """The continuous model of :func:`cluster_poles` (its description holds), complex, in the frame of
     ``carrier`` (Hz; the first loop's by default): what the readings of loops ``loops`` of schedule ``s``
     (a :class:`~.schedule.Schedule`) hold of ``truth``'s answer to their drives, before the runtime takes
     its static leak off them (it does so after the lock-ins, on the command last sent: :func:`cluster_poles`
-    and :mod:`modalctl.loops.cluster` add it where the commands in flight are known).
+    and :mod:`modalctl.loops.cluster` add it where the commands in flight are known). The modes within
+    ``near`` lock-in corners of the loops' carriers keep their dynamics; the others answer as their
+    static gain in the frame.
 
     Returns
     -------
@@ -195,10 +197,10 @@ def cluster_model(s, loops, truth, carrier: float | None = None) -> tuple:
     static = seen @ ((r.conj() / (w0 - p.conj()))[:, None] * drive)
     # a mode far from every loop's carrier (beyond NEAR lock-in corners) answers within the loops'
     # band as its static gain: the state space holds the modes near the cluster, whatever the truth's size
-    reach = np.abs(offsets).max() + 2 * np.pi * NEAR * np.max(np.asarray(s.bandwidths)[loops])
-    near = np.abs((p - w0).imag) <= reach
-    static = static + seen[:, ~near] @ ((r[~near] / (w0 - p[~near]))[:, None] * drive[~near])
-    modes = (np.diag(p[near] - w0), drive[near], seen[:, near] * r[near], static)
+    reach = np.abs(offsets).max() + 2 * np.pi * near * np.max(np.asarray(s.bandwidths)[loops])
+    live = np.abs((p - w0).imag) <= reach
+    static = static + seen[:, ~live] @ ((r[~live] / (w0 - p[~live]))[:, None] * drive[~live])
+    modes = (np.diag(p[live] - w0), drive[live], seen[:, live] * r[live], static)
     filters = _stacked([_turned(lockin_filter(s.bandwidths[i]), offset) for i, offset in zip(loops, offsets)])
     return modes, filters, offsets
 
