@@ -127,6 +127,28 @@ def test_the_fast_survey_identifies_the_plate_as_the_slow_one_and_the_scene(plat
     assert np.array_equal(fast.shape_actuator, slow.shape_actuator)
 
 
+def test_the_full_scan_kept_on_the_lines_its_fits_read_gives_the_model_of_every_line(monkeypatch):
+    """The full scan keeps the lines :func:`lines_read` names (a fifth of them here): the shapes, gains and
+    misfits equal those of the scan kept on every line (the same shots: a noise-free device), to round-off."""
+    from modalctl.identify import survey
+
+    sweep = Sweep.design(100, 12e3, 4.0)
+    truth = load_scene("thesis-al-cc")
+    points = np.arange(0, truth.grid.points.shape[0], 3)
+    density = truth.meta.get("mass_per_length_kg_m", 1.0)
+    kept = identify_device(_device("thesis-al-cc"), sweep, points, density, SurveyOptions())
+    primary = SurveyOptions().primary
+    lines = kept.frfs["full"][primary].frequencies.size
+    every = kept.frfs["sparse"][primary].frequencies.size
+    assert 0 < lines < every / 4  # 620 of 3,124
+    monkeypatch.setattr(survey, "lines_read", lambda f, *args: np.ones(np.size(f), bool))
+    whole = identify_device(_device("thesis-al-cc"), sweep, points, density, SurveyOptions())
+    assert whole.frfs["full"][primary].frequencies.size == every
+    assert kept.model.n_modes == whole.model.n_modes >= 5
+    for name in ("frequencies", "damping", "shapes", "actuator_gains"):
+        assert np.allclose(getattr(kept.model, name), getattr(whole.model, name), rtol=1e-9, atol=0), name
+
+
 def test_the_survey_says_each_step_with_what_it_expects(tmp_path, capsys):
     """Not on a terminal: one line per step (each sweep, the poles, the shapes), the sweeps after
     the first with the time they expect."""

@@ -29,7 +29,7 @@ GROUP = 64  # points whose H1 sums are held at once: below malloc's mmap thresho
 
 
 def measure_frf(device: Device, sweep: Sweep, actuator: int, points: np.ndarray, averages: int = 2,
-                batch: int = 128, progress: bool = False) -> FRF:
+                batch: int = 128, progress: bool = False, lines: np.ndarray | None = None) -> FRF:
     """FRFs of ``actuator`` to the grid points ``points`` (indices the device scans).
 
     Parameters
@@ -47,6 +47,8 @@ def measure_frf(device: Device, sweep: Sweep, actuator: int, points: np.ndarray,
         Points measured per shot.
     progress : bool
         A tqdm bar over the point-shots.
+    lines : ndarray of bool, optional
+        The sweep's lines to keep (the H1 estimate's, ``sweep``'s band); default every one.
     """
     points = np.atleast_1d(np.asarray(points, int))
     caps = device.capabilities
@@ -74,6 +76,7 @@ def measure_frf(device: Device, sweep: Sweep, actuator: int, points: np.ndarray,
                 _shot(device, h1, actuator, group[rows], rows)
                 bar.update(group[rows].size)
         part = h1.result(caps.scan_points[group], actuator)
+        part = part if lines is None else part.lines(lines)
         if group.size == points.size:
             bar.close()
             return part

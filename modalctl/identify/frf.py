@@ -191,7 +191,10 @@ class FRF:
 
     def band(self, f_low: float, f_high: float) -> "FRF":
         """The bins inside [f_low, f_high] (Hz), with their noise, notes and unit."""
-        keep = (self.frequencies >= f_low) & (self.frequencies <= f_high)
+        return self.lines((self.frequencies >= f_low) & (self.frequencies <= f_high))
+
+    def lines(self, keep: np.ndarray) -> "FRF":
+        """The bins where ``keep`` (nf,) is true, with their noise, notes and unit."""
         return replace(self, frequencies=self.frequencies[keep], values=self.values[:, keep],
                        coherence=self.coherence[:, keep],
                        noise_std=None if self.noise_std is None else self.noise_std[:, keep])
