@@ -170,3 +170,24 @@ def test_a_heavily_damped_mode_on_the_shoulder_of_another_is_found():
         got = method(frf).only_resolved()
         assert np.allclose(got.frequencies, [1000.0, 1120.0], rtol=1e-5)
         assert np.allclose(got.damping, [0.01, 0.08], rtol=1e-3)
+
+
+@pytest.mark.parametrize("zeta", [-0.004, 0.0, np.nan])
+def test_auto_drops_an_unresolved_sdof_peak_of_no_damping_beside_the_mode_mdof_takes(monkeypatch, zeta):
+    """An unresolved SDOF row whose fit's damping is negative, zero or not a number, 0.1% from a mode
+    the MDOF fit resolves, is the same peak: replaced by it, not listed beside it (its band was
+    read as empty: a negative reach)."""
+    from modalctl.identify import mdof
+    from modalctl.identify.estimators import Modes
+
+    frf, poles = close_pair(3.0, 0.01)
+    n = frf.values.shape[0]
+    single = Modes(np.array([701.0]), np.array([zeta]), np.zeros((1, n)), np.array([0.8]), np.array([False]),
+                   "sdof", ("one pole explains its band poorly",))
+    multi = Modes(np.array([700.3]), np.array([0.01]), np.ones((1, n)), np.array([0.01]), np.array([True]),
+                  "mdof", ("",))
+    monkeypatch.setattr(mdof, "sdof_fit", lambda *args, **kwargs: single)
+    monkeypatch.setattr(mdof, "mdof_fit", lambda *args, **kwargs: multi)
+    got = mdof.auto_fit(frf)
+    near = np.abs(got.frequencies - 700) < 7
+    assert np.count_nonzero(near) == 1 and got.resolved[near].all() and got.damping[near][0] > 0
