@@ -149,6 +149,33 @@ def test_the_full_scan_kept_on_the_lines_its_fits_read_gives_the_model_of_every_
         assert np.allclose(getattr(kept.model, name), getattr(whole.model, name), rtol=1e-9, atol=0), name
 
 
+def test_the_sparse_frfs_measured_into_one_stack_are_those_measured_apart_and_balanced_back(monkeypatch):
+    """Measured into the rows of one FRF (views: no stacked copy), each actuator's FRFs are those measured
+    apart (the same noise-free shots); balanced for the poles they are FRF.stack's rows, and after it
+    their measured values again (to rounding). Too little memory for them: refused before a shot."""
+    from modalctl.identify import survey
+    from modalctl.identify.frf import FRF
+    from modalctl.model.modes import ModelError
+
+    sweep = Sweep.design(100, 6e3, 4.0)
+    device, alone = _device("thesis-al-cc", rate=sweep.sample_rate), _device("thesis-al-cc", rate=sweep.sample_rate)
+    points, order = np.arange(0, device.capabilities.scan_points.shape[0], 9), [1, 2, 0]
+    frfs, stacked = survey._sparse_scan(survey._Steps(3, False, None), device, sweep, order, points, 2)
+    apart = {a: measure_frf(alone, sweep, a, points, averages=2) for a in order}
+    reference = FRF.stack([apart[a] for a in sorted(order)])
+    assert list(frfs) == [0, 1, 2] and all(np.shares_memory(f.values, stacked.values) for f in frfs.values())
+    assert np.array_equal(stacked.frequencies, reference.frequencies) and stacked.averages == 2
+    with survey._balanced(stacked, frfs):
+        for name in ("values", "noise_std", "coherence", "points"):
+            assert np.allclose(getattr(stacked, name), getattr(reference, name), rtol=1e-12, atol=0), name
+    for a in order:
+        assert frfs[a].actuator == a and np.allclose(frfs[a].values, apart[a].values, rtol=1e-14, atol=0)
+        assert np.allclose(frfs[a].noise_std, apart[a].noise_std, rtol=1e-14, atol=0)
+    monkeypatch.setattr(survey, "memory_available", lambda: 10**6)
+    with pytest.raises(ModelError, match="memory available"):
+        survey._sparse_scan(survey._Steps(3, False, None), device, sweep, order, points, 2)
+
+
 def test_the_survey_says_each_step_with_what_it_expects(tmp_path, capsys):
     """Not on a terminal: one line per step (each sweep, the poles, the shapes), the sweeps after
     the first with the time they expect."""

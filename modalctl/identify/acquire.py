@@ -19,10 +19,11 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from modalctl.io.device import Device, DeviceError
+from modalctl.model.modes import ModelError
 
 from .frf import FRF, H1, Sweep
 
-__all__ = ["measure_frf", "GROUP"]
+__all__ = ["measure_frf", "measure_frf_into", "GROUP"]
 
 GROUP = 64  # points whose H1 sums are held at once: below malloc's mmap threshold (64 x 26190 lines: 27 MB),
 # reused, not page-faulted anew each time (3x faster than 1024); a plate's 7171 points at once took 6 GB
@@ -51,6 +52,32 @@ def measure_frf(device: Device, sweep: Sweep, actuator: int, points: np.ndarray,
         The sweep's lines to keep (the H1 estimate's, ``sweep``'s band); default every one.
     """
     points = np.atleast_1d(np.asarray(points, int))
+    joined = None  # the FRF's arrays, filled a group at a time (no second copy of them all)
+    for rows, part in _groups(device, sweep, actuator, points, averages, batch, progress):
+        part = part if lines is None else part.lines(lines)
+        if rows.stop - rows.start == points.size:
+            return part
+        joined = _join(joined, part, rows, points.size)
+    return joined
+
+
+def measure_frf_into(into: FRF, device: Device, sweep: Sweep, actuator: int, points: np.ndarray, averages: int = 2,
+                     progress: bool = False) -> FRF:
+    """:func:`measure_frf`'s FRFs on every line, written into ``into``'s arrays (``points.size`` rows of
+    the sweep's lines: views of a larger FRF's rows, the survey's stack of every actuator), and
+    returned as an FRF of them: no copy of them is made."""
+    points = np.atleast_1d(np.asarray(points, int))
+    joined = into
+    for rows, part in _groups(device, sweep, actuator, points, averages, 128, progress):
+        if part.values.shape[1] != into.values.shape[1] or (part.noise_std is None) != (into.noise_std is None):
+            raise ModelError(f"frf: {part.values.shape[1]} lines measured for {into.values.shape[1]} expected")
+        joined = _join(joined, part, rows, points.size)
+    return replace(joined, frequencies=part.frequencies, actuator=int(actuator))
+
+
+def _groups(device: Device, sweep: Sweep, actuator: int, points: np.ndarray, averages: int, batch: int,
+            progress: bool):
+    """``(rows, FRF)`` of each group of ``GROUP`` points in turn: all its shots, then its H1 estimate."""
     caps = device.capabilities
     if caps is None:
         raise DeviceError(f"{device.url}: configure the device before measuring")
@@ -64,25 +91,17 @@ def measure_frf(device: Device, sweep: Sweep, actuator: int, points: np.ndarray,
     drive = np.zeros((caps.channels, wave.size))
     drive[actuator] = wave
     device.upload(drive)
-    bar = tqdm(total=points.size * averages, desc=f"FRF actuator {actuator}", unit="point",
-               disable=not progress, leave=False)
-    joined = None  # the FRF's arrays, filled a group at a time (no second copy of them all)
-    for first in range(0, points.size, GROUP):
-        group = points[first:first + GROUP]
-        h1 = H1(sweep.sample_rate, (sweep.f_low, sweep.f_high), group.size)
-        for _ in range(averages):
-            for start in range(0, group.size, batch):
-                rows = slice(start, start + batch)
-                _shot(device, h1, actuator, group[rows], rows)
-                bar.update(group[rows].size)
-        part = h1.result(caps.scan_points[group], actuator)
-        part = part if lines is None else part.lines(lines)
-        if group.size == points.size:
-            bar.close()
-            return part
-        joined = _join(joined, part, slice(first, first + group.size), points.size)
-    bar.close()
-    return joined
+    with tqdm(total=points.size * averages, desc=f"FRF actuator {actuator}", unit="point", disable=not progress,
+              leave=False) as bar:
+        for first in range(0, points.size, GROUP):
+            group = points[first:first + GROUP]
+            h1 = H1(sweep.sample_rate, (sweep.f_low, sweep.f_high), group.size)
+            for _ in range(averages):
+                for start in range(0, group.size, batch):
+                    rows = slice(start, start + batch)
+                    _shot(device, h1, actuator, group[rows], rows)
+                    bar.update(group[rows].size)
+            yield slice(first, first + group.size), h1.result(caps.scan_points[group], actuator)
 
 
 def _shot(device: Device, h1: H1, actuator: int, points: np.ndarray, rows: slice) -> None:

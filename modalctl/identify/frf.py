@@ -166,11 +166,28 @@ class FRF:
         when unknown (a single shot)."""
         return None if self.noise_std is None else self.noise_std[:, bins]
 
+    @staticmethod
+    def unit_scale(frf: "FRF") -> float:
+        """The factor that brings ``frf``'s values to unit RMS."""
+        return float(1 / np.sqrt(np.mean(np.abs(frf.values) ** 2)))
+
+    def scale_rows(self, factor: float) -> None:
+        """Multiply the values and their noise by ``factor``, in place (on views: the rows of the FRF they
+        are taken from)."""
+        np.multiply(self.values, factor, out=self.values)
+        if self.noise_std is not None:
+            np.multiply(self.noise_std, factor, out=self.noise_std)
+
+    def rows(self, rows: slice) -> "FRF":
+        """The rows ``rows``, as views of this FRF's arrays."""
+        return replace(self, values=self.values[rows], coherence=self.coherence[rows], points=self.points[rows],
+                       noise_std=None if self.noise_std is None else self.noise_std[rows])
+
     @classmethod
     def stack(cls, frfs: list["FRF"]) -> "FRF":
         """Rows of several actuators' FRFs in one (for poles, which all share), each actuator
         scaled to unit RMS so that none drowns the others; ``actuator`` is -1."""
-        scales = [1 / np.sqrt(np.mean(np.abs(f.values) ** 2)) for f in frfs]
+        scales = [cls.unit_scale(f) for f in frfs]
         rows = np.cumsum([0, *(f.values.shape[0] for f in frfs)])
 
         def joined(arrays, factors):  # written into one array in place: no scaled copy to copy again
