@@ -314,28 +314,24 @@ def _contracted(table: _Table, lag: np.ndarray, gain: np.ndarray, weights: np.nd
 @dataclass(eq=False)
 class _Box:
     """Points ``start:stop`` of a :class:`Cover`'s order, and what bounds the field on each of its
-    children: the affine fits' rows ``fit`` ((1 + d) c, K: every child's constant, then its slope
-    along each axis), their largest residuals ``residual`` (c, K) and the span of the children's
-    points about their centres, ``low`` and ``high`` (c, d)."""
+    children: the affine fits' rows ``fit`` ((1 + d) c, K: every child's value at the centre of its
+    points' span, then its slope along each axis times the span's half-width) and their largest
+    residuals ``residual`` (c, K)."""
 
     start: int
     stop: int
     children: tuple = ()
     fit: np.ndarray | None = None
     residual: np.ndarray | None = None
-    low: np.ndarray | None = None
-    high: np.ndarray | None = None
 
     def bounds(self, velocity: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Each child's bound on ``|w|`` over its points at each column of ``velocity`` (K, s)
-        (``speed``: its absolute value), shape (c, s)."""
+        (``speed``: its absolute value), shape (c, s): ``|A| + sum_d |B_d| h_d + R . speed``, the affine
+        part's largest size over the span (centre ``A``, each axis's slope times half-width ``B_d h_d``:
+        one product and an absolute value, the rows folded so when the box was built)."""
         c = len(self.children)
-        y = (self.fit @ velocity).reshape(-1, c, velocity.shape[1])
-        a, slope = y[0], y[1:]  # (c, s), (d, c, s)
-        low, high = slope * self.low.T[:, :, None], slope * self.high.T[:, :, None]
-        most = a + np.maximum(low, high).sum(axis=0)
-        least = a + np.minimum(low, high).sum(axis=0)
-        return np.maximum(most, -least) + self.residual @ speed
+        y = np.abs(self.fit @ velocity).reshape(-1, c, velocity.shape[1])
+        return y.sum(axis=0) + self.residual @ speed
 
 
 class Cover:
@@ -395,9 +391,9 @@ class Cover:
             parts = [half for p in parts for half in (_halves(p, points) if p.size > self.leaf else (p,))]
         children = tuple(self._build(p, shapes, points, order) for p in parts)
         fits = [_affine(shapes[:, p], points[p]) for p in parts]
-        fit = np.concatenate([np.stack([f[0][j] for f in fits]) for j in range(points.shape[1] + 1)])
-        return _Box(start, start + idx.size, children, fit, np.stack([f[1] for f in fits]),
-                    np.stack([f[2] for f in fits]), np.stack([f[3] for f in fits]))
+        folded = [_folded(fit, low, high) for fit, _, low, high in fits]
+        fit = np.concatenate([np.stack([f[j] for f in folded]) for j in range(points.shape[1] + 1)])
+        return _Box(start, start + idx.size, children, fit, np.stack([f[1] for f in fits]))
 
     def _descend(self, box: _Box, velocity, speed, slack, cols, floor: float, leaf, pruned) -> None:
         """Down from ``box`` at the columns ``cols`` whose bound on it exceeds ``floor``: ``leaf(box,
@@ -526,6 +522,14 @@ def _halves(idx: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
     axis = int(np.argmax(np.ptp(p, axis=0)))
     ranked = idx[np.argsort(p[:, axis], kind="stable")]
     return ranked[:idx.size // 2], ranked[idx.size // 2:]
+
+
+def _folded(fit: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """An affine fit (1 + d, K) about a box's centre, its points' span ``low``..``high`` (d,) about it:
+    the fit's value at the span's centre, then each slope times the span's half-width (1 + d, K), so
+    that over the span ``a + b . x`` lies within the first row's value +- the others' sizes."""
+    centre, half = (low + high) / 2, (high - low) / 2
+    return np.vstack([fit[0] + centre @ fit[1:], half[:, None] * fit[1:]])
 
 
 def _affine(shapes: np.ndarray, points: np.ndarray):
