@@ -429,14 +429,23 @@ def test_the_margin_rule_links_a_pair_where_its_lock_ins_pass_more_than_its_gain
 def test_a_cluster_whose_observer_has_no_solution_keeps_per_mode_loops(plate, monkeypatch, error):
     """dlqe or dlqr refusing a cluster (panel-rounded's modes 30-31 under the margin rule: dlqe's pencil with
     every near mode observed, dlqr's reordering (scipy's ValueError) with the modes near it: the run ended
-    in an error): the controller says so and those modes are per-mode LQG's, period after period."""
+    in an error): the controller says so and those modes are per-mode LQG's, period after period. Another
+    ValueError (a fault of the design's own) is not taken for a refusal."""
     import modalctl.loops.cluster as cluster
 
     def refuse(*args):
         raise error
 
-    monkeypatch.setattr(cluster, "_design", refuse)
+    def fails(*args):
+        raise ValueError("operands could not be broadcast together with shapes (4,) (6,)")
+
+    solved = cluster._solved  # the clusters' dlqr and dlqe go through it (the isolated loops' LQG does not)
     plant = _pair_plant(plate.select(_pair(plate)))
+    if isinstance(error, ValueError):
+        monkeypatch.setattr(cluster, "_solved", lambda riccati, *matrices: solved(fails, *matrices))
+        with pytest.raises(ValueError, match="broadcast"):
+            ClusterControl(plant)
+    monkeypatch.setattr(cluster, "_solved", lambda riccati, *matrices: solved(refuse, *matrices))
     controller, lqg = ClusterControl(plant), LQGControl(plant)
     assert controller.clusters.groups == () and [g for g, _ in controller.refused] == [(0, 1)]
     rng = np.random.default_rng(4)

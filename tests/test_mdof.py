@@ -176,7 +176,9 @@ def test_a_heavily_damped_mode_on_the_shoulder_of_another_is_found():
 def test_auto_drops_an_unresolved_sdof_peak_of_no_damping_beside_the_mode_mdof_takes(monkeypatch, zeta):
     """An unresolved SDOF row whose fit's damping is negative, zero or not a number, 0.1% from a mode
     the MDOF fit resolves, is the same peak: replaced by it, not listed beside it (its band was
-    read as empty: a negative reach)."""
+    read as empty: a negative reach); 60 Hz away, beyond that mode's half-power band, it is listed."""
+    from dataclasses import replace
+
     from modalctl.identify import mdof
     from modalctl.identify.estimators import Modes
 
@@ -191,3 +193,7 @@ def test_auto_drops_an_unresolved_sdof_peak_of_no_damping_beside_the_mode_mdof_t
     got = mdof.auto_fit(frf)
     near = np.abs(got.frequencies - 700) < 7
     assert np.count_nonzero(near) == 1 and got.resolved[near].all() and got.damping[near][0] > 0
+    # 60 Hz away (beyond the taken mode's half-power band, 14 Hz): another peak, still listed, left out
+    monkeypatch.setattr(mdof, "sdof_fit", lambda *args, **kwargs: replace(single, frequencies=np.array([760.0])))
+    got = mdof.auto_fit(frf)
+    assert np.any((np.abs(got.frequencies - 760) < 1) & ~got.resolved)

@@ -2,6 +2,8 @@
 spectrum against the FFT of its scan, grouped FRFs against one group, the randomized principal FRFs
 against the whole Gram matrix's, and the identified plate against its scene and the record path."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -147,12 +149,14 @@ def test_the_full_scan_kept_on_the_lines_its_fits_read_gives_the_model_of_every_
     assert kept.model.n_modes == whole.model.n_modes >= 5
     for name in ("frequencies", "damping", "shapes", "actuator_gains"):
         assert np.allclose(getattr(kept.model, name), getattr(whole.model, name), rtol=1e-9, atol=0), name
+    assert np.allclose(kept.model.meta["misfit"], whole.model.meta["misfit"], rtol=1e-9, atol=0)
 
 
 def test_the_sparse_frfs_measured_into_one_stack_are_those_measured_apart_and_balanced_back(monkeypatch):
     """Measured into the rows of one FRF (views: no stacked copy), each actuator's FRFs are those measured
     apart (the same noise-free shots); balanced for the poles they are FRF.stack's rows, and after it
-    their measured values again (to rounding). Too little memory for them: refused before a shot."""
+    (or an interruption) their measured values again (to rounding); a dead channel's zero FRFs are
+    refused, not scaled to NaN. Too little memory for them: refused before a shot."""
     from modalctl.identify import survey
     from modalctl.identify.frf import FRF
     from modalctl.model.modes import ModelError
@@ -171,9 +175,31 @@ def test_the_sparse_frfs_measured_into_one_stack_are_those_measured_apart_and_ba
     for a in order:
         assert frfs[a].actuator == a and np.allclose(frfs[a].values, apart[a].values, rtol=1e-14, atol=0)
         assert np.allclose(frfs[a].noise_std, apart[a].noise_std, rtol=1e-14, atol=0)
+    with pytest.raises(KeyboardInterrupt):  # the poles stopped: the FRFs are still given back as measured
+        with survey._balanced(stacked, frfs):
+            raise KeyboardInterrupt
+    assert all(np.allclose(frfs[a].values, apart[a].values, rtol=1e-13, atol=0) for a in order)
+    dead = {0: frfs[0], 1: replace(frfs[1], values=np.zeros_like(frfs[1].values))}
+    with pytest.raises(ModelError, match="actuator 1's FRFs are zero"):  # a dead channel: said, nothing scaled
+        with survey._balanced(stacked, dead):
+            pass
+    assert np.allclose(frfs[0].values, apart[0].values, rtol=1e-13, atol=0)
     monkeypatch.setattr(survey, "memory_available", lambda: 10**6)
     with pytest.raises(ModelError, match="memory available"):
         survey._sparse_scan(survey._Steps(3, False, None), device, sweep, order, points, 2)
+
+
+def test_a_primary_actuator_other_than_the_first_gives_its_summary(tmp_path, capsys):
+    """--primary 1: the full scan holds actuator 1's FRFs (and those of the actuators that drive a mode
+    better), not actuator 0's; the summary's unit was read from actuator 0's (a KeyError traceback)."""
+    import json
+
+    from modalctl.cli import main
+
+    assert main(["identify", "--scene", "thesis-al-cc", "--f-high", "6kHz", "--step", "2mm", "--primary", "1",
+                 "--no-plots", "--json", "--out", str(tmp_path / "m.npz")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["unit"] == "m/s/V" and summary["modes"] >= 5
 
 
 def test_the_survey_says_each_step_with_what_it_expects(tmp_path, capsys):

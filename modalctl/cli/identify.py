@@ -143,7 +143,7 @@ def run(args) -> int:
     left = [row for row in poles.summary() if not row["resolved"]]
     summary = {"model_file": str(path), "modes": survey.model.n_modes, "method": args.method,
                "frequencies_hz": survey.model.frequencies.tolist(), "damping": survey.model.damping.tolist(),
-               "unit": survey.frfs["full"][0].unit, "poles": poles.summary(), "left_out": left,
+               "unit": next(iter(survey.frfs["full"].values())).unit, "poles": poles.summary(), "left_out": left,
                "notes": survey.notes, "seconds": survey.seconds, "points": int(points.size),
                "orthogonalized": survey.orthogonalized, "shape_mac_after_orthogonalization": survey.shape_mac.tolist(),
                "crosstalk_max_before": off(survey.crosstalk_before), "crosstalk_max_after": off(survey.crosstalk_after)}

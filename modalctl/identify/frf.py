@@ -168,8 +168,12 @@ class FRF:
 
     @staticmethod
     def unit_scale(frf: "FRF") -> float:
-        """The factor that brings ``frf``'s values to unit RMS."""
-        return float(1 / np.sqrt(np.mean(np.abs(frf.values) ** 2)))
+        """The factor that brings ``frf``'s values to unit RMS; an FRF zero everywhere is refused."""
+        rms = float(np.sqrt(np.mean(np.abs(frf.values) ** 2)))
+        if not rms > 0:
+            raise ModelError(f"frf: actuator {frf.actuator}'s FRFs are zero on every point and line: nothing "
+                             f"answered its drive (a channel not connected?)")
+        return 1 / rms
 
     def scale_rows(self, factor: float) -> None:
         """Multiply the values and their noise by ``factor``, in place (on views: the rows of the FRF they

@@ -177,11 +177,12 @@ def auto_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
 
     new = [i for i in range(multi.n_modes)
            if (multi.resolved[i] or multi.reasons[i] == DOUBTFUL) and not seen_by_sdof(i)]
-    taken = multi.frequencies[[i for i in new if multi.resolved[i]]]
+    kept = [i for i in new if multi.resolved[i]]
+    taken, taken_damping = multi.frequencies[kept], multi.damping[kept]
 
-    def replaced(i: int) -> bool:  # a fit's damping of zero, negative or not a number says nothing of its band
-        f, z = single.frequencies[i], single.damping[i]
-        reach = 2 * (z if np.isfinite(z) and z > 0 else 0.05) * f
+    def replaced(i: int) -> bool:  # within its half-power band; a fit's damping of zero, negative or not a number
+        f, z = single.frequencies[i], single.damping[i]  # says nothing of its band: then within the taken mode's
+        reach = 2 * z * f if np.isfinite(z) and z > 0 else 2 * taken_damping * taken
         return not single.resolved[i] and bool(np.any(np.abs(taken - f) <= reach))
 
     def unseen_by_lscf(i: int) -> bool:  # held only by the noise test, and no LSCF order shows a pole there

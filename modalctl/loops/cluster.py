@@ -273,15 +273,27 @@ def _design(plant: LoopPlant, loops: np.ndarray, crossover: np.ndarray, noise: n
     q[:size, :size] = c.T @ c
     q[size:, size:] = np.diag((wc * period * INTEGRAL) ** 2)  # the integrators: slower than the loops (as lqg)
     r = np.diag((0.5 / wc) ** 2)
-    gain = np.asarray(control.dlqr(big_a, big_b, q, r)[0])
+    gain = np.asarray(_solved(control.dlqr, big_a, big_b, q, r)[0])
     level = np.max(plant.level[loops]) if plant.level is not None else 1.0
     # as lqg's: the detuning a drift makes at the planned level, on each mode's state (twice the velocity
     # envelope: its residue is about a half); the cluster's highest carrier and largest level for all
     w = PROCESS * (2 * 2 * np.pi * plant.drift * np.max(plant.frequencies[loops]) * period * level) ** 2
     v = np.diag(np.repeat(noise[loops] ** 2, 2))
-    prior = np.asarray(control.dlqe(a, g, c, w * np.eye(g.shape[1]), v)[1])
+    prior = np.asarray(_solved(control.dlqe, a, g, c, w * np.eye(g.shape[1]), v)[1])
     m = prior @ c.T @ np.linalg.inv(c @ prior @ c.T + v)
     return _Law(loops, a, b, c, m, gain[:, :size], gain[:, size:], turn, offsets, lead)
+
+
+def _solved(riccati, *matrices):
+    """``riccati(*matrices)`` (python-control's dlqr or dlqe); scipy's failed reordering of an
+    ill-conditioned pencil (a ValueError, panel-rounded's modes 30-31) raised as the LinAlgError a
+    pencil without a solution gives: the cluster keeps per-mode loops. Any other error is a fault."""
+    try:
+        return riccati(*matrices)
+    except ValueError as error:
+        if "Reordering" not in str(error):
+            raise
+        raise np.linalg.LinAlgError(str(error)) from error
 
 
 def _subplant(plant: LoopPlant, loops: np.ndarray) -> LoopPlant:
@@ -353,7 +365,7 @@ class ClusterControl(Controller):
         for group in clusters.groups:
             try:
                 self.laws.append(_design(plant, np.array(group), self.design.crossover_hz, noise))
-            except (np.linalg.LinAlgError, ValueError) as error:  # no observer or LQ law: per-mode loops
+            except np.linalg.LinAlgError as error:  # no observer or LQ law (_solved): per-mode loops
                 self.refused.append((group, str(error)))
         self.clusters = replace(clusters, groups=tuple(tuple(law.loops.tolist()) for law in self.laws))
         clustered = np.concatenate([law.loops for law in self.laws] or [np.zeros(0, int)])
