@@ -169,12 +169,12 @@ def test_the_sparse_frfs_measured_into_one_stack_are_those_measured_apart_and_ba
     reference = FRF.stack([apart[a] for a in sorted(order)])
     assert list(frfs) == [0, 1, 2] and all(np.shares_memory(f.values, stacked.values) for f in frfs.values())
     assert np.array_equal(stacked.frequencies, reference.frequencies) and stacked.averages == 2
-    with survey._balanced(stacked, frfs):
-        for name in ("values", "noise_std", "coherence", "points"):
-            assert np.allclose(getattr(stacked, name), getattr(reference, name), rtol=1e-12, atol=0), name
+    with survey._balanced(stacked, frfs):  # coherence and noise held in single precision (statistics of 2 shots)
+        for name, rtol in (("values", 1e-12), ("noise_std", 1e-6), ("coherence", 1e-6), ("points", 1e-12)):
+            assert np.allclose(getattr(stacked, name), getattr(reference, name), rtol=rtol, atol=0), name
     for a in order:
         assert frfs[a].actuator == a and np.allclose(frfs[a].values, apart[a].values, rtol=1e-14, atol=0)
-        assert np.allclose(frfs[a].noise_std, apart[a].noise_std, rtol=1e-14, atol=0)
+        assert np.allclose(frfs[a].noise_std, apart[a].noise_std, rtol=1e-6, atol=0)
     with pytest.raises(KeyboardInterrupt):  # the poles stopped: the FRFs are still given back as measured
         with survey._balanced(stacked, frfs):
             raise KeyboardInterrupt

@@ -195,19 +195,20 @@ def _sparse_scan(steps: "_Steps", device: Device, sweep: Sweep, actuators: list,
                  averages: int) -> tuple[dict, FRF]:
     """Every one of ``actuators``' FRFs on ``points``, measured in turn into the rows of one FRF (the
     poles' stack, :meth:`FRF.stack`'s layout, by actuator): ``({actuator: its rows}, all of them)``.
-    Nothing is copied: plate-glass's 1,435 sparse points x 4 actuators x 26,224 lines are 4.8 GB, and
-    their stacked copy took as much again and 10.7 s."""
+    Nothing is copied: plate-glass's 1,435 sparse points x 4 actuators x 26,224 lines are 3.6 GB (the values
+    in double precision, coherence and noise in single), and a stacked copy took as much again and 10.7 s."""
     lines = H1(sweep.sample_rate, (sweep.f_low, sweep.f_high), 1).bins(sweep.samples)[0].size
     n, total = points.size, points.size * len(actuators)
-    # values, coherence and noise, and the poles' own work beside them (plate-glass: 1.2 GB more on 4.8)
-    need, available = total * lines * (32 if averages > 1 else 24) * (1 + POLES_WORK), memory_available()
+    # values, coherence and noise (statistics of a few shots: single precision holds them, 7 digits where the
+    # averages give one or two), and the poles' own work beside them (plate-glass: 1.2 GB more on 4.8)
+    need, available = total * lines * (24 if averages > 1 else 20) * (1 + POLES_WORK), memory_available()
     if available is not None and need > available:  # np.empty would give it, and the kernel kill the process later
         raise ModelError(f"identify: the sparse FRFs ({total} of {lines} lines) need {need / 2**30:.3g} GiB, more "
                          f"than the {available / 2**30:.3g} GiB of memory available: a lower --f-high, a coarser "
                          f"--resolution or a larger --step")
-    stacked = FRF(np.zeros(lines), np.empty((total, lines), complex), np.empty((total, lines)),
+    stacked = FRF(np.zeros(lines), np.empty((total, lines), complex), np.empty((total, lines), np.float32),
                   np.empty((total, device.capabilities.scan_points.shape[1])), -1, averages, 0.0,
-                  np.empty((total, lines)) if averages > 1 else None)
+                  np.empty((total, lines), np.float32) if averages > 1 else None)
     into = {a: stacked.rows(slice(i * n, (i + 1) * n)) for i, a in enumerate(sorted(actuators))}  # measured
     # in the order asked, stacked by actuator
     frfs = steps.sweeps(device, sweep, actuators, points, averages, "sparse", into=into)
