@@ -27,10 +27,11 @@ __all__ = ["measure_frf", "measure_frf_into", "GROUP"]
 
 GROUP = 64  # points whose H1 sums are held at once: below malloc's mmap threshold (64 x 26190 lines: 27 MB),
 # reused, not page-faulted anew each time (3x faster than 1024); a plate's 7171 points at once took 6 GB
+BATCH = 128  # points measured per shot
 
 
 def measure_frf(device: Device, sweep: Sweep, actuator: int, points: np.ndarray, averages: int = 2,
-                batch: int = 128, progress: bool = False, lines: np.ndarray | None = None) -> FRF:
+                batch: int = BATCH, progress: bool = False, lines: np.ndarray | None = None) -> FRF:
     """FRFs of ``actuator`` to the grid points ``points`` (indices the device scans).
 
     Parameters
@@ -68,7 +69,7 @@ def measure_frf_into(into: FRF, device: Device, sweep: Sweep, actuator: int, poi
     returned as an FRF of them: no copy of them is made."""
     points = np.atleast_1d(np.asarray(points, int))
     joined = into
-    for rows, part in _groups(device, sweep, actuator, points, averages, 128, progress):
+    for rows, part in _groups(device, sweep, actuator, points, averages, BATCH, progress):
         if part.values.shape[1] != into.values.shape[1] or (part.noise_std is None) != (into.noise_std is None):
             raise ModelError(f"frf: {part.values.shape[1]} lines measured for {into.values.shape[1]} expected")
         joined = _join(joined, part, rows, points.size)

@@ -185,6 +185,16 @@ def pole_basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -
     return np.column_stack([columns, np.ones(freqs.size), freqs / centre - 1])
 
 
+def _columns(others: int, general: bool) -> int:
+    """The unknowns per point of a band fit with ``others`` neighbouring poles (:func:`pole_basis`)."""
+    return (1 + others) * (2 if general else 1) + 2
+
+
+def _widened(half_width: float, columns: int, df: float) -> float:
+    """A band's half width (Hz), widened to ``BINS_PER_COLUMN`` bins (``df`` apart) per unknown."""
+    return max(half_width, BINS_PER_COLUMN * columns * df / 2)
+
+
 def _lstsq(b: np.ndarray, h: np.ndarray) -> np.ndarray:
     """``np.linalg.lstsq(b, h)[0]``, through ``b``'s pseudo-inverse once for all of ``h``'s columns (40x faster)."""
     return np.linalg.pinv(b, rcond=np.finfo(float).eps * max(b.shape)) @ h
@@ -216,8 +226,8 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     frequency is fixed far better than 1% (about ``zeta * misfit`` over the root of the bins).
     ``frequency_check`` False skips that check (the constants of a pole already judged).
     """
-    columns = (1 + len(others)) * (2 if general else 1) + 2
-    half_width = max(half_width, BINS_PER_COLUMN * columns * (frf.frequencies[1] - frf.frequencies[0]) / 2)
+    columns = _columns(len(others), general)
+    half_width = _widened(half_width, columns, frf.frequencies[1] - frf.frequencies[0])
     keep = np.abs(frf.frequencies - f) <= half_width
     if np.count_nonzero(keep) < 2 * columns:  # at the edge of the measurement
         raise ModelError(f"identify: fewer than {2 * columns} FRF bins within {half_width:g} Hz of {f:g} Hz")
@@ -527,8 +537,8 @@ def lines_read(lines: np.ndarray, frequencies: np.ndarray, damping: np.ndarray, 
     read = np.zeros(lines.size, bool)
     for k in range(np.size(frequencies)):
         half = half_width(frequencies, damping, k, df, band)
-        columns = (1 + neighbours(frequencies, damping, k, half).size) * 2 + 2  # modal_constants', general
-        read |= np.abs(lines - frequencies[k]) <= max(half, BINS_PER_COLUMN * columns * df / 2)
+        columns = _columns(neighbours(frequencies, damping, k, half).size, general=True)  # the widest fit's
+        read |= np.abs(lines - frequencies[k]) <= _widened(half, columns, df)
     return read
 
 

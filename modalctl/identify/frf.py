@@ -166,12 +166,11 @@ class FRF:
         when unknown (a single shot)."""
         return None if self.noise_std is None else self.noise_std[:, bins]
 
-    @staticmethod
-    def unit_scale(frf: "FRF") -> float:
-        """The factor that brings ``frf``'s values to unit RMS; an FRF zero everywhere is refused."""
-        rms = float(np.sqrt(np.mean(np.abs(frf.values) ** 2)))
+    def unit_scale(self) -> float:
+        """The factor that brings the values to unit RMS; an FRF zero everywhere is refused."""
+        rms = float(np.sqrt(np.mean(np.abs(self.values) ** 2)))
         if not rms > 0:
-            raise ModelError(f"frf: actuator {frf.actuator}'s FRFs are zero on every point and line: nothing "
+            raise ModelError(f"frf: actuator {self.actuator}'s FRFs are zero on every point and line: nothing "
                              f"answered its drive (a channel not connected?)")
         return 1 / rms
 
@@ -191,7 +190,7 @@ class FRF:
     def stack(cls, frfs: list["FRF"]) -> "FRF":
         """Rows of several actuators' FRFs in one (for poles, which all share), each actuator
         scaled to unit RMS so that none drowns the others; ``actuator`` is -1."""
-        scales = [cls.unit_scale(f) for f in frfs]
+        scales = [f.unit_scale() for f in frfs]
         rows = np.cumsum([0, *(f.values.shape[0] for f in frfs)])
 
         def joined(arrays, factors):  # written into one array in place: no scaled copy to copy again

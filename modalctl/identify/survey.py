@@ -222,7 +222,7 @@ def _balanced(stacked: FRF, frfs: dict):
     """Within: ``stacked``'s rows of each actuator (``frfs``' FRFs are views of them) scaled to unit RMS
     as :meth:`FRF.stack` scales them, so that none drowns the others in the poles' fit; after: back to
     their measured values (to rounding)."""
-    scales = [FRF.unit_scale(f) for f in frfs.values()]
+    scales = [f.unit_scale() for f in frfs.values()]
     for f, c in zip(frfs.values(), scales):
         f.scale_rows(c)
     try:

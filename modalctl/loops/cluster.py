@@ -384,12 +384,11 @@ class ClusterControl(Controller):
         self._spin, self._ahead, self._sent_ahead = spin, spin ** lead, spin ** (lead - 1)
         # sparse: the laws' blocks, and within them the modes' states (a 2 x 2 block each) and the delay line,
         # are mostly zeros (panel-rounded's 18 laws: 578 states, 8,132 of A's 334,084 entries; A x 31 -> 7 us)
-        self._A, self._B, self._C, self._M, self._K, self._Ki = (
+        # (B is not stacked: it puts the command computed into the delay line's first slot, the rows _slot)
+        self._A, self._C, self._M, self._K, self._Ki = (
             sparse.csr_array(block_diag(*(getattr(law, name) for law in laws)))
-            for name in ("A", "B", "C", "M", "K", "Ki"))
+            for name in ("A", "C", "M", "K", "Ki"))
         self._join()
-        entered = self._B.tocsc()  # the command computed enters the delay line: B selects rows (one 1 a column)
-        self._into = entered.indices if np.all(np.diff(entered.indptr) == 1) and np.all(entered.data == 1) else None
         slots, start = [], 0  # where each law's newest command in flight sits in the stacked state
         for law in laws:
             size, k2 = law.A.shape[0], 2 * law.loops.size
@@ -426,7 +425,8 @@ class ClusterControl(Controller):
             for lost in range(self._n, period):
                 now = self._spin ** (lost + 1)  # as update's: the frames' turn at that period's reading
                 x[self._slot] = (held * now * self._sent_ahead).view(float)
-                x = self._A @ x + self._B @ (held * now * self._ahead).view(float)
+                x = self._A @ x  # its rows of the delay line's first slot are zero: the held command enters
+                x[self._slot] += (held * now * self._ahead).view(float)
             self._x = x
         self._n, self._sent = period, sent
 
@@ -456,10 +456,7 @@ class ClusterControl(Controller):
         out[over] *= cap[over] / np.maximum(size[over], 1e-300)
         self._integral = np.where(over, self._integral, self._integral + z)  # anti-windup
         self._integral[cap <= 0] = 0  # a loop with no authority rests
-        if self._into is None:
-            ahead += self._B @ (out * played).view(float)
-        else:  # B selects the delay line's first slot: the command goes in
-            ahead[self._into] += (out * played).view(float)
+        ahead[self._slot] += (out * played).view(float)  # B: the command enters the delay line's first slot
         self._x = ahead
         self._n += 1  # the next period's, unless observe says otherwise (a lost reading)
         command[idx] = out
