@@ -134,8 +134,9 @@ class LoopMetrics:
     control_rate_hz : float
     limited_periods : int
         Periods whose feedback a limit held back.
-    step_seconds_median : float or None
-        The runtime's compute per period.
+    step_seconds_median, step_seconds_p99 : float or None
+        The runtime's compute per period: its median and 99th percentile (the periods that read the
+        touch or search its place cost the most).
     crossover_hz, phase_margin_deg, gain_margin_db : list of float
         The loops' design.
     design_seconds, shot_seconds : float
@@ -165,6 +166,7 @@ class LoopMetrics:
     control_rate_hz: float
     limited_periods: int
     step_seconds_median: float | None
+    step_seconds_p99: float | None
     crossover_hz: list
     phase_margin_deg: list
     gain_margin_db: list
@@ -510,6 +512,7 @@ def _loop_metrics(played: _Played, the_plan: Plan, sim_seconds: float) -> LoopMe
         periods=result.periods, loop_seconds=result.loop_seconds, configure_seconds=result.configure_seconds,
         control_rate_hz=loop.control_rate, limited_periods=result.limited,
         step_seconds_median=float(np.median(result.step_seconds)) if result.step_seconds.size else None,
+        step_seconds_p99=float(np.percentile(result.step_seconds, 99)) if result.step_seconds.size else None,
         crossover_hz=design.crossover_hz.tolist(), phase_margin_deg=design.phase_margin_deg.tolist(),
         gain_margin_db=design.gain_margin_db.tolist(), design_seconds=played.design_seconds,
         shot_seconds=played.seconds, real_time_factor=played.seconds / the_plan.duration,

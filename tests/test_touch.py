@@ -106,6 +106,27 @@ def test_the_touch_controller_gives_back_what_the_finger_takes(bump):
     assert (_peak(pi) - opened) / taken < 0.6
 
 
+def test_reading_the_touch_every_fifth_of_a_millisecond_gives_back_what_reading_every_period_does(bump, monkeypatch):
+    """The estimator learns from every period and is read every READ_EVERY (4 periods at 20 kHz):
+    between two readings the estimate is held, and the shot is within a percent of reading it every
+    period (the finger's damping, the peak given back)."""
+    from modalctl.loops import touch
+
+    finger = Perturbation(finger=1.0, finger_at=(0.0,))
+    slow = _shot(bump, finger)
+    monkeypatch.setattr(touch, "READ_EVERY", 0.0)
+    every = _shot(bump, finger)
+    def changes_between_readings(history):
+        history = np.asarray(history)
+        between = np.arange(1, history.size) % 4 != 0  # periods that are not a multiple of 4
+        return np.count_nonzero(history[1:][between] != history[:-1][between])
+
+    assert changes_between_readings(slow.loop.learned["damping_per_period"]) == 0
+    assert changes_between_readings(every.loop.learned["damping_per_period"]) > 100
+    assert abs(slow.loop.learned["damping_n_s_per_m"] / every.loop.learned["damping_n_s_per_m"] - 1) < 0.01
+    assert abs(_peak(slow) / _peak(every) - 1) < 0.01
+
+
 def test_a_finger_pressing_three_times_harder_stays_stable_and_is_still_given_back(bump):
     """3 N s/m on the focus (a firm press; open loop keeps a quarter of the peak): the touch
     controller's shot ends normally and gives back more than 85% of what the finger took."""

@@ -426,7 +426,8 @@ def _print_loop(m: dict, shot, out: Path) -> None:
     """The closed loop, the learning shot and the decoupling warnings, when there are."""
     if "loop" in m:
         lp = m["loop"]
-        where = "on the board" if lp.get("on_board") else f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update"
+        where = "on the board" if lp.get("on_board") else \
+            f"{1e6 * (lp['step_seconds_median'] or 0):.0f} us per update ({1e6 * (lp['step_seconds_p99'] or 0):.0f} at 99%)"
         ended = (f"stopped by a fault ({lp['fault']})" if lp["fault"] else
                  f"ran {lp['periods']} periods and ended {lp['state']}")  # inactive: the lifecycle's rest state
         print(f"closed loop at {lp['control_rate_hz'] / 1e3:g} kHz: {ended}, "

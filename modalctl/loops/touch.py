@@ -36,6 +36,8 @@ from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
 __all__ = ["TouchControl", "CommandFilter", "learned_from", "LEAK_MAX"]
 
 RETUNE = 8  # periods between two readings of the modes' detunings (a drift moves over milliseconds)
+READ_EVERY = 0.2e-3  # s between two readings of the touch: within the estimator's shortest memory (0.25 ms), a
+# tenth of the lock-in's lag; the sums it reads learn from every period (see TouchControl.observe)
 SHIFT_MAX = 0.1  # the largest relative shift of the resonances given back: past any drift a plan holds (+-2%)
 LEAK_MAX = 0.05  # the most a reading the touch estimator learns from may see of the other modes (see learned_from)
 
@@ -157,6 +159,7 @@ class TouchControl(Controller):
         self._learned_mask = np.isin(np.arange(plant.frequencies.size), self.learned)
         self._nothing = np.zeros(plant.frequencies.size, complex)
         self.points, self.rate = plant.points, float(plant.control_rate)
+        self._read_every = max(1, int(round(READ_EVERY * self.rate)))  # periods
         # one contiguous row per period, read period by period: the planned drive of the modes learned
         # from, and the force per unit of added decay on the planned motion when the command plays
         # (velocity / residue)
@@ -177,6 +180,7 @@ class TouchControl(Controller):
         self._shared = 0.0  # the relative shift of every resonance it is sure of
         self.period = self._last = -1
         self._checked = self._nothing  # the force given back on the loops learned from, in the command last returned
+        self._estimate = None  # the touch as last read (TouchEstimate)
         self.history: list = []  # the estimate (TouchEstimate) per period
 
     def scale(self, factor: float) -> None:
@@ -198,7 +202,9 @@ class TouchControl(Controller):
         rows = self._drive_rows
         n = min(period, rows.shape[0] - 1)
         self.estimator.update(envelope[use], rows[n] + self.held * self.filter.step(playing), self._expected[n])
-        self.history.append(self.estimator.estimate)
+        if self._estimate is None or period % self._read_every == 0:  # solved at its own, slower rate
+            self._estimate = self.estimator.estimate
+        self.history.append(self._estimate)
 
     def _skip(self, periods: int, held: np.ndarray) -> None:
         """``periods`` periods without a reading: the runtime held its command ``held`` through them,
@@ -217,7 +223,7 @@ class TouchControl(Controller):
             return feedback
         if self.period % RETUNE == 0:
             self._retune()
-        estimate = self.estimator.estimate
+        estimate = self._estimate
         if not estimate.sure > 0 and self._shared == 0.0:  # nothing sure: the inner controller's command
             return feedback
         if not np.count_nonzero(limit):  # no loop has authority (a shot played open through the loops):
