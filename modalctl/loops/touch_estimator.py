@@ -94,7 +94,7 @@ class TouchEstimate:
     index : int or None
         Grid point where it rests (None before any data).
     sure : float
-        ``max(0, damping - SURE * stderr)``, and no more than any shorter memory's own (N s/m).
+        ``max(0, damping - SURE * stderr)`` on the memory it was read with (N s/m; see :func:`_agreeing`).
     fit : float
         Share of the modes' losses the touch explains, against a decay of each mode's own (0 to 1).
     memory : float
@@ -279,7 +279,7 @@ class TouchEstimator:
         index, q = place[0], place[1]
         self._row = q
         nums, dens, energies, counts = per
-        j, floor, errors = _agreeing(nums, dens, energies, counts)
+        j, errors = _agreeing(nums, dens, energies, counts)
         self._chosen = j
         num, den, memory = nums[j], dens[j], self._memory[j]
         if not (den > 0 and num < 0):  # nothing damps the modes there now
@@ -289,7 +289,7 @@ class TouchEstimator:
         each = (every or self._each())[0][j]
         fit = min(explained / each, 1.0) if each > 0 else 0.0
         trusted = c >= TOUCH_MIN and fit >= FIT_MIN and self._periods >= self.settle
-        sure = min(c - SURE * errors[j], floor) if trusted else 0.0
+        sure = c - SURE * errors[j] if trusted else 0.0
         return TouchEstimate(c, errors[j], index, max(0.0, sure), fit, memory)
 
     def _at(self, place) -> tuple[list, list, list, list]:
@@ -422,13 +422,24 @@ def planned_residuals(estimator: TouchEstimator, own: np.ndarray, drive: np.ndar
     return np.ascontiguousarray(e.T * estimator._read)
 
 
-def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int, float, list]:
+def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int, list]:
     """The longest memory whose damping at the place (``-nums / dens``, one per memory) lies
     within ``AGREE`` standard errors of every shorter memory's (Lepski's rule): a touch that
     changed shows in the short memories first, and the long ones that still remember the old
-    touch fall outside them. Returns its index, the least damping any memory up to it is sure
-    of (N s/m; ``c - SURE * stderr``) and every memory's standard error. A few memories: plain
-    floats, no arrays."""
+    touch fall outside them. Returns its index and every memory's standard error. A few
+    memories: plain floats, no arrays.
+
+    Only the chosen memory's interval bounds what is given back (``c - SURE * stderr`` in
+    :meth:`TouchEstimator._solve`): the shorter ones agree with it within theirs, and their lower
+    bounds say how few periods they hold, not that the touch changed. Bounded by them too (the
+    least damping any memory up to the chosen one was sure of), the sure part fell to nothing
+    where the envelopes turn fast before the focus, when the give-back matters most: on
+    plate-glass without noise, the estimate within 1% of the finger's 1 N s/m, the sure part 0
+    from 1.5 ms before the focus (its mean over 10-25 ms 0.61). Measured on finger.py's cases
+    over noise seeds (40 dB, 1 N s/m resting; bounded by the shorter memories -> not): plate-glass
+    85 -> 100% given back (six seeds; tau 0.947 -> 0.974), the clamped plate 98 -> 100%, the
+    beam's bump 97 -> 98% (four), panel-rounded 81% both (six); a lift at 15 ms tau 1.047 -> 1.058
+    (the lift is read by the rule's switch to a short memory either way, 2-3 ms after it)."""
     inf, sqrt = math.inf, math.sqrt
     damping, half, errors = [], [], []
     for num, den, energy, count in zip(nums, dens, energies, counts):
@@ -443,7 +454,6 @@ def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int
             damping.append(math.nan)
             half.append(inf)
         errors.append(error)
-    chosen = 0
     for j in range(len(damping) - 1, 0, -1):
         if dens[j] > 0:
             d = damping[j]
@@ -451,17 +461,8 @@ def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int
                 if not abs(d - damping[i]) <= half[i]:
                     break
             else:
-                chosen = j
-                break
-    # what every memory up to it is sure of: a lift shows in the shortest first
-    floor, scale = inf, SURE / AGREE
-    for i in range(chosen + 1):
-        f = damping[i] - scale * half[i]
-        if f != f:
-            return chosen, math.nan, errors
-        if f < floor:
-            floor = f
-    return chosen, floor, errors
+                return j, errors
+    return 0, errors
 
 
 TINY = 1e-300  # added to a sum of squares that may be zero: below the rounding of any that is not
