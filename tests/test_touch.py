@@ -108,22 +108,25 @@ def test_the_touch_controller_gives_back_what_the_finger_takes(bump):
 
 def test_reading_the_touch_every_fifth_of_a_millisecond_gives_back_what_reading_every_period_does(bump, monkeypatch):
     """The estimator learns from every period and is read every READ_EVERY (4 periods at 20 kHz):
-    between two readings the estimate is held, and the shot is within a percent of reading it every
-    period (the finger's damping, the peak given back)."""
+    between two readings the estimate is held, and a finger lifting at 12 ms (where a late reading
+    costs: read every 1 ms, the peak moves 1.6%; every 3 ms, 6.7%) leaves the shot's peak within 1%
+    of reading it every period."""
     from modalctl.loops import touch
 
-    finger = Perturbation(finger=1.0, finger_at=(0.0,))
+    finger = Perturbation(finger=1.0, finger_at=(0.0,), finger_lifts=12e-3)
     slow = _shot(bump, finger)
+    periods = int(round(touch.READ_EVERY * slow.loop.control_rate_hz))
     monkeypatch.setattr(touch, "READ_EVERY", 0.0)
     every = _shot(bump, finger)
+
     def changes_between_readings(history):
         history = np.asarray(history)
-        between = np.arange(1, history.size) % 4 != 0  # periods that are not a multiple of 4
+        between = np.arange(1, history.size) % periods != 0  # periods that read no estimate
         return np.count_nonzero(history[1:][between] != history[:-1][between])
 
+    assert periods == 4
     assert changes_between_readings(slow.loop.learned["damping_per_period"]) == 0
     assert changes_between_readings(every.loop.learned["damping_per_period"]) > 100
-    assert abs(slow.loop.learned["damping_n_s_per_m"] / every.loop.learned["damping_n_s_per_m"] - 1) < 0.01
     assert abs(_peak(slow) / _peak(every) - 1) < 0.01
 
 

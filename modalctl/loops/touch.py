@@ -15,7 +15,8 @@ every mode is shifted by their median share. Untouched and undrifted, it is the 
 lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
 that the drive and the response meet in the lock-in's frame; and the residuals its envelope
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
-the estimator reads the departure from the plan.
+the estimator reads the departure from the plan. It learns from every period and is read every
+:data:`READ_EVERY` (0.2 ms: a quarter of the periods at 20 kHz), its solve being the update's costliest step.
 """
 
 from __future__ import annotations
@@ -180,8 +181,8 @@ class TouchControl(Controller):
         self._shared = 0.0  # the relative shift of every resonance it is sure of
         self.period = self._last = -1
         self._checked = self._nothing  # the force given back on the loops learned from, in the command last returned
-        self._estimate = None  # the touch as last read (TouchEstimate)
-        self.history: list = []  # the estimate (TouchEstimate) per period
+        self._estimate, self._read_at = None, -self._read_every  # the touch as last read (TouchEstimate), and when
+        self.history: list = []  # the estimate (TouchEstimate) as held each period, read every READ_EVERY
 
     def scale(self, factor: float) -> None:
         self.inner.scale(factor)
@@ -202,8 +203,8 @@ class TouchControl(Controller):
         rows = self._drive_rows
         n = min(period, rows.shape[0] - 1)
         self.estimator.update(envelope[use], rows[n] + self.held * self.filter.step(playing), self._expected[n])
-        if self._estimate is None or period % self._read_every == 0:  # solved at its own, slower rate
-            self._estimate = self.estimator.estimate
+        if period - self._read_at >= self._read_every:  # solved at its own, slower rate (a lost period delays
+            self._estimate, self._read_at = self.estimator.estimate, period  # the next reading by no more)
         self.history.append(self._estimate)
 
     def _skip(self, periods: int, held: np.ndarray) -> None:
@@ -263,7 +264,8 @@ class TouchControl(Controller):
         return self._pattern[1]
 
     def summary(self) -> dict | None:
-        """The touch as estimated at the end of the shot and every period's estimate."""
+        """The touch as estimated at the end of the shot, and the estimate as held each period (read
+        every :data:`READ_EVERY`)."""
         if not self.history:
             return None
         e = self.estimator.estimate

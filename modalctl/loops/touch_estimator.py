@@ -26,8 +26,8 @@ the place (a bound from the residuals alone). A period costs ``O(modes x candida
 those it learns from (16 of panel-rounded's 53, 256 candidates for its 8591 points); the period's
 whole loop update is measured by ``benchmarks/plate_speed.py`` (the touch controller's case).
 The estimate's standard error comes from the residuals left; :attr:`TouchEstimate.sure` is the
-damping the estimate is confident of (``c - SURE * stderr``, and no more than any shorter memory is
-sure of: a lift shows in the shortest first; zero below ``TOUCH_MIN``, before
+damping the estimate is confident of (``c - SURE * stderr`` on the memory Lepski's rule chose: a lift
+is read by the rule's switch to a short memory; zero below ``TOUCH_MIN``, before
 ``SETTLE`` shortest memories of data, or when one touch explains less than ``FIT_MIN`` of what the modes
 lost, each at a rate of its own: as on plate-glass once its close pairs, each read partly through
 the other's answer, carry the losses: fit 0.1-0.3 there from 15 ms, 0.97 on thesis-al-cc): what a
