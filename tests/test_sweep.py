@@ -68,6 +68,23 @@ def test_sweep_runs_a_plate_on_its_own_grid(capsys, tmp_path):
     assert tau[0.0] > 0.95 and tau[0.02] < tau[0.0] - 0.1  # drift spoils the plate's open-loop focus too
 
 
+@pytest.mark.slow
+def test_sweep_grows_a_finite_element_plate_s_model_as_run_does(capsys, tmp_path):
+    """plate-glass-clamped's 21 modes draw a 30 mm bump at (-20, 5) mm below the default target: run grows the
+    model (issue 36) and so does a sweep, which refused the case before: the same shot, tau within the noise's."""
+    shot = ["--scene", "plate-glass-clamped", "--shape", "bump", "--param", "width=30mm", "--param",
+            "center=-20mm,5mm", "--focus-time", "25ms"]
+    code = main(["sweep", *shot, "--vary", "drift=0", "--methods", "open", "--workers", "1", "--out",
+                 str(tmp_path / "sweep"), "--json", "--quiet"])  # the thesis's envelope plan, 40 dB: a sweep's default
+    assert code == 0, capsys.readouterr().err
+    swept = json.loads((tmp_path / "sweep" / "sweep.json").read_text())["rows"][0]
+    assert main(["run", *shot, "--planner", "envelope", "--margin", "none", "--snr", "40", "--out", str(tmp_path / "run"), "--no-plots",
+                 "--quiet"]) == 0
+    ran = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert ran["model"]["grown"] and ran["tau"] >= 0.95
+    assert swept["tau"] >= 0.95 and swept["tau"] == pytest.approx(ran["tau"], abs=0.005)  # another noise draw
+
+
 @pytest.mark.parametrize("args, message", [
     (["--vary", "speed=1,2"], "cannot sweep 'speed'"),
     (["--vary", "drift=0,1%", "--methods", "magic"], "unknown method"),
