@@ -477,7 +477,8 @@ def plot_sweep_maps(rows, axes, methods, path) -> Path:
     for col, method in enumerate(methods):
         for row, criterion in enumerate((("tau", 0.95, "tau"), ("margin_ratio", 0.5, "margin ratio"))):
             _sweep_panel(grid[row, col], rows, axes, method, criterion)
-    plans = sorted({f"{r.get('planner', '?')} planner, margin {r.get('margin') or 'none'}" for r in rows})
+    plans = sorted({f"{r.get('scene', '?')}: {r.get('planner', '?')} planner, margin {r.get('margin') or 'none'}"
+                    for r in rows})
     fig.suptitle(f"where each method fails (✗: criterion not met); {'; '.join(plans)}")
     return _save(fig, path)
 
