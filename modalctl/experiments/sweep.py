@@ -116,7 +116,6 @@ class Case:
 
 
 @lru_cache(maxsize=8)
-@lru_cache(maxsize=8)
 def _model_shape(scene: str, points, shape: str, params: tuple, planned: PlanOptions):
     """The scene's model and the target on it; a finite-element plate's model grown until its modes
     draw the shape, as ``modalctl run`` grows it (:func:`~modalctl.plan.growth.model_for`), so that a
