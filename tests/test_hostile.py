@@ -237,3 +237,13 @@ def test_an_allocation_no_estimate_refused_ends_in_exit_2_not_a_traceback(capsys
     monkeypatch.setattr("modalctl.model.fe_plate.FEPlate.modal_model", allocate)
     assert call([*FE, "--out", str(tmp_path / "plate.npz")]) == 2
     assert "more memory than there is (Unable to allocate 3.26 GiB" in capsys.readouterr().err
+
+
+# -- controllers -----------------------------------------------------------------------------------------
+@pytest.mark.parametrize("controller", ["lqg", "cluster"])
+def test_the_observer_controllers_run_on_a_noiseless_truth(capsys, tmp_path, controller):
+    """Before: exit 2 with scipy's "Reordering of (A, B) failed ... very ill-conditioned" for a valid run: the
+    Kalman filter's covariances at the noise floor (1e-17) broke scipy's pencil; solved at unit noise now."""
+    code = call([*RUN, "--points", "211", "--loop", "closed", "--controller", controller, "--out", str(tmp_path)])
+    assert code == 0, capsys.readouterr().err
+    assert json.loads((tmp_path / "metrics.json").read_text())["tau"] > 0.95

@@ -129,7 +129,11 @@ class LQGControl(Controller):
             w = (2 * np.pi * plant.drift * plant.frequencies[i] * period * level[i]) ** 2
             g = np.zeros((n, 1))
             g[0, 0] = 1.0
-            _, prior, _ = control.dlqe(_iq(a), _iq(g), _iq(c), w * np.eye(2), noise[i] ** 2 * np.eye(2))
+            # the filter is the same for both covariances scaled alike: solved at unit sensor noise, as scipy's
+            # pencil at 1e-17 (thesis-al-cc's defaults, no noise: the floor) fails to reorder (issue 39)
+            scale = noise[i] ** 2 or 1.0
+            prior = scale * control.dlqe(_iq(a), _iq(g), _iq(c), w / scale * np.eye(2), noise[i] ** 2 / scale
+                                         * np.eye(2))[1]
             ci = _iq(c)  # the current-estimate gain from the a-priori covariance: M = P C' (C P C' + R)^-1
             m = _complex(prior @ ci.T @ np.linalg.inv(ci @ prior @ ci.T + noise[i] ** 2 * np.eye(2)))
             radius.append(observer_loop_radius(a, b, c, gain[:, :n], gain[:, n:], m))
