@@ -102,3 +102,38 @@ def test_a_plate_continued_to_more_modes_is_grown_and_cut_to_them(small):
     np.testing.assert_allclose(richer.frequencies[:small.n_modes], small.frequencies, rtol=1e-9)
     np.testing.assert_array_equal(richer.grid.points, small.grid.points)
     assert np.all(np.diff(richer.frequencies) >= 0)
+
+
+def test_an_analytic_plate_scene_grows_with_its_plate_s_exact_modes_and_a_beam_does_not():
+    """plate-glass (simply supported, analytic) draws a 30 mm bump at (-20, 5) mm to 0.968 with its 21
+    modes: it grows to every mode of its plate below the band reached, the same model as the scene built
+    with that many modes (frequencies from the textbook formula, an independent check), on the same grid;
+    the patches' null and the DAC bound the band as for a finite-element plate. A beam's modes above the
+    identified ones are an extrapolation: it is not grown."""
+    from modalctl.model.scenes import grown_scene, load_scene, scene_band
+    from modalctl.model.shape import parse_params
+    from modalctl.plugin.manager import get_shape
+
+    def shape(model, name, **params):
+        generator = get_shape(name)
+        return generator.generate(model.grid, **parse_params(generator, params))
+
+    model = load_scene("plate-glass")
+    bump = shape(model, "bump", width="30mm", center="-20mm,5mm")
+    bigger, growth = model_for(model, bump, PlanOptions())
+    assert growth.modes == bigger.n_modes > model.n_modes and growth.tau >= 0.98 > growth.tau_before
+    direct = load_scene("plate-glass", modes=bigger.n_modes)
+    np.testing.assert_array_equal(bigger.frequencies, direct.frequencies)
+    np.testing.assert_array_equal(bigger.grid.points, model.grid.points)
+    assert bigger.frequencies.max() <= growth.band_hz < np.sort(
+        load_scene("plate-glass", modes=2 * bigger.n_modes).frequencies)[bigger.n_modes]  # every mode below the band
+    d = 70e9 * 1e-3**3 / (12 * (1 - 0.22**2))  # glass 1 mm: E h^3 / 12 (1 - nu^2)
+    m, n = np.array(bigger.meta["mode_indices"][-1], float)
+    assert bigger.frequencies[-1] == pytest.approx(np.pi / 2 * ((m / 0.1) ** 2 + (n / 0.07) ** 2) * np.sqrt(d / 2.5))
+    wavelength = 2 * np.pi * (d / 2.5) ** 0.25 / np.sqrt(2 * np.pi * scene_band(model, 1e8))  # 12 mm patches
+    assert wavelength == pytest.approx(0.012) and scene_band(model, 5e5) == pytest.approx(5e4)
+    assert grown_scene(model, 1.0).n_modes == model.n_modes  # never fewer than it has
+    beam = load_scene("thesis-al-cc")
+    sinc = shape(beam, "sinc", width="4mm")
+    assert reach(beam, sinc) < 0.98  # below the default target, and still the beam's own modes
+    assert model_for(beam, sinc, PlanOptions())[1] is None

@@ -25,7 +25,7 @@ from modalctl.outdir import atomic
 
 from .modes import ModalModel, ModelError
 
-__all__ = ["solved", "plate_of", "grown", "drivable_band", "cache_dir", "SAMPLES_PER_PERIOD"]
+__all__ = ["solved", "plate_of", "grown", "drivable_band", "patch_band", "cache_dir", "SAMPLES_PER_PERIOD"]
 
 SAMPLES_PER_PERIOD = 10  # the DAC draws a mode it samples at least ten times a period (DESIGN, chirp design)
 
@@ -104,16 +104,21 @@ def _spacing(model: ModalModel) -> float:
 
 
 def drivable_band(model: ModalModel, sample_rate: float) -> float:
-    """The highest frequency (Hz) a drive of ``model``'s plate can usefully reach: where the
-    smallest patch side spans one bending wavelength (the first null of the pin-force gain
-    ``sin(k s / 2)``: beyond it the moments along opposite edges cancel), and at most a tenth of
-    the DAC's ``sample_rate`` (Hz)."""
+    """The highest frequency (Hz) a drive of ``model``'s plate can usefully reach (:func:`patch_band`)."""
     plate = plate_of(model)
     if plate is None:
         raise ModelError("this model is not a finite-element plate's: it cannot grow (solve it with modalctl model fe)")
     side = min(min(np.ptp(p.xlim), np.ptp(p.ylim)) for p in plate.patches) if plate.patches else plate.outline.diameter
+    return patch_band(plate.rigidity, plate.mass_per_area, side, sample_rate)
+
+
+def patch_band(rigidity: float, mass_per_area: float, side: float, sample_rate: float) -> float:
+    """The highest frequency (Hz) a plate of bending ``rigidity`` (N m) and ``mass_per_area`` (kg/m^2)
+    driven by patches whose smallest side is ``side`` (m) can usefully reach: where that side spans one
+    bending wavelength (the first null of the pin-force gain ``sin(k s / 2)``: beyond it the moments
+    along opposite edges cancel), and at most a tenth of the DAC's ``sample_rate`` (Hz)."""
     wavenumber = 2 * np.pi / side  # one wavelength across the patch
-    omega = wavenumber**2 * np.sqrt(plate.rigidity / plate.mass_per_area)
+    omega = wavenumber**2 * np.sqrt(rigidity / mass_per_area)
     return float(min(omega / (2 * np.pi), sample_rate / SAMPLES_PER_PERIOD))
 
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from modalctl.options import MODES_MAX
 
-from .fe_models import cache_dir, grown, plate_of, solved
+from .fe_models import cache_dir, grown, patch_band, plate_of, solved
 from .fe_plate import MATERIALS, FEPlate, Hole, Outline, Support
 from .modes import ModalModel, ModelError
 from .projection import gram
@@ -263,6 +263,40 @@ def continued(model: ModalModel, modes: int) -> ModalModel:
         raise ModelError(f"{name} continued to {modes} modes lies on another grid ({richer.grid.n} points against "
                          f"{model.grid.n}): build the model on the scene's default grid")
     return richer
+
+
+def analytic_plate_of(model: ModalModel) -> Plate | None:
+    """The simply supported plate an analytic plate scene's model was built from (from its ``meta``),
+    or None for any other model."""
+    meta = model.meta
+    if meta.get("structure") != "plate" or meta.get("source") != "analytic" or meta.get("name") not in SCENES:
+        return None
+    return Plate(meta["a_m"], meta["b_m"], meta["thickness_m"], meta["modulus_Pa"], meta["density_kg_m3"],
+                 meta["poisson"])
+
+
+def scene_band(model: ModalModel, sample_rate: float) -> float:
+    """The highest frequency (Hz) a drive of an analytic plate scene can usefully reach
+    (:func:`~.fe_models.patch_band`, its smallest patch's side); ModelError for another model."""
+    plate = analytic_plate_of(model)
+    if plate is None:
+        raise ModelError("this model is not an analytic plate scene's: it cannot grow")
+    sides = [min(np.ptp(a["xlim_m"]), np.ptp(a["ylim_m"])) for a in model.meta.get("actuators", [])]
+    return patch_band(plate.rigidity, plate.mass_per_area, min(sides, default=min(plate.a, plate.b)), sample_rate)
+
+
+def grown_scene(model: ModalModel, band: float) -> ModalModel:
+    """An analytic plate scene's model with every mode of its plate below ``band`` (Hz), on the same
+    grid: the scene built with more modes (the plate's are exact at any band; the grid is not asked
+    to draw them, as for a richer truth). ModelError for another model."""
+    plate = analytic_plate_of(model)
+    if plate is None:
+        raise ModelError("this model is not an analytic plate scene's: it cannot grow")
+    count = model.n_modes
+    while count < MODES_MAX and plate.frequencies(plate.mode_indices(count))[-1] < band:
+        count = min(2 * count, MODES_MAX)
+    below = int(np.count_nonzero(plate.frequencies(plate.mode_indices(count)) < band))
+    return load_scene(str(model.meta["name"]), model.grid.shape or model.grid.n, modes=max(below, model.n_modes))
 
 
 def resolved_modes(model: ModalModel, tolerance: float = None) -> int:

@@ -279,6 +279,11 @@ class Plate:
         """rho h (kg/m^2)."""
         return self.density * self.thickness
 
+    @property
+    def rigidity(self) -> float:
+        """Bending stiffness ``E h^3 / (12 (1 - nu^2))`` (N m)."""
+        return self.modulus * self.thickness**3 / (12 * (1 - self.poisson**2))
+
     def mode_indices(self, n_modes: int) -> np.ndarray:
         """(m, n) half-wave numbers of the ``n_modes`` lowest modes, sorted by frequency, shape (k, 2)."""
         top = n_modes + 1
@@ -291,9 +296,8 @@ class Plate:
     def frequencies(self, indices) -> np.ndarray:
         """Resonance frequencies (Hz) of modes with half-wave numbers ``indices`` (k, 2)."""
         idx = np.asarray(indices, dtype=float)
-        rigidity = self.modulus * self.thickness**3 / (12 * (1 - self.poisson**2))
         lam = np.pi**2 * ((idx[:, 0] / self.a) ** 2 + (idx[:, 1] / self.b) ** 2)
-        return lam * np.sqrt(rigidity / self.mass_per_area) / (2 * np.pi)
+        return lam * np.sqrt(self.rigidity / self.mass_per_area) / (2 * np.pi)
 
     def shapes(self, points, indices) -> np.ndarray:
         """Mass-normalized shapes at ``points`` (n, 2) in metres, shape (k, n)."""

@@ -1,4 +1,4 @@
-"""Models that hold what the shape needs: a finite-element model grown until its modes draw the shape.
+"""Models that hold what the shape needs: a plate's model grown until its modes draw the shape.
 
 "Model no more than a scene needs" means no less either. A finite-element scene or model file
 holds the modes below the band it was solved to; when even all of them miss the accuracy target
@@ -6,7 +6,9 @@ holds the modes below the band it was solved to; when even all of them miss the 
 solved again to a band :data:`GROWTH` times higher (:func:`modalctl.model.fe_models.grown`, kept
 in the cache), until the target is met or the band the patches and the DAC can drive is reached
 (:func:`modalctl.model.fe_models.drivable_band`): then the refusal says what the largest model
-reaches. Other models (beams, identified ones) are what they are.
+reaches. An analytic plate scene (plate-glass) grows the same way, built with its plate's modes below
+the higher band (:func:`modalctl.model.scenes.grown_scene`). Other models (beams, whose modes above
+the identified ones are an extrapolation; identified ones) are what they are.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from typing import Callable
 import numpy as np
 
 from modalctl.model.fe_models import drivable_band, grown, plate_of
+from modalctl.model.scenes import analytic_plate_of, grown_scene, scene_band
 from modalctl.model.metrics import tau
 from modalctl.model.modes import ModalModel
 from modalctl.model.projection import project
@@ -68,15 +71,18 @@ def reach(model: ModalModel, shape: Shape) -> float:
 def model_for(model: ModalModel, shape: Shape, options: PlanOptions = PlanOptions(),
               say: Callable[[str], None] | None = None) -> tuple[ModalModel, Growth | None]:
     """``model``, or ``model`` grown until its modes reach ``options.tau_min`` on ``shape`` (an
-    automatic mode set on a finite-element plate's model only); the growth, or None.
+    automatic mode set on a plate's model only: a finite-element one or an analytic plate scene's); the
+    growth, or None.
 
     ``say`` hears each step (a solve can take seconds). Raises :class:`ReductionError` when even
     the model grown to the drivable band misses the target, with what it reaches.
     """
     before = reach(model, shape)
-    if options.modes != "auto" or options.tau_min is None or before >= options.tau_min or plate_of(model) is None:
+    ways = _ways_to_grow(model)
+    if options.modes != "auto" or options.tau_min is None or before >= options.tau_min or ways is None:
         return model, None
-    limit = drivable_band(model, options.sample_rate)
+    band_of, grown_to = ways
+    limit = band_of(model, options.sample_rate)
     first = float(model.frequencies.max())
     why = (f"its {model.n_modes} modes below {first:.0f} Hz reach tau {before:.3f} on the shape, below the target "
            f"{options.tau_min:g}")
@@ -85,7 +91,7 @@ def model_for(model: ModalModel, shape: Shape, options: PlanOptions = PlanOption
         band = min(limit, band * GROWTH)
         if say is not None:
             say(f"{why}: solving the plate again to {band:.0f} Hz")
-        bigger = grown(model, band)
+        bigger = grown_to(model, band)
         reached = reach(bigger, shape)
         if reached >= options.tau_min:
             return bigger, Growth(first, float(bigger.frequencies.max()), model.n_modes, bigger.n_modes, before,
@@ -93,3 +99,13 @@ def model_for(model: ModalModel, shape: Shape, options: PlanOptions = PlanOption
     raise ReductionError(f"{why}; grown to {limit:.0f} Hz (the band its patches and the DAC can drive), its "
                          f"{bigger.n_modes} modes reach {reached:.3f}: widen the shape or lower the target "
                          f"(--tau-target)")
+
+
+def _ways_to_grow(model: ModalModel) -> tuple[Callable, Callable] | None:
+    """How ``model`` grows: the band it may reach (Hz; ``f(model, sample_rate)``) and the model with every
+    mode below a band (``f(model, band)``); None when it cannot (a beam, an identified model)."""
+    if plate_of(model) is not None:
+        return drivable_band, grown
+    if analytic_plate_of(model) is not None:
+        return scene_band, grown_scene
+    return None
