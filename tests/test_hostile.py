@@ -247,3 +247,24 @@ def test_the_observer_controllers_run_on_a_noiseless_truth(capsys, tmp_path, con
     code = call([*RUN, "--points", "211", "--loop", "closed", "--controller", controller, "--out", str(tmp_path)])
     assert code == 0, capsys.readouterr().err
     assert json.loads((tmp_path / "metrics.json").read_text())["tau"] > 0.95
+
+
+# -- finite-element grids ----------------------------------------------------------------------------------
+PLATE = ["--shape", "bump", "--param", "width=30mm", "--param", "center=-20mm,5mm", "--focus-time", "25ms"]
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["run", "--scene", "plate-glass-clamped", "--points", "3x3", *PLATE, "--no-plots", "--quiet"],
+     "a 50 mm grid has 9 points, too coarse to tell 21 modes apart"),
+    (["run", "--scene", "panel-rounded", "--points", "1000x2", *PLATE, "--no-plots", "--quiet"],
+     "a 70 mm grid has 6 points, too coarse to tell 45 modes apart"),
+    (["sweep", "--scene", "plate-glass-clamped", "--points", "2x2", *PLATE, "--vary", "drift=0", "--methods", "open",
+      "--workers", "1", "--quiet"], "a 100 mm grid has 4 points, too coarse to tell 21 modes apart"),
+    ([*FE[:-2], "21", "--spacing", "100mm", "--no-plots"], "a 100 mm grid has 4 points, too coarse"),
+])
+def test_a_finite_element_grid_with_fewer_points_than_modes_exits_2_saying_so(capsys, tmp_path, argv, words):
+    """Before: scipy's "A singular matrix detected" (3x3), or "converging 21 modes ... needs a mesh above 400000
+    degrees of freedom: the band is too high" (2x2): the grid, not the band, was too coarse."""
+    out = str(tmp_path / ("plate.npz" if argv[0] == "model" else "out"))
+    assert call([*argv, "--out", out]) == 2
+    assert words in capsys.readouterr().err

@@ -405,7 +405,10 @@ class FEPlate:
         wanted = self._modes_to_solve(n_modes, band, tolerance)
         top = band if band is not None else self.frequency_of_mode(wanted) * 1.2
         size = min(self.wavelength(top) / ELEMENTS_PER_WAVELENGTH, self.outline.diameter / 8)
-        self._lattice(spacing)  # the grid's size checked before any mesh is made
+        nx, ny = self._lattice(spacing)[2:]  # the grid's size checked before any mesh is made; with fewer points
+        if nx * ny < wanted:  # than modes none tells them apart (scipy's singular matrix, or a mesh past DOFS_MAX)
+            raise ModelError(f"fe plate: a {spacing * 1e3:g} mm grid has {nx * ny} points, too coarse to tell "
+                             f"{wanted} modes apart; a finer grid (more --points, or a smaller --spacing)")
         if self.dofs_estimate(size) > DOFS_MAX:
             raise ModelError(f"fe plate: {wanted} modes of this plate need elements of {size * 1e3:.2g} mm, about "
                              f"{self.dofs_estimate(size):,.0f} degrees of freedom on the first mesh; at most {DOFS_MAX}")
