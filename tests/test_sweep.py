@@ -1,6 +1,7 @@
 """Sweeps: executors (local pool, dask.distributed) and ``modalctl sweep`` end to end."""
 
 import json
+from dataclasses import replace
 
 import pytest
 
@@ -83,6 +84,21 @@ def test_sweep_grows_a_finite_element_plate_s_model_as_run_does(capsys, tmp_path
     ran = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert ran["model"]["grown"] and ran["tau"] >= 0.95
     assert swept["tau"] >= 0.95 and swept["tau"] == pytest.approx(ran["tau"], abs=0.005)  # another noise draw
+
+
+def test_sweep_takes_the_target_its_refusals_name(capsys, tmp_path):
+    """A sweep's refusal of a shape no grown model draws says "lower the target (--tau-target)", an option
+    sweep did not have (issue 39): it is run's, at run's default, and a lower one keeps the scene's modes."""
+    from modalctl.experiments.sweep import Case, _model_shape
+
+    case = Case("plate-glass-clamped", "bump", (("width", "30mm"), ("center", "-20mm,5mm")), points=None)
+    counts = {target: _model_shape(case.scene, None, case.shape, case.params,
+                                   replace(case, tau_target=target).options().planned)[0].n_modes
+              for target in (None, 0.97)}
+    assert counts[0.97] == 21 < counts[None]  # 21 modes draw it to 0.977; the default 0.98 grows the model
+    with pytest.raises(SystemExit) as refused:  # checked as run checks it
+        main(["sweep", "--vary", "drift=0", "--tau-target", "2", "--out", str(tmp_path), "--quiet"])
+    assert refused.value.code == 2 and "tau-target must lie in (0, 1], got '2'" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("args, message", [

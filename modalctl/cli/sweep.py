@@ -49,6 +49,9 @@ def add_arguments(p) -> None:
                    help=f"planner plugin ({case.planner}: the sweeps measure the loops on the thesis's plan)")
     p.add_argument("--margin", type=quantity_type("1", "margin", low=0, high=1), default=case.margin,
                    help="transient margin to plan for")
+    p.add_argument("--tau-target", type=number_type(float, "tau-target", low=0, high=1),
+                   help="least tau of the automatic mode set and of a finite-element plate's grown model (0.98), "
+                        "as run's")
     p.add_argument("--voltage-limit", type=voltage_limit,
                    help="largest drive voltage, e.g. 100V, or none; default: the model's actuators' safe voltage, "
                         "as run's")
@@ -126,7 +129,7 @@ def _cases(args, axes: list, methods: list) -> list:
     base = Case(args.scene, args.shape, tuple(args.param) or Case.params, args.focus_time, "open", planner=args.planner,
                 margin=args.margin, points=args.points, control_rate=args.control_rate,
                 sample_rate=args.sample_rate, controller=LoopOptions(controller=args.controller).chosen_controller,
-                voltage_limit=volts, **truth)
+                voltage_limit=volts, tau_target=args.tau_target, **truth)
     get_controller(base.controller)
     return [replace(base, method=m, **dict(zip([f for f, _ in axes], values)))
             for m in methods for values in itertools.product(*[v for _, v in axes])]

@@ -79,6 +79,9 @@ class Case:
     voltage_limit : float or None
         Largest drive voltage the plan may use (V; ``modalctl sweep`` gives the model's actuators' safe
         voltage unless told otherwise, as ``run`` does).
+    tau_target : float or None
+        Least tau of the automatic mode set, and of a finite-element plate's grown model (None: the
+        plan's default, :attr:`~modalctl.options.PlanOptions.tau_min`).
     """
 
     scene: str = "thesis-al-cc"
@@ -101,6 +104,7 @@ class Case:
     authority: float = LoopOptions.authority
     seed: int = 0
     voltage_limit: float | None = None
+    tau_target: float | None = None
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -109,7 +113,8 @@ class Case:
     def options(self) -> RunOptions:
         """The shot's options: the plan's, and the loops' unless open loop."""
         plan = THESIS_PLAN.but(planner=self.planner, modes=self.modes or "auto", margin=self.margin,
-                               sample_rate=self.sample_rate, voltage_limit=self.voltage_limit)
+                               sample_rate=self.sample_rate, voltage_limit=self.voltage_limit,
+                               tau_min=self.tau_target or THESIS_PLAN.tau_min)
         loop = None if self.method == "open" else LoopOptions(
             control_rate=self.control_rate, controller=self.controller, authority=self.authority, latency=self.latency)
         return RunOptions(self.focus_time, plan, loop, LEARNING[self.method])
