@@ -268,3 +268,32 @@ def test_a_finite_element_grid_with_fewer_points_than_modes_exits_2_saying_so(ca
     out = str(tmp_path / ("plate.npz" if argv[0] == "model" else "out"))
     assert call([*argv, "--out", out]) == 2
     assert words in capsys.readouterr().err
+
+
+# -- places off a plate within its bounds ------------------------------------------------------------------
+PANEL = ["run", "--scene", "panel-rounded", "--shape", "bump", "--param", "width=30mm", "--focus-time", "25ms",
+         "--no-plots", "--quiet"]
+
+
+@pytest.mark.parametrize("options, words", [
+    (["--param", "center=0mm,0mm", "--finger-at", "42mm,0mm", "--finger", "1"], "the finger: a touch at [42.0, 0.0] mm"),
+    (["--param", "center=42mm,0mm"], "center: 42 mm, 0 mm lies off the structure: in a hole"),
+    (["--param", "center=0mm,0mm", "--loop", "closed", "--touch-at", "59.5mm,34.5mm"], "a touch at [59.5, 34.5] mm"),
+])
+def test_a_place_in_a_hole_or_past_a_rounded_corner_exits_2(capsys, tmp_path, options, words):
+    """Before: panel-rounded's slot and rounded corners lie within its grid's bounds, on lattice points of no
+    mass where no mode moves: a finger there did nothing (exit 0, 'truth: finger 1 N s/m at 42, 0 mm'), the
+    touch controller sensed nothing, a centre there was planned until its tau failed (exit 1)."""
+    assert call([*PANEL, *options, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "off the structure: in a hole, on its rim or past it" in err
+
+
+def test_a_finger_sliding_over_the_slot_lifts_there_and_lands_past_it():
+    from modalctl.hil.scenario import Perturbation
+
+    model = load_scene("panel-rounded")
+    path = Perturbation(finger=1.0, finger_at=(0.020, 0.0), finger_lands=0.0, finger_slide=1.0).touch_path(model)
+    assert path(0.001) is not None  # at 21 mm
+    assert path(0.022) is None  # at 42 mm: over the slot, no contact (before: ModelError mid-shot)
+    assert path(0.037) is not None  # at 57 mm: past the slot (32-52 mm), on the plate

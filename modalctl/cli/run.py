@@ -217,6 +217,10 @@ def _run(args) -> int:
     started = time.perf_counter()
     stage(args, f"the model ({args.scene or args.model}) and the shape ({args.shape})")
     model, shape = model_and_shape(args)
+    if args.touch_at is not None:  # on the structure, checked before the model grows and the plan is made
+        from modalctl.model.touch import touch_at
+
+        touch_at(model, args.touch_at)
     options = _planned_voltage(args, model, options)
     loaded = time.perf_counter()
     model, growth = _grown(args, model, shape, options)

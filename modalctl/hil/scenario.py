@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from modalctl.model.modes import ModalModel
+from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.shape import Shape
 from modalctl.model.touch import touch_at
 
@@ -175,7 +175,10 @@ class Perturbation:
             held = PRESS_STEP * np.floor((t - lands) / PRESS_STEP)
             at = start.copy()
             at[0] = np.clip(at[0] + self.finger_slide * (t - lands), low[0], high[0])
-            return touch_at(model, at, self.finger + self.finger_press * held)
+            try:
+                return touch_at(model, at, self.finger + self.finger_press * held)
+            except ModelError:  # slid over a hole or a rounded corner: no contact there
+                return None
         return path
 
     def schedule(self):

@@ -71,7 +71,11 @@ def touch_at(model: ModalModel, at, damping: float = 0.0, stiffness: float = 0.0
     if np.any(at < low - 1e-9) or np.any(at > high + 1e-9):
         raise ModelError(f"a touch at {np.round(at * 1e3, 3).tolist()} mm is off the structure "
                          f"({np.round(low * 1e3, 3).tolist()} to {np.round(high * 1e3, 3).tolist()} mm)")
-    return Touch(int(np.argmin(np.linalg.norm(grid.points - at, axis=1))), damping, stiffness, mass)
+    index = int(np.argmin(np.linalg.norm(grid.points - at, axis=1)))
+    if grid.mass[index] <= 0:  # a lattice point in a hole or past a rounded corner: no mode moves it (issue 39)
+        raise ModelError(f"a touch at {np.round(at * 1e3, 3).tolist()} mm is off the structure: in a hole, on its "
+                         f"rim or past it (the nearest grid point carries no mass)")
+    return Touch(index, damping, stiffness, mass)
 
 
 def touched_system(model: ModalModel, touch: Touch | None) -> tuple[np.ndarray, np.ndarray]:

@@ -45,6 +45,9 @@ def _distance(grid: Grid, center, metric: str) -> np.ndarray:
         raise ParamError(f"center: {', '.join(f'{1e3 * c:g} mm' for c in center)} lies off the structure "
                          f"(its grid spans {span})")
     delta = np.abs(grid.points - np.asarray(center))
+    if grid.mass[np.argmin((delta**2).sum(axis=1))] <= 0:  # within the bounds, in a hole or past a rounded corner
+        raise ParamError(f"center: {', '.join(f'{1e3 * c:g} mm' for c in center)} lies off the structure: in a "
+                         "hole, on its rim or past it (the nearest grid point carries no mass)")
     return delta.max(axis=1) if metric == "chebyshev" else np.sqrt((delta**2).sum(axis=1))
 
 
