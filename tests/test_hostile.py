@@ -276,7 +276,7 @@ PANEL = ["run", "--scene", "panel-rounded", "--shape", "bump", "--param", "width
 
 
 @pytest.mark.parametrize("options, words", [
-    (["--param", "center=0mm,0mm", "--finger-at", "42mm,0mm", "--finger", "1"], "the finger: a touch at [42.0, 0.0] mm"),
+    (["--param", "center=0mm,0mm", "--finger-at", "42mm,0mm", "--finger", "1"], "the finger: a touch at [42.0, 0.0]"),
     (["--param", "center=42mm,0mm"], "center: 42 mm, 0 mm lies off the structure: in a hole"),
     (["--param", "center=0mm,0mm", "--loop", "closed", "--touch-at", "59.5mm,34.5mm"], "a touch at [59.5, 34.5] mm"),
 ])
