@@ -85,7 +85,8 @@ def _si(value, unit: str, name: str) -> float:
         return float(value)
     match = _NUMBER.match(str(value))
     if not match:
-        raise UnitError(f"{name}: cannot read {value!r} as a number with unit {unit!r} (example: 18mm)")
+        example = "18mm" if unit == "m" else f"18{next((s for s in table if s), '')}"  # in the option's own unit
+        raise UnitError(f"{name}: cannot read {value!r} as a number with unit {unit!r} (example: {example})")
     number, symbol = float(match.group(1)), match.group(2)
     if symbol == "":
         return number  # a bare number is already SI

@@ -1,3 +1,5 @@
+import re
+
 import pytest
 
 from modalctl.units import UnitError, parse_point, parse_quantity
@@ -17,6 +19,14 @@ def test_bad_units_name_field_and_value(text, unit):
     with pytest.raises(UnitError) as info:
         parse_quantity(text, unit, name="width")
     assert "width" in str(info.value)
+
+
+@pytest.mark.parametrize("unit, example", [("m", "18mm"), ("N s/m", "18N s/m"), ("1/s", "181/s"), ("Hz", "18Hz"),
+                                           ("1", "18%")])
+def test_an_unreadable_number_s_example_is_in_its_own_unit(unit, example):
+    """Issue 39: --finger nan said "(example: 18mm)", a length, for a damping in N s/m."""
+    with pytest.raises(UnitError, match=f"cannot read 'nan' .*\\(example: {re.escape(example)}\\)"):
+        parse_quantity("nan", unit, name="finger")
 
 
 def test_points():
