@@ -374,6 +374,10 @@ class RunOptions(_Options):
             raise ValueError(f"the shot (T_F + after = {self.focus_time + self.plan.after:g} s at "
                              f"{self.plan.sample_rate:g} Hz) is {samples:.3g} samples per channel; at most "
                              f"{SHOT_SAMPLES_MAX:.3g} (1 s at 1 MHz)")
+        if self.loop is not None:  # as the loops' schedule needs it, refused before any plan (issue 39)
+            decimation, fs = round(self.plan.sample_rate / self.loop.control_rate), self.plan.sample_rate
+            if decimation < 1 or abs(decimation - fs / self.loop.control_rate) > 1e-6 * decimation:
+                raise ValueError(f"the control rate {self.loop.control_rate:g} Hz must divide the DAC rate {fs:g} Hz")
         if self.learn is not None and self.learn not in LEARN_FROM:
             raise ValueError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
         if self.learn is not None and self.loop is None:

@@ -297,3 +297,20 @@ def test_a_finger_sliding_over_the_slot_lifts_there_and_lands_past_it():
     assert path(0.001) is not None  # at 21 mm
     assert path(0.022) is None  # at 42 mm: over the slot, no contact (before: ModelError mid-shot)
     assert path(0.037) is not None  # at 57 mm: past the slot (32-52 mm), on the plate
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["sweep", "--vary", "focus-time=10s", "--methods", "open"], "is 5e+06 samples per channel; at most 1e+06"),
+    (["sweep", "--vary", "drift=0", "--methods", "closed", "--control-rate", "7kHz"],
+     "the control rate 7000 Hz must divide the DAC rate 500000 Hz"),
+    ([*RUN, "--loop", "closed", "--control-rate", "7kHz"], "the control rate 7000 Hz must divide the DAC rate 1e+06"),
+    ([*RUN, "--loop", "closed", "--control-rate", "2MHz"], "the control rate 2e+06 Hz must divide the DAC rate"),
+])
+def test_a_shot_s_options_are_refused_before_out_is_claimed_or_a_plan_made(capsys, request, tmp_path, argv, words):
+    """Before: sweep refused these in its first case, leaving run.json in --out; the control rate was checked
+    by the loops' schedule, after the plan (run: before the model too; a sweep reads it for its voltage limit)."""
+    if argv[0] == "run":
+        request.getfixturevalue("no_work")
+    assert call([*argv, "--workers", "1", "--quiet", "--out", str(tmp_path / "out")] if argv[0] == "sweep"
+                else [*argv, "--out", str(tmp_path / "out")]) == 2
+    assert words in capsys.readouterr().err and not (tmp_path / "out").exists()

@@ -151,6 +151,8 @@ def run(args) -> int:
     if unknown:
         raise ParamError(f"unknown method(s) {', '.join(sorted(unknown))}; choose from {', '.join(METHODS)}")
     cases = _cases(args, axes, methods)
+    for case in cases:  # each shot's options checked before --out is claimed (a 10 s focus, a rate not dividing)
+        case.options()
     out = claim(Path(args.out), "sweep", identity(args), args.force, identity_defaults("sweep"))
     executor = executor_for(args.scheduler, args.workers)
     stage(args, f"{len(cases)} cases ({type(executor).__name__})")
