@@ -59,7 +59,9 @@ def test_the_emulated_board_plays_the_simulators_truth(model, nominal, tmp_path,
         assert main([*RUN, "--transport", f"serial://{board.path}", "--out", str(tmp_path / "serial")]) == 0
     sim, serial = _metrics(tmp_path / "sim"), _metrics(tmp_path / "serial")
     assert abs(serial["tau"] - sim["tau"]) < 1e-4
-    assert abs(nominal["tau"] - sim["tau"]) > 1e-2  # the truth mattered
+    # the truth mattered: to the focus, or to the drive (the default controller gives a finger's losses back
+    # with more volts: tau 0.985 against 0.989 untouched, peak voltage 5.4 V against 3.3)
+    assert abs(nominal["tau"] - sim["tau"]) > 1e-2 or abs(sim["peak_voltage"] / nominal["peak_voltage"] - 1) > 0.05
 
 
 def test_open_loop_over_serial_measures_what_sim_measures(model, tmp_path, capsys):
