@@ -69,17 +69,18 @@ def beam() -> dict:
         rows = LocalExecutor().map(run_case, cases, progress=True)
         wall = time.perf_counter() - start
         plot_sweep_maps(rows, ["drift", "finger"], list(METHODS), RESULTS / f"closed_maps{suffix}.png")
-        added = {r["finger"]: r["finger_added_damping_max"] for r in rows}
-        data[suffix or "thesis_plan"] = {"rows": rows, "wall_seconds": wall, "finger_added_damping_max": added}
+        data[suffix or "thesis_plan"] = {"rows": rows, "wall_seconds": wall, "finger_added_damping_max": _added(rows)}
         title = ("The thesis's plan (envelopes at kappa = 1, no margin)" if not plan else
                  f"Under the {THESIS_MARGIN:g} margin (convex planner; a closed loop plans with headroom)")
         data[suffix or "thesis_plan"]["markdown"] = _section(
-            f"thesis-al-cc, sinc 18 mm at 24 mm, T_F 25 ms, damping +20%: {title}", f"closed_maps{suffix}.png", rows, wall)
+            f"thesis-al-cc, sinc 18 mm at 24 mm, T_F 25 ms, damping +20%: {title}", f"closed_maps{suffix}.png",
+            rows, wall)
     return data
 
 
 def plates() -> dict:
-    """finger.py's plate and panel cases, as ``run`` plans them (convex, 0.5 margin), open and the default closed loop."""
+    """finger.py's plate and panel cases, as ``run`` plans them (convex, 0.5 margin), open and the default
+    closed loop."""
     data = {}
     for label in PLATE_CASES:
         scene, shape, params = CASES[label]
@@ -91,20 +92,24 @@ def plates() -> dict:
         wall = time.perf_counter() - start
         picture = f"closed_maps_{scene}.png"
         plot_sweep_maps(rows, ["drift", "finger"], list(PLATE_METHODS), RESULTS / picture)
-        added = {r["finger"]: r["finger_added_damping_max"] for r in rows}
-        data[label] = {"rows": rows, "wall_seconds": wall, "finger_added_damping_max": added, "markdown": _section(
-            f"{scene}, {label}, T_F 25 ms: under the {THESIS_MARGIN:g} margin, the default closed loop", picture, rows,
-            wall)}
+        title = f"{scene}, {label}, T_F 25 ms: under the {THESIS_MARGIN:g} margin, the default closed loop"
+        data[label] = {"rows": rows, "wall_seconds": wall, "finger_added_damping_max": _added(rows),
+                       "markdown": _section(title, picture, rows, wall)}
     return data
 
 
 def _section(title: str, picture: str, rows: list, wall: float) -> list[str]:
     """A part's markdown: its title, picture, the finger's strength and the table of tau (margin)."""
-    added = {r["finger"]: r["finger_added_damping_max"] for r in rows}
+    added = _added(rows)
     return ["", f"## {title}", "", f"Picture: `{picture}`. Finger on the target's peak: the largest added damping "
             "of a kept mode, relative to its own, is " + ", ".join(f"{f:g} N s/m: x{1 + a:.1f}"
                                                                       for f, a in sorted(added.items())) + ".", "",
             sweep_table(rows, ["drift", "finger"]), f"{len(rows)} cases in {wall:.0f} s on the local process pool."]
+
+
+def _added(rows: list) -> dict:
+    """The largest damping a finger adds to a kept mode, relative to its own, per finger (N s/m)."""
+    return {r["finger"]: r["finger_added_damping_max"] for r in rows}
 
 
 if __name__ == "__main__":

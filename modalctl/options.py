@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions", "PlanOptions",
-           "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM"]
+           "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM", "decimation"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
@@ -375,9 +375,7 @@ class RunOptions(_Options):
                              f"{self.plan.sample_rate:g} Hz) is {samples:.3g} samples per channel; at most "
                              f"{SHOT_SAMPLES_MAX:.3g} (1 s at 1 MHz)")
         if self.loop is not None:  # as the loops' schedule needs it, refused before any plan (issue 39)
-            decimation, fs = round(self.plan.sample_rate / self.loop.control_rate), self.plan.sample_rate
-            if decimation < 1 or abs(decimation - fs / self.loop.control_rate) > 1e-6 * decimation:
-                raise ValueError(f"the control rate {self.loop.control_rate:g} Hz must divide the DAC rate {fs:g} Hz")
+            decimation(self.plan.sample_rate, self.loop.control_rate)
         if self.learn is not None and self.learn not in LEARN_FROM:
             raise ValueError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
         if self.learn is not None and self.loop is None:
@@ -421,3 +419,11 @@ class SurveyOptions(_Options):
     orthogonalize: bool = True
     threshold_db: float = 3.0
     weak_drive: float = 0.1
+
+
+def decimation(sample_rate: float, control_rate: float) -> int:
+    """DAC samples per control period; ValueError unless ``control_rate`` (Hz) divides ``sample_rate`` (Hz)."""
+    samples = int(round(sample_rate / control_rate))
+    if samples < 1 or abs(samples - sample_rate / control_rate) > 1e-6 * samples:
+        raise ValueError(f"the control rate {control_rate:g} Hz must divide the DAC rate {sample_rate:g} Hz")
+    return samples

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from modalctl.model.propagate import Plant
+from modalctl.options import decimation as samples_per_period
 
 from .lockin import LockIn, Oscillators
 
@@ -98,9 +99,7 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
         Lock-in corners per kept mode (Hz).
     """
     fs = plan.sample_rate
-    decimation = int(round(fs / control_rate))
-    if decimation < 1 or abs(decimation - fs / control_rate) > 1e-6 * decimation:
-        raise ValueError(f"the control rate {control_rate:g} Hz must divide the DAC rate {fs:g} Hz")
+    decimation = samples_per_period(fs, control_rate)
     n = plan.times.size // decimation
     t = plan.times[:n * decimation]
     own = plan.drive.forces(t + 0.5 / fs)  # (k, N) the kept modes' own forces, held as the DAC holds them

@@ -278,9 +278,7 @@ def analytic_plate_of(model: ModalModel) -> Plate | None:
 def scene_band(model: ModalModel, sample_rate: float) -> float:
     """The highest frequency (Hz) a drive of an analytic plate scene can usefully reach
     (:func:`~.fe_models.patch_band`, its smallest patch's side); ModelError for another model."""
-    plate = analytic_plate_of(model)
-    if plate is None:
-        raise ModelError("this model is not an analytic plate scene's: it cannot grow")
+    plate = _plate_scene(model)
     sides = [min(np.ptp(a["xlim_m"]), np.ptp(a["ylim_m"])) for a in model.meta.get("actuators", [])]
     return patch_band(plate.rigidity, plate.mass_per_area, min(sides, default=min(plate.a, plate.b)), sample_rate)
 
@@ -289,14 +287,20 @@ def grown_scene(model: ModalModel, band: float) -> ModalModel:
     """An analytic plate scene's model with every mode of its plate below ``band`` (Hz), on the same
     grid: the scene built with more modes (the plate's are exact at any band; the grid is not asked
     to draw them, as for a richer truth). ModelError for another model."""
+    plate = _plate_scene(model)
+    count = model.n_modes
+    while (frequencies := plate.frequencies(plate.mode_indices(count)))[-1] < band and count < MODES_MAX:
+        count = min(2 * count, MODES_MAX)  # enough of the plate's modes to pass the band
+    below = int(np.count_nonzero(frequencies < band))
+    return load_scene(str(model.meta["name"]), model.grid.shape or model.grid.n, modes=max(below, model.n_modes))
+
+
+def _plate_scene(model: ModalModel) -> Plate:
+    """:func:`analytic_plate_of`, ModelError where there is none: the model cannot grow."""
     plate = analytic_plate_of(model)
     if plate is None:
         raise ModelError("this model is not an analytic plate scene's: it cannot grow")
-    count = model.n_modes
-    while count < MODES_MAX and plate.frequencies(plate.mode_indices(count))[-1] < band:
-        count = min(2 * count, MODES_MAX)
-    below = int(np.count_nonzero(plate.frequencies(plate.mode_indices(count)) < band))
-    return load_scene(str(model.meta["name"]), model.grid.shape or model.grid.n, modes=max(below, model.n_modes))
+    return plate
 
 
 def resolved_modes(model: ModalModel, tolerance: float = None) -> int:
