@@ -314,3 +314,13 @@ def test_a_shot_s_options_are_refused_before_out_is_claimed_or_a_plan_made(capsy
     assert call([*argv, "--workers", "1", "--quiet", "--out", str(tmp_path / "out")] if argv[0] == "sweep"
                 else [*argv, "--out", str(tmp_path / "out")]) == 2
     assert words in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
+def test_a_sample_rate_below_the_kept_modes_nyquist_is_bad_input(capsys, tmp_path):
+    """Before: ``--sample-rate 1Hz`` exited 1 ("no plan", a target the structure cannot meet) with the voltage
+    limit's note appended; the option itself cannot serve the scene: exit 2, naming the rate it needs (twice
+    the highest kept mode of the beam's sinc: its 14355 Hz mode)."""
+    assert call([*RUN, "--sample-rate", "1Hz", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "sample rate 1 Hz is below twice the highest kept mode" in err and "give --sample-rate above" in err
+    assert "voltage" not in err

@@ -293,8 +293,9 @@ def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptio
     if not focus_time > 0:
         raise PlanError(f"focus time must be positive, got {focus_time!r} s")
     top = np.max(dec.model.frequencies[dec.modes_used])
-    if not options.sample_rate > 2 * top:
-        raise PlanError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz)")
+    if not options.sample_rate > 2 * top:  # an option that cannot serve the scene: bad input, not a target missed
+        raise ValueError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz): "
+                         f"give --sample-rate above {2 * top:g} Hz")
     planner = pick("planner", options.planner)
     start = _time.perf_counter()
     with serial_blas():  # many small products (modalctl.threads)
