@@ -17,6 +17,10 @@ that the drive and the response meet in the lock-in's frame; and the residuals i
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
 the estimator reads the departure from the plan. It learns from every period and is read every
 :data:`READ_EVERY` (0.2 ms: a quarter of the periods at 20 kHz), its solve being the update's costliest step.
+A touch that lifts is told every period from the estimate's shortest memory against its longest, against
+their observed fluctuations (:mod:`~modalctl.loops.touch_lift`): the give-back stops and what was given
+since the lift is taken back, where the estimate alone falls 2-5 ms late (the lock-in's lag and the
+memories) and the give-back meanwhile pumps the modes no longer damped.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from .design import lockin_filter
 from .lockin import hold_gain
 from .schedule import HOLD
 from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
+from .touch_lift import LiftRelease
 
 __all__ = ["TouchControl", "CommandFilter", "learned_from", "LEAK_MAX"]
 
@@ -116,6 +121,9 @@ class TouchControl(Controller):
         The per-mode feedback (PI by default).
     memories : sequence of float
         The estimator's forgetting times (s, shortest first).
+    lifts : bool
+        Whether a lift told from the estimate stops the give-back and takes back what was given since
+        (:mod:`modalctl.loops.touch_lift`); False: the give-back follows the estimate alone.
 
     Notes
     -----
@@ -134,7 +142,7 @@ class TouchControl(Controller):
 
     observes = True
 
-    def __init__(self, plant: LoopPlant, inner: Controller, memories=MEMORIES):
+    def __init__(self, plant: LoopPlant, inner: Controller, memories=MEMORIES, lifts: bool = True):
         s = plant.schedule
         if s is None or s.velocity is None or plant.shapes is None:
             raise ValueError("the touch controller needs the shot's schedule (with its planned velocities) and the "
@@ -151,6 +159,10 @@ class TouchControl(Controller):
             plant.control_rate, memories, plant.touch_at)
         self.filter = None if self.estimator is None else CommandFilter(np.asarray(plant.bandwidths)[use],
                                                                         plant.control_rate)
+        decay = np.exp(-2 * np.pi * np.asarray(plant.frequencies, float) * np.asarray(plant.damping, float)
+                       / plant.control_rate)
+        self.lift = None if self.estimator is None or not lifts else \
+            LiftRelease(decay, plant.control_rate, np.asarray(plant.bandwidths)[use])
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
         self.residues = velocity_residues(plant.frequencies, plant.damping)
         omega = 2 * np.pi * np.asarray(plant.frequencies, float)
@@ -175,6 +187,8 @@ class TouchControl(Controller):
         if self.estimator is not None:
             self.estimator.reset()
             self.filter.reset()
+        if self.lift is not None:
+            self.lift.reset()
         self._sent = deque([np.zeros(self.learned.size, complex)] * (self.lead - 1))  # commands on their way
         self._pattern = (None, None)  # (grid index, q over every kept mode there)
         self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
@@ -206,6 +220,8 @@ class TouchControl(Controller):
         if period - self._read_at >= self._read_every:  # solved at its own, slower rate (a lost period delays
             self._estimate, self._read_at = self.estimator.estimate, period  # the next reading by no more)
         self.history.append(self._estimate)
+        if self.lift is not None:  # every period: a lift told a period earlier is a tenth less of the margin
+            self.lift.observe(period, *self.estimator.dampings(), self._estimate.sure > 0)
 
     def _skip(self, periods: int, held: np.ndarray) -> None:
         """``periods`` periods without a reading: the runtime held its command ``held`` through them,
@@ -225,18 +241,21 @@ class TouchControl(Controller):
         if self.period % RETUNE == 0:
             self._retune()
         estimate = self._estimate
-        if not estimate.sure > 0 and self._shared == 0.0:  # nothing sure: the inner controller's command
-            return feedback
+        lifting = self.lift is not None and self.lift.active(self.period)
+        if not estimate.sure > 0 and self._shared == 0.0 and not lifting:  # nothing sure: the inner controller's
+            return feedback  # command
         if not np.count_nonzero(limit):  # no loop has authority (a shot played open through the loops):
             return feedback  # nothing given back either
         # to every mode, a resting loop's too: the give-back is a feed-forward on the planned motion, and
         # not bounded by the authority, which bounds the feedback (a finger of 1 N s/m takes five times
         # a mode's planned drive at the focus; only to loops with authority: plate-glass's landing finger
         # given back 80 -> 77%, the panel's 76 -> 72%)
-        give = self._detuned if not estimate.sure > 0 else \
-            estimate.sure * self._pattern_at(estimate.index) + self._detuned
         rows = self._give_rows
-        given = give * rows[min(self.period + self.lead, rows.shape[0] - 1)]
+        row = rows[min(self.period + self.lead, rows.shape[0] - 1)]
+        touch = estimate.sure * self._pattern_at(estimate.index) * row if estimate.sure > 0 else self._nothing
+        if self.lift is not None:  # stopped by a lift, and what was given since taken back
+            touch = self.lift.given(self.period, touch)
+        given = touch + self._detuned * row
         if self.inner.observes:
             self._checked = given * self._learned_mask
         return feedback + given
@@ -264,17 +283,23 @@ class TouchControl(Controller):
         return self._pattern[1]
 
     def summary(self) -> dict | None:
-        """The touch as estimated at the end of the shot, and the estimate as held each period (read
-        every :data:`READ_EVERY`)."""
+        """The touch as estimated at the end of the shot, the estimate as held each period (read every
+        :data:`READ_EVERY`), the damping given back each period, and the lifts told (when, and the
+        period each was dated to, in s)."""
         if not self.history:
             return None
         e = self.estimator.estimate
         damping, stderr, sure, fit, memory = (np.array([getattr(h, name) for h in self.history])
                                               for name in ("damping", "stderr", "sure", "fit", "memory"))
         sensed = np.flatnonzero(sure > 0)
+        lifts = [] if self.lift is None else self.lift.lifts
+        given = sure.copy()  # the damping given back: none while a lift told holds it
+        for told, _ in lifts:
+            given[told:told + self.lift.hold + 1] = 0.0
         return {"damping_n_s_per_m": e.damping, "stderr_n_s_per_m": e.stderr if np.isfinite(e.stderr) else None,
                 "sure_n_s_per_m": e.sure, "sensed": e.sensed,
                 "at_m": None if e.index is None or self.points is None else self.points[e.index].tolist(),
                 "first_sensed_s": None if not sensed.size else float((sensed[0] + 1) / self.rate),
                 "damping_per_period": damping.tolist(), "sure_per_period": sure.tolist(), "fit_per_period": fit.tolist(),
-                "memory_per_period_s": memory.tolist()}
+                "memory_per_period_s": memory.tolist(), "given_per_period": given.tolist(),
+                "lifts_s": [[told / self.rate, dated / self.rate] for told, dated in lifts]}

@@ -292,6 +292,15 @@ class TouchEstimator:
         sure = c - SURE * errors[j] if trusted else 0.0
         return TouchEstimate(c, errors[j], index, max(0.0, sure), fit, memory)
 
+    def dampings(self) -> tuple[float, float]:
+        """The damping at the place last found (N s/m) on the shortest and on the longest memory, from the
+        sums so far (nan before a place, or where a memory has no data): what a lift is told from
+        (:mod:`modalctl.loops.touch_lift`); no search, a product of the sums with the place's weights."""
+        if self._place is None:
+            return math.nan, math.nan
+        nums, dens = self._at(self._place)[:2]
+        return tuple(-n / d if d > 0 else math.nan for n, d in ((nums[0], dens[0]), (nums[-1], dens[-1])))
+
     def _at(self, place) -> tuple[list, list, list, list]:
         """Per memory at ``place``: the sums against its pattern (``sum_k q_k Re(h_k* e_k)``,
         ``sum_k q_k^2 |h_k|^2``), the residual energy ``sum_k |e_k|^2`` and the weighted count of
