@@ -18,7 +18,7 @@ from modalctl.options import ConvexOptions
 
 from .drive import BumpFamily, HatFamily, SplineDrive, hann, hat
 
-__all__ = ["Basis", "Responses", "Cover"]
+__all__ = ["Basis", "Responses", "Cover", "hat_spacing"]
 
 LEAF = 16  # points in a cover's smallest boxes at most: where the bound is not enough, their field, exactly
 SPLITS = 3  # halvings from a box to its children (eight children)
@@ -26,6 +26,21 @@ CHUNK = 4096  # samples of the field's bound at once (its memory: the boxes' few
 SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |phi_k(x_i)| |eta'_k|
 STRIDE = 32  # lags between the states a response table keeps, at least
 TABLE_BYTES = 2**27  # a response table's states, at most (the stride doubles until they fit)
+
+
+def hat_spacing(hat: float, band: float) -> float:
+    """The hats' spacing (s): ``hat``, or the Nyquist interval ``1 / (2 band)`` of the model's highest
+    mode (``band``, Hz) when that is longer.
+
+    Hats spaced ``h`` apart are the straight-line interpolation of voltage samples every ``h``: they
+    carry a drive up to ``1 / (2 h)`` and, finer than the model's band needs, put their content where
+    the model holds no mode and cannot say what it excites. On plate-glass (21 modes up to 12.0 kHz,
+    its 30 mm Gaussian at (20, 10) mm, the default closed loop's plan, 40 dB, four noise seeds) the
+    default 20 us hats measured margin 0.479 on the model's own truth and **0.873** on a truth with
+    twice its modes (modes 38 and 40, 20.3-20.4 kHz, rung at the focus; `benchmarks/spillover.py`),
+    the hats at its Nyquist interval (41.8 us) 0.492 and 0.501; the beam (96.6 kHz) and the panel
+    grown to 25 kHz keep 20 us."""
+    return max(float(hat), 1 / (2 * band)) if band > 0 else float(hat)
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,9 +68,11 @@ class Basis:
     scale: np.ndarray
 
     @classmethod
-    def build(cls, omega, weights, samples: int, focus: int, sample_rate: float, options: ConvexOptions) -> Basis:
+    def build(cls, omega, weights, samples: int, focus: int, sample_rate: float, options: ConvexOptions,
+              band: float = np.inf) -> Basis:
         """Bumps every ``early`` until ``late_window`` before T_F (sample ``focus``) and every
-        ``late`` after, from the shot's first sample; hats every ``hat`` around T_F."""
+        ``late`` after, from the shot's first sample; hats every ``hat`` around T_F, or every
+        ``1 / (2 band)`` when that is longer (:func:`hat_spacing`; ``band``: the model's highest mode, Hz)."""
         def span(spacing):
             return max(2, int(round(spacing * sample_rate)))
 
@@ -66,7 +83,7 @@ class Basis:
             families.append(BumpFamily(np.arange(0, late_start, early), 2 * early))
         first = max(0, late_start - late)
         families.append(BumpFamily(np.arange(first, samples, late), 2 * late))
-        half = max(2, int(round(options.hat * sample_rate)))
+        half = max(2, int(round(hat_spacing(options.hat, band) * sample_rate)))
         start = max(0, focus - int(round(options.hat_before * sample_rate)) - (half - 1))
         stop = min(samples, focus + int(round(options.hat_after * sample_rate)))
         hats = HatFamily(np.arange(start, stop, half), half) if stop > start else None

@@ -121,7 +121,8 @@ class Program:
         self.samples = int(round((focus_time + options.after) * self.fs))
         self.focus = int(round(focus_time * self.fs))
         weights = dispatch(model, self.modes, np.ones(self.modes.size))
-        self.basis = Basis.build(model.omega[self.modes], weights, self.samples, self.focus, self.fs, options.convex)
+        self.basis = Basis.build(model.omega[self.modes], weights, self.samples, self.focus, self.fs, options.convex,
+                                 band=float(model.frequencies.max()))
         self.outside = np.flatnonzero(~np.asarray(target_mask, bool))
         self.cover = Cover(model.shapes[:, self.outside], model.grid.points[self.outside])
         velocity = np.zeros(model.n_modes)
