@@ -318,6 +318,7 @@ def test_the_drive_stays_within_the_model_s_band():
     model = load_scene("plate-glass")
     top = float(model.frequencies.max())
     assert hat_spacing(20e-6, top) == pytest.approx(1 / (2 * top)) and hat_spacing(20e-6, 96.6e3) == 20e-6
+    assert hat_spacing(20e-6, 19.9e3) == 20e-6  # within 1.5x of the band (the tablet panel's): kept
     gaussian = get_shape("gaussian")
     target = gaussian.generate(model.grid, **params(gaussian, {"width": "30mm", "center": "20mm,10mm"}))
     options = RunOptions(TF, PlanOptions(), LoopOptions()).planned

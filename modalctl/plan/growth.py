@@ -19,7 +19,7 @@ measured margin 0.88 (modes at 20.3-20.4 kHz rang at the focus). Grown to 25 kHz
 three noise seeds: untouched 0.472 on its own truth, 0.488 on one with twice its modes; a finger
 landing at 20 ms given back 119%, margin 0.487 / 0.494 (the 21 modes with hats coarsened to their
 band instead, :func:`modalctl.plan.convex_basis.hat_spacing`: 64%, 0.556 / 0.587). A model that
-cannot grow keeps its hats within its band that way.
+cannot grow, or would grow past :data:`DRIVE_MODES_MAX` modes, keeps its hats within its band that way.
 """
 
 from __future__ import annotations
@@ -37,11 +37,17 @@ from modalctl.model.projection import project
 from modalctl.model.shape import Shape
 from modalctl.options import PlanOptions
 
+from .convex_basis import hat_spacing
 from .reduction import ReductionError
 
-__all__ = ["Growth", "model_for", "reach", "drive_band", "GROWTH"]
+__all__ = ["Growth", "model_for", "reach", "drive_band", "GROWTH", "DRIVE_MODES_MAX"]
 
 GROWTH = 1.5  # each step's band over the last's: about 1.5x the modes (Weyl: count grows with the band)
+# The most modes a model grows to for its drive's band: past it the hats are coarsened to the model's band
+# instead where they reach far past it (hat_spacing). The tablet panel (254 modes to 19.9 kHz) would grow
+# to about 320 for 25 kHz, and its 30 mm bump's command ran past 5 minutes instead of 56 s; plate-glass (21
+# to 12.0 kHz) grows to 48, panel-rounded (22 to 11.8 kHz) to 53, in about a second once solved.
+DRIVE_MODES_MAX = 128
 
 
 @dataclass(frozen=True)
@@ -102,6 +108,15 @@ def model_for(model: ModalModel, shape: Shape, options: PlanOptions = PlanOption
     drive = min(drive_band(options), limit)
     top = float(bigger.frequencies.max())
     if top >= drive * (1 - 1e-6):
+        return bigger, growth
+    if bigger.n_modes * drive / top > DRIVE_MODES_MAX:  # a plate's modes grow with the band (Weyl)
+        if say is not None:
+            spacing = hat_spacing(options.convex.hat, top)
+            say(f"its {bigger.n_modes} modes stop at {top:.0f} Hz, below the {drive:.0f} Hz the plan's drive would "
+                f"reach: about {bigger.n_modes * drive / top:.0f} modes to grow to, more than {DRIVE_MODES_MAX}; "
+                + (f"the plan's hats are spaced {spacing * 1e6:.1f} us instead (its band's Nyquist interval)"
+                   if spacing > options.convex.hat else "not grown (within 1.5x of its band, the drive's hats "
+                   "put little above it)"))
         return bigger, growth
     why = (f"its {bigger.n_modes} modes stop at {top:.0f} Hz, and the plan's drive reaches {drive:.0f} Hz (its hats "
            f"every {options.convex.hat * 1e6:g} us near T_F): modes the margin would not see")
