@@ -137,37 +137,3 @@ def test_an_analytic_plate_scene_grows_with_its_plate_s_exact_modes_and_a_beam_d
     sinc = shape(beam, "sinc", width="4mm")
     assert reach(beam, sinc) < 0.98  # below the default target, and still the beam's own modes
     assert model_for(beam, sinc, PlanOptions())[1] is None
-
-
-def test_a_plate_s_model_grows_to_the_band_the_convex_plan_s_drive_reaches():
-    """plate-glass's 21 modes (to 12.0 kHz) draw its 30 mm Gaussian at (20, 10) mm past the 0.98 target,
-    but the convex plan's hats near T_F, 20 us apart, carry the drive to their Nyquist frequency, 25 kHz:
-    the model grows to every mode of its plate below that (the plate's next mode lies above it), and says
-    why. The envelope planner's drive is the kept modes' carriers: no growth; nor of a beam, whose model
-    reaches 96.6 kHz."""
-    from modalctl.model.scenes import load_scene
-    from modalctl.model.shape import parse_params
-    from modalctl.plan.growth import drive_band
-    from modalctl.plugin.manager import get_shape
-
-    model = load_scene("plate-glass")
-    gaussian = get_shape("gaussian")
-    target = gaussian.generate(model.grid, **parse_params(gaussian, {"width": "30mm", "center": "20mm,10mm"}))
-    assert reach(model, target) >= 0.98 and model.frequencies.max() < 12.5e3
-    assert drive_band(PlanOptions()) == pytest.approx(25e3)
-    bigger, growth = model_for(model, target, PlanOptions())
-    assert growth is not None and "hats every 20 us" in growth.reason and growth.tau_before >= 0.98
-    assert bigger.frequencies.max() < 25e3 < load_scene("plate-glass", modes=bigger.n_modes + 1).frequencies.max()
-    np.testing.assert_array_equal(bigger.frequencies[:model.n_modes], model.frequencies)
-    assert drive_band(PlanOptions(planner="envelope")) == 0.0
-    assert model_for(model, target, PlanOptions(planner="envelope"))[1] is None
-    beam = load_scene("thesis-al-cc")
-    assert model_for(beam, _beam_sinc(beam), PlanOptions())[1] is None
-
-
-def _beam_sinc(beam):
-    from modalctl.model.shape import parse_params
-    from modalctl.plugin.manager import get_shape
-
-    sinc = get_shape("sinc")
-    return sinc.generate(beam.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
