@@ -61,8 +61,8 @@ class ConvexOptions(_Options):
         How long before T_F the late bumps start (s).
     hat : float
         Spacing of every channel's hats (triangles twice as wide) near T_F (s): the fast turn of
-        the envelopes there, which the margin needs; never finer than the Nyquist interval of the
-        model's highest mode (:func:`modalctl.plan.convex_basis.hat_spacing`).
+        the envelopes there, which the margin needs; the Nyquist interval of the model's highest mode
+        instead where ``hat`` is over 1.5 times finer (:func:`modalctl.plan.convex_basis.hat_spacing`).
     hat_before, hat_after : float
         The hats' window around T_F (s).
     aim : float
