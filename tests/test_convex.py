@@ -310,7 +310,6 @@ def test_the_drive_stays_within_the_model_s_band():
     with the 20 us hats a fortieth of the drive's energy lay above 1.5 times the highest mode (2.6e-2;
     a truth with twice the modes measured margin 0.87 there), at the Nyquist interval 2.8e-4. The
     energy is the exact voltages' spectrum over the whole shot, computed here with numpy's FFT."""
-    from modalctl.model.shape import parse_params as params
     from modalctl.options import LoopOptions, RunOptions
     from modalctl.plan.convex_basis import hat_spacing
     from modalctl.plan.planner import plan_shot
@@ -320,7 +319,7 @@ def test_the_drive_stays_within_the_model_s_band():
     assert hat_spacing(20e-6, top) == pytest.approx(1 / (2 * top)) and hat_spacing(20e-6, 96.6e3) == 20e-6
     assert hat_spacing(20e-6, 19.9e3) == 20e-6  # within 1.5x of the band (the tablet panel's): kept
     gaussian = get_shape("gaussian")
-    target = gaussian.generate(model.grid, **params(gaussian, {"width": "30mm", "center": "20mm,10mm"}))
+    target = gaussian.generate(model.grid, **parse_params(gaussian, {"width": "30mm", "center": "20mm,10mm"}))
     options = RunOptions(TF, PlanOptions(), LoopOptions()).planned
     _, made = plan_shot(model, target, TF, options)
     volts = made.voltages()
