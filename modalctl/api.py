@@ -32,6 +32,7 @@ marks abstract:
 
 from __future__ import annotations
 
+from modalctl.errors import InputError
 from modalctl.identify.estimators import Identifier, Modes
 from modalctl.identify.frf import FRF
 from modalctl.identify.trackers import TrackerFactory
@@ -62,7 +63,7 @@ __all__ = [
     "Controller", "LoopPlant", "LoopDesign", "Identifier", "Modes", "FRF", "TrackerFactory", "Device",
     "DeviceContext", "Capabilities", "Capture",
     # errors
-    "ModelError", "ParamError", "PlanError", "DeviceError", "PluginError",
+    "InputError", "ModelError", "ParamError", "PlanError", "DeviceError", "PluginError",
     "plugin_manager",
 ]
 

@@ -6,7 +6,9 @@ planner, :class:`LoopOptions` for the per-mode loops, :class:`RunOptions` for a 
 takes its defaults from these classes, so a default is written once. Each field says its unit (SI)
 and, where a default was chosen by a measurement, which one.
 
-A foundation module: it imports nothing of modalctl, and every layer may import it.
+Every check of an option raises :class:`~modalctl.errors.InputError` (exit code 2 on the command line).
+A foundation module: it imports nothing of modalctl but :mod:`modalctl.errors`, and every layer may
+import it.
 """
 
 from __future__ import annotations
@@ -14,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
+
+from modalctl.errors import InputError
 
 __all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions", "PlanOptions",
            "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM", "decimation"]
@@ -130,13 +134,13 @@ class ConvexOptions(_Options):
 
     def __post_init__(self):
         if self.reference not in (None, "envelope"):
-            raise ValueError(f"reference must be None or 'envelope', got {self.reference!r}")
+            raise InputError(f"reference must be None or 'envelope', got {self.reference!r}")
         if self.rows_per_round is not None and self.rows_per_round < 1:
-            raise ValueError(f"rows_per_round must be None or at least 1, got {self.rows_per_round!r}")
+            raise InputError(f"rows_per_round must be None or at least 1, got {self.rows_per_round!r}")
         for name in ("certify_seconds", "attempts_seconds"):
             value = getattr(self, name)
             if value is not None and not value >= 0:
-                raise ValueError(f"{name} must be None or zero or more, got {value!r}")
+                raise InputError(f"{name} must be None or zero or more, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -216,11 +220,11 @@ class PlanOptions(_Options):
 
     def __post_init__(self):
         if not 0 <= self.robust_drift <= ROBUST_DRIFT_MAX:
-            raise ValueError(f"robust_drift must lie in [0, {ROBUST_DRIFT_MAX:g}], got {self.robust_drift!r}")
+            raise InputError(f"robust_drift must lie in [0, {ROBUST_DRIFT_MAX:g}], got {self.robust_drift!r}")
         if self.margin_on not in ("whole", "kept"):
-            raise ValueError(f"margin_on must be 'whole' or 'kept', got {self.margin_on!r}")
+            raise InputError(f"margin_on must be 'whole' or 'kept', got {self.margin_on!r}")
         if self.margin is not None and not 0 < self.margin <= 1:
-            raise ValueError(f"margin must lie in (0, 1], got {self.margin!r}")
+            raise InputError(f"margin must lie in (0, 1], got {self.margin!r}")
 
 
 #: The thesis's open-loop method: envelopes at kappa = 1 reaching their targets at T_F, no margin.
@@ -317,11 +321,11 @@ class LoopOptions(_Options):
 
     def __post_init__(self):
         if not self.control_rate > 0:
-            raise ValueError(f"control_rate must be positive, got {self.control_rate!r} Hz")
+            raise InputError(f"control_rate must be positive, got {self.control_rate!r} Hz")
         if self.authority < 0 or self.latency < 0 or self.watchdog < 1:
-            raise ValueError("authority and latency must be zero or more, watchdog at least one period")
+            raise InputError("authority and latency must be zero or more, watchdog at least one period")
         if not 0 <= self.margin_headroom < 1 or self.margin_drift < 0:
-            raise ValueError("margin_headroom must lie in [0, 1) and margin_drift be zero or more")
+            raise InputError("margin_headroom must lie in [0, 1) and margin_drift be zero or more")
 
 
 
@@ -369,18 +373,18 @@ class RunOptions(_Options):
 
     def __post_init__(self):
         if not self.focus_time > 0:
-            raise ValueError(f"focus time must be positive, got {self.focus_time!r} s")
+            raise InputError(f"focus time must be positive, got {self.focus_time!r} s")
         samples = (self.focus_time + self.plan.after) * self.plan.sample_rate
         if samples > SHOT_SAMPLES_MAX:
-            raise ValueError(f"the shot (T_F + after = {self.focus_time + self.plan.after:g} s at "
+            raise InputError(f"the shot (T_F + after = {self.focus_time + self.plan.after:g} s at "
                              f"{self.plan.sample_rate:g} Hz) is {samples:.3g} samples per channel; at most "
                              f"{SHOT_SAMPLES_MAX:.3g} (1 s at 1 MHz)")
         if self.loop is not None:  # as the loops' schedule needs it, refused before any plan (issue 39)
             decimation(self.plan.sample_rate, self.loop.control_rate)
         if self.learn is not None and self.learn not in LEARN_FROM:
-            raise ValueError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
+            raise InputError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
         if self.learn is not None and self.loop is None:
-            raise ValueError("a learning shot runs closed loop: give the loop's options too")
+            raise InputError("a learning shot runs closed loop: give the loop's options too")
 
     @property
     def closed(self) -> bool:
@@ -423,8 +427,8 @@ class SurveyOptions(_Options):
 
 
 def decimation(sample_rate: float, control_rate: float) -> int:
-    """DAC samples per control period; ValueError unless ``control_rate`` (Hz) divides ``sample_rate`` (Hz)."""
+    """DAC samples per control period; InputError unless ``control_rate`` (Hz) divides ``sample_rate`` (Hz)."""
     samples = int(round(sample_rate / control_rate))
     if samples < 1 or abs(samples - sample_rate / control_rate) > 1e-6 * samples:
-        raise ValueError(f"the control rate {control_rate:g} Hz must divide the DAC rate {sample_rate:g} Hz")
+        raise InputError(f"the control rate {control_rate:g} Hz must divide the DAC rate {sample_rate:g} Hz")
     return samples

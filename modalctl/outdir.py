@@ -10,7 +10,7 @@ planted under that name is replaced, never followed; a write the disk refuses (f
 is an :class:`OutDirError` naming the file. :func:`check_writable` refuses, before any work, a path
 results cannot be written to: a device, the kernel's files (``/proc``, ``/sys``), a read-only or
 unwritable folder, a file where a folder is needed. A foundation module: it imports nothing of
-modalctl.
+modalctl but :mod:`modalctl.errors`.
 """
 
 from __future__ import annotations
@@ -22,6 +22,8 @@ import secrets
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
+
+from modalctl.errors import InputError
 
 __all__ = ["OutDirError", "claim", "record", "atomic", "check_writable", "MANIFEST"]
 
@@ -36,7 +38,7 @@ NOT_FOR_RESULTS = {"proc", "sysfs", "devtmpfs", "devpts", "cgroup", "cgroup2", "
                    "configfs", "pstore", "bpf", "mqueue", "efivarfs", "binfmt_misc", "fusectl", "autofs", "hugetlbfs"}
 
 
-class OutDirError(ValueError):
+class OutDirError(InputError):
     """The folder cannot take this run (another run's results in it, a file in its place), or a
     file of it cannot be written."""
 

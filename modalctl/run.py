@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from modalctl.errors import InputError, inputs_checked
 from modalctl.identify.trackers import updated_model
 from modalctl.identify.updating import update
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError, scan_indices
@@ -332,8 +333,9 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
                          "open loop (--loop open), or plan on a model with its sensors")
     caps, voltage_limit = _configure(device, options)
     if options.closed and options.loop.on_board:  # the shortest table the shot needs, before planning
-        check_table(1, _periods(options.focus_time + options.plan.after, options), caps.table_values,
-                    f"the board at {device.url}")
+        with inputs_checked():  # check_table's ValueError: the shot asks more than the board holds
+            check_table(1, _periods(options.focus_time + options.plan.after, options), caps.table_values,
+                        f"the board at {device.url}")
     elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
         _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
     plan_options = options.planned.but(voltage_limit=voltage_limit)
@@ -385,8 +387,9 @@ def _play(the_plan: Plan, device: Device, options: RunOptions, voltage_limit, lo
         return _Played(capture, _time.perf_counter() - start)
     loop, note = options.loop, None
     if loop.on_board:
-        check_table(the_plan.modes.size, _periods(the_plan.duration, options), device.capabilities.table_values,
-                    f"the board at {device.url}")
+        with inputs_checked():  # check_table's ValueError: the shot asks more than the board holds
+            check_table(the_plan.modes.size, _periods(the_plan.duration, options), device.capabilities.table_values,
+                        f"the board at {device.url}")
     else:
         loop, note = _sustained(loop, device, the_plan.modes.size, the_plan.sample_rate, the_plan.focus_time)
     board = device.phasor_board(the_plan.focus_peak, loop.control_rate, loop.latency)
@@ -420,7 +423,7 @@ def _sustained(loop: LoopOptions, device: Device, modes: int, fs: float,
                focus_time: float) -> tuple[LoopOptions, str | None]:
     """The host's loops at the highest rate the link carries with ``modes`` modes (one exchange a
     period), at most the one asked, dividing the DAC rate ``fs`` (Hz); and a note when it is lower.
-    ValueError (bad input) when that rate leaves fewer than :data:`LINK_PERIODS_MIN` periods before
+    InputError (bad input) when that rate leaves fewer than :data:`LINK_PERIODS_MIN` periods before
     the focus time (s)."""
     budget = device.budget(modes)
     if loop.control_rate <= budget:
@@ -428,7 +431,7 @@ def _sustained(loop: LoopOptions, device: Device, modes: int, fs: float,
     decimation = int(np.ceil(fs / budget))
     rate = fs / decimation
     if rate * focus_time < LINK_PERIODS_MIN:
-        raise ValueError(f"{device.url}: the link carries {budget:.0f} control periods/s with {modes} mode(s) "
+        raise InputError(f"{device.url}: the link carries {budget:.0f} control periods/s with {modes} mode(s) "
                          f"({device.link_description()}), {int(rate * focus_time)} before the {1e3 * focus_time:g} ms "
                          f"focus; loops on the host need {LINK_PERIODS_MIN}: run them on the board (--loop board), "
                          "or use a faster link")
@@ -577,7 +580,9 @@ def _loops_on_board(the_plan: Plan, board: PhasorBoard, parts: LoopParts, device
     configured = _time.perf_counter()
     board.configure(s)
     start = _time.perf_counter()
-    record = board.run_loops(board_loop(parts))
+    with inputs_checked():  # board_loop's ValueError: a controller other than PI asked to run on the board
+        loops = board_loop(parts)
+    record = board.run_loops(loops)
     seconds = _time.perf_counter() - start
     if log is not None:
         with loop_log(the_plan, s, log, closed=True, on_board=True) as recorder:

@@ -3,7 +3,8 @@
 Everything inside ``modalctl`` is SI: metres, seconds, hertz, volts. Text with units only
 enters through :func:`parse_quantity`, which raises :class:`UnitError` naming the field; the
 command line's options (and transports' own, see :mod:`modalctl.io.device`) read it through
-:func:`quantity_type` and :func:`number_type`. A foundation module: it imports nothing of modalctl.
+:func:`quantity_type` and :func:`number_type`. A foundation module: it imports nothing of modalctl but
+:mod:`modalctl.errors`.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ import math
 import re
 from dataclasses import dataclass
 from typing import Any, Callable
+
+from modalctl.errors import InputError
 
 __all__ = ["UnitError", "parse_quantity", "parse_point", "quantity_type", "number_type", "DIMENSIONS"]
 
@@ -50,7 +53,7 @@ DIMENSIONS: dict[str, dict[str, float]] = {
 _NUMBER = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(.*?)\s*$")
 
 
-class UnitError(ValueError):
+class UnitError(InputError):
     """A value with a missing, unknown or mismatched unit."""
 
 

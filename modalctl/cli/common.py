@@ -16,6 +16,7 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
+from modalctl.errors import inputs_checked
 from modalctl.outdir import OutDirError, atomic, check_writable
 from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
@@ -152,7 +153,9 @@ def model_and_shape(args):
 
 
 def open_device(args, model=None, shape=None):
-    """The device at ``--transport`` with its transport's own options; another transport's are refused."""
+    """The device at ``--transport`` with its transport's own options; another transport's are refused.
+    A transport that refuses what it was given (its URL, its options: the simulator's truth) with a
+    plain ValueError refuses bad input (exit 2), as an :class:`~modalctl.errors.InputError` would."""
     from urllib.parse import urlsplit
 
     from modalctl.io.device import DeviceContext
@@ -163,7 +166,8 @@ def open_device(args, model=None, shape=None):
     misplaced = args.transports.misplaced(args, scheme)
     if misplaced:
         raise ParamError(f"{', '.join(misplaced)}: not an option of {scheme}:// (--transport {args.transport})")
-    return open_url(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
+    with inputs_checked():  # modalctl/hil/scenario.py's checks of the truth's options still raise ValueError
+        return open_url(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
 
 
 def refuse(command: str, code: int, message: str, as_json: bool, certificate=None, stderr: bool = True) -> int:

@@ -13,6 +13,8 @@ from typing import Callable, Protocol, Sequence
 
 from tqdm.auto import tqdm
 
+from modalctl.errors import InputError
+
 __all__ = ["Executor", "LocalExecutor", "DaskExecutor", "executor_for"]
 
 
@@ -67,7 +69,7 @@ class DaskExecutor:
         try:
             self.client = Client(client, timeout=self.CONNECT_SECONDS)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:  # a dead or malformed address
-            raise ValueError(f"--scheduler: no dask scheduler answers at {client!r} within "
+            raise InputError(f"--scheduler: no dask scheduler answers at {client!r} within "
                              f"{self.CONNECT_SECONDS:g} s ({type(exc).__name__}: {exc})") from None
 
     def map(self, fn, items, progress=False):

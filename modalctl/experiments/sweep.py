@@ -25,6 +25,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.io.device import DeviceContext, open_device
 from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
@@ -108,7 +109,7 @@ class Case:
 
     def __post_init__(self):
         if self.method not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {self.method!r}")
+            raise InputError(f"method must be one of {METHODS}, got {self.method!r}")
 
     def options(self) -> RunOptions:
         """The shot's options: the plan's, and the loops' unless open loop."""

@@ -18,6 +18,7 @@ from dataclasses import replace
 import numpy as np
 from tqdm.auto import tqdm
 
+from modalctl.errors import InputError
 from modalctl.io.device import Device, DeviceError
 from modalctl.model.modes import ModelError
 
@@ -87,7 +88,7 @@ def _groups(device: Device, sweep: Sweep, actuator: int, points: np.ndarray, ave
     if not 0 <= actuator < caps.channels:
         raise DeviceError(f"{device.url}: no channel {actuator} (channels 0..{caps.channels - 1})")
     if averages < 1:
-        raise ValueError(f"averages must be at least 1, got {averages}")
+        raise InputError(f"averages must be at least 1, got {averages}")
     wave = sweep.waveform()
     drive = np.zeros((caps.channels, wave.size))
     drive[actuator] = wave

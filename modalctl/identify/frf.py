@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import scipy.fft
 
+from modalctl.errors import InputError
 from modalctl.model.modes import ModelError
 from modalctl.options import SHOT_SAMPLES_MAX
 
@@ -75,14 +76,14 @@ class Sweep:
             lasts ten of its time constants. Default: 5% of the sweep.
         """
         if not resolution > 0:
-            raise ValueError(f"sweep: the resolution must be positive, got {resolution!r} Hz")
+            raise InputError(f"sweep: the resolution must be positive, got {resolution!r} Hz")
         if not 0 <= f_low < f_high:
-            raise ValueError(f"sweep: the band must run up from f-low >= 0, got {f_low:g} to {f_high:g} Hz")
+            raise InputError(f"sweep: the band must run up from f-low >= 0, got {f_low:g} to {f_high:g} Hz")
         duration = 1 / resolution
         tail = 0.05 * duration if slowest_decay is None else 10 / slowest_decay
         rate = sample_rate or 10 * f_high
         if (duration + tail) * rate > SHOT_SAMPLES_MAX:
-            raise ValueError(f"sweep: {resolution:g} Hz resolution up to {f_high:g} Hz needs "
+            raise InputError(f"sweep: {resolution:g} Hz resolution up to {f_high:g} Hz needs "
                              f"{(duration + tail) * rate:.3g} samples per shot, at most {SHOT_SAMPLES_MAX:.3g}: "
                              f"a coarser --resolution or a lower --f-high")
         return cls(f_low, f_high, duration, rate, amplitude, tail)

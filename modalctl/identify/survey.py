@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 from tqdm.auto import tqdm
 
+from modalctl.errors import InputError
 from modalctl.io.device import Device
 from modalctl.model.files import memory_available
 from modalctl.model.modes import Grid, ModalModel, ModelError
@@ -129,7 +130,7 @@ def _identify(device: Device, sweep: Sweep, points: np.ndarray, density: float, 
     primary, sparse, averages = options.primary, options.sparse, options.averages
     caps = device.configure(sweep.sample_rate)
     if not 0 <= primary < caps.channels:
-        raise ValueError(f"identify: primary actuator {primary}: the device has {caps.channels} "
+        raise InputError(f"identify: primary actuator {primary}: the device has {caps.channels} "
                          f"(0..{caps.channels - 1})")
     device.activate()
     points = np.asarray(points, int)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.outdir import atomic
 
 __all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "VOLTAGE_LIMIT_KEY"]
@@ -33,8 +34,9 @@ MODEL_BYTES_MAX = 2**33
 MASS_NORMALIZATION_TOLERANCE = 0.2
 
 
-class ModelError(ValueError):
-    """Invalid modal data; the message names the field and the offending value."""
+class ModelError(InputError):
+    """Invalid modal data (a model file, a plate's geometry); the message names the field and the offending
+    value."""
 
 
 def check_finite(name: str, array: np.ndarray) -> None:

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.units import UnitError, parse_point, parse_quantity
 
 from .modes import Grid, ModelError
@@ -20,7 +21,7 @@ from .modes import Grid, ModelError
 __all__ = ["Shape", "Param", "ShapeGenerator", "ParamError", "parse_params", "tukey_window"]
 
 
-class ParamError(ValueError):
+class ParamError(InputError):
     """A shape parameter that is unknown, missing or malformed."""
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.model.metrics import focus_contrast, nrmse, tau, tau_norm
 from modalctl.model.modes import ModalModel
 from modalctl.model.projection import orthonormalize_model, project, reconstruct
@@ -115,7 +116,7 @@ def decompose(model: ModalModel, shape: Shape, modes="auto", *, tau_min: float |
     elif np.isscalar(modes):
         count = int(modes)
         if not 1 <= count <= model.n_modes:
-            raise ValueError(f"modes: N must lie in 1..{model.n_modes}, got {count}")
+            raise InputError(f"modes: N must lie in 1..{model.n_modes}, got {count}")
         chosen, rule = np.sort(np.argsort(model.frequencies, kind="stable")[:count]), f"{count} lowest modes"
     else:
         chosen, rule = np.unique(np.asarray(modes, dtype=int)), "given modes"

@@ -20,6 +20,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.model.metrics import margin_ratio, tau
 from modalctl.model.modes import ModalModel
 from modalctl.model.projection import reconstruct
@@ -294,7 +295,7 @@ def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptio
         raise PlanError(f"focus time must be positive, got {focus_time!r} s")
     top = np.max(dec.model.frequencies[dec.modes_used])
     if not options.sample_rate > 2 * top:  # an option that cannot serve the scene: bad input, not a target missed
-        raise ValueError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz): "
+        raise InputError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz): "
                          f"give --sample-rate above {2 * top:g} Hz")
     planner = pick("planner", options.planner)
     start = _time.perf_counter()

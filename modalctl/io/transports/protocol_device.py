@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from modalctl.errors import inputs_checked
 from modalctl.io import protocol as p
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError
 from modalctl.loops.onboard import BoardLog, BoardLoop, check_table
@@ -365,12 +366,13 @@ class ProtocolPhasorBoard(PhasorBoard):
     def run_loops(self, loops: BoardLoop) -> BoardLog:
         """Load the shot's loops into the board (Program, then their reference tables in Reference
         blocks of half an upload's bytes), start it, wait for the whole shot and bring back the
-        loops' log (:class:`modalctl.loops.onboard.BoardLog`); ValueError (bad input) when the tables
+        loops' log (:class:`modalctl.loops.onboard.BoardLog`); InputError (bad input) when the tables
         exceed the board's memory."""
         d = self.device
         if len(d.nodes) > 1:
             raise DeviceError(f"{d.url}: loops on the board need one board with every channel and sensor")
-        check_table(loops.modes, loops.periods, d.capabilities.table_values, f"the board at {d.url}")
+        with inputs_checked():  # check_table's ValueError: the shot asks more than the board holds
+            check_table(loops.modes, loops.periods, d.capabilities.table_values, f"the board at {d.url}")
         d.request(p.to_program(loops), (p.Ack,))
         for block in p.references(loops, d.upload_samples // 2):  # complex64: two float32 a value
             d.request(block, (p.Ack,))
