@@ -25,12 +25,16 @@ from typing import Iterator
 
 from modalctl.errors import InputError
 
-__all__ = ["OutDirError", "claim", "record", "atomic", "check_writable", "MANIFEST"]
+__all__ = ["OutDirError", "claim", "record", "atomic", "check_writable", "MANIFEST", "CLAIMED"]
 
 MANIFEST = "run.json"  # which command and options made the folder's results
 RESULTS = ("metrics.json", "fields.npz", "refusal.json", "log.json", "log.bin", "log-learning.json", "log-learning.bin",
            "sweep.json", "sweep.md")
 
+
+#: Every folder :func:`claim` took in this process, in order: where a command that fails after
+#: claiming its folder writes why (the command line's internal errors, ``modalctl.cli.common``).
+CLAIMED: list[Path] = []
 
 TEMPORARY_EXTRA = 14  # what atomic's temporary name adds to the name it stands for: '.', '.1234abcd', '.tmp'
 #: Filesystems of the kernel's state and of devices: no result is written there.
@@ -139,6 +143,7 @@ def claim(out: Path, command: str, options: dict, force: bool = False, defaults:
         _remove(out, name)
     with atomic(out / MANIFEST) as path:
         path.write_text(json.dumps({"run": this, "files": []}, indent=1))
+    CLAIMED.append(out)
     return out
 
 

@@ -3,7 +3,9 @@
 
 Exit codes: 0 success, 1 a target that cannot be met (no mode set or no plan meets it: the
 message says by how much), 2 bad input (unknown scene, shape or parameter, bad units,
-unreadable file), 3 a device error or a closed-loop shot stopped by the supervisor.
+unreadable file: an :class:`~modalctl.errors.InputError`), 3 a device error or a closed-loop shot
+stopped by the supervisor, 4 an internal error (anything else a command raises: a bug, said in one
+line, its traceback in a file; docs/errors.md).
 
 One module per command (``modalctl/cli/run.py`` is ``modalctl run``), each with ``add_parser(sub)``
 and ``run(args) -> int``; what they share is :mod:`modalctl.cli.common`. Commands plugins add
@@ -24,11 +26,12 @@ import sys
 from modalctl.plugin.command import plugin_commands
 
 from . import decompose, identify, model, plugins, run, scenes, sweep
-from .common import BAD_INPUT, DEVICE, UNREACHABLE, jsonable, refuse
+from .common import BAD_INPUT, DEVICE, UNREACHABLE, internal_error, jsonable, refuse
 
 __all__ = ["main", "build_parser", "command_parser"]
 
 BUILT_IN = (scenes, plugins, decompose, run, sweep, identify, model)  # in the order --help lists them
+OWN = {module.NAME for module in BUILT_IN}  # the commands whose plain ValueError is a bug (a plugin's may be bad input)
 NEGATIVE = re.compile(r"^-\.?\d")  # a value, not an option: -1%, -30mm, -.5
 
 
@@ -109,22 +112,26 @@ def main(argv=None) -> int:
     warnings.formatwarning = _say_warning
     argv = _negatives_attached(list(sys.argv[1:] if argv is None else argv))
     parser = build_parser(lazy=True)
-    args = _parse(parser, argv)
-    return _dispatch(parser.subcommands.handlers[args.command], args)
+    try:
+        args = _parse(parser, argv)
+    except Exception as exc:  # noqa: BLE001 (an option's type that raised what argparse does not take: a bug)
+        return internal_error(argv[0] if argv else "", exc, "--json" in argv)
+    return _dispatch(parser.subcommands.handlers[args.command], args, own=args.command in OWN)
 
 
-def _dispatch(handler, args) -> int:
-    """``handler(args)``, its refusals turned into their exit codes and messages."""
+def _dispatch(handler, args, own: bool = True) -> int:
+    """``handler(args)``, its refusals turned into their exit codes and messages; anything else it
+    raises is a bug, exit 4 in one line with its traceback in a file (:func:`.common.internal_error`).
+    A plugin's command (not ``own``) may refuse bad input with a plain ValueError (docs/plugins.md)."""
+    from modalctl.errors import InputError
     from modalctl.io.device import DeviceError
-    from modalctl.model.modes import ModelError
     from modalctl.model.scenes import UnknownScene
-    from modalctl.model.shape import ParamError
+    from modalctl.outdir import CLAIMED
     from modalctl.plan.planner import PlanError
     from modalctl.plan.reduction import ReductionError
     from modalctl.plugin.manager import PluginError
-    from modalctl.units import UnitError
 
-    as_json = getattr(args, "json", False)
+    as_json, claims = getattr(args, "json", False), len(CLAIMED)
     try:
         return handler(args)
     except DeviceError as exc:
@@ -136,7 +143,11 @@ def _dispatch(handler, args) -> int:
         return code
     except ReductionError as exc:
         return refuse(args.command, UNREACHABLE, str(exc), as_json)
-    except (UnknownScene, PluginError, ParamError, UnitError, ModelError, ValueError) as exc:
+    except (UnknownScene, PluginError, InputError) as exc:  # ModelError, ParamError, UnitError, OutDirError...
+        return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
+    except ValueError as exc:  # a check of the core's own contracts, or numpy's: a bug (a plugin's command: its input)
+        if own:
+            return internal_error(args.command, exc, as_json, _claimed_since(claims))
         return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
     except OSError as exc:  # a file the system refused (the readers and outdir.atomic name theirs already)
         return refuse(args.command, BAD_INPUT, f"error: {exc}", as_json)
@@ -145,6 +156,17 @@ def _dispatch(handler, args) -> int:
                       "less (a smaller band, grid or tolerance, a shorter shot)", as_json)
     except KeyboardInterrupt as exc:  # Ctrl-C, or a signal common.interruptible turned into it: no traceback
         return refuse(args.command, getattr(exc, "code", 128 + 2), str(exc) or "interrupted by SIGINT", as_json)
+    except Exception as exc:  # noqa: BLE001 (what no check raises: a bug, said in one line, its traceback on disk)
+        return internal_error(args.command, exc, as_json, _claimed_since(claims),
+                              "modalctl" if own else f"the plugin that adds {args.command!r}, or in modalctl")
+
+
+def _claimed_since(claims: int):
+    """The folder the command claimed for its results (the last of :data:`modalctl.outdir.CLAIMED`
+    after the first ``claims``), or None."""
+    from modalctl.outdir import CLAIMED
+
+    return CLAIMED[-1] if len(CLAIMED) > claims else None
 
 
 def _parse(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:

@@ -21,11 +21,12 @@ from modalctl.outdir import OutDirError, atomic, check_writable
 from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
 
-__all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "MODES_MAX", "parse_param", "points", "modes", "out_dir", "out_file",
-           "option_type", "progress_bars", "stage", "Interrupted", "interruptible", "add_target", "model_and_shape", "open_device",
-           "refuse", "jsonable", "write_json", "identity", "identity_defaults"]
+__all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "INTERNAL", "MODES_MAX", "parse_param", "points", "modes", "out_dir",
+           "out_file", "option_type", "progress_bars", "stage", "Interrupted", "interruptible", "add_target",
+           "model_and_shape", "open_device", "refuse", "internal_error", "jsonable", "write_json", "identity",
+           "identity_defaults"]
 
-BAD_INPUT, UNREACHABLE, DEVICE = 2, 1, 3
+BAD_INPUT, UNREACHABLE, DEVICE, INTERNAL = 2, 1, 3, 4  # docs/errors.md
 MODES_MAX = 1000
 points = grid_points  # --points: N for a beam, NxM for a plate
 
@@ -181,6 +182,54 @@ def refuse(command: str, code: int, message: str, as_json: bool, certificate=Non
             body["certificate"] = certificate
         print(json.dumps(body, default=jsonable))
     return code
+
+
+INTERNAL_ERROR_FILE = "internal-error.txt"  # in the folder the command claimed, else a temporary file
+
+
+def internal_error(command: str, exc: BaseException, as_json: bool, folder: Path | None = None,
+                   culprit: str = "modalctl") -> int:
+    """End a command that raised what no check of its input raises (a bug in ``culprit``): its
+    traceback into ``folder/internal-error.txt`` (the folder the command claimed, if any) or a
+    temporary file, and one line on stderr saying where, never the traceback. Returns
+    :data:`INTERNAL`."""
+    import platform
+    import traceback
+
+    from modalctl import __version__
+
+    said = " ".join(str(exc).split()) or "(no message)"
+    text = (f"modalctl {command}: internal error (a bug in {culprit}); modalctl {__version__}, Python "
+            f"{platform.python_version()}\n\n" + "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)))
+    where = _traceback_written(text, command, folder)
+    return refuse(command, INTERNAL, f"internal error: {type(exc).__name__}: {said} (a bug in {culprit}; "
+                  + (f"the traceback is in {where})" if where else "its traceback could not be written)"), as_json)
+
+
+def _traceback_written(text: str, command: str, folder: Path | None) -> Path | None:
+    """Where ``text`` was written: ``folder``'s internal-error.txt (recorded in its manifest, so the
+    next run there removes it), else a new file in the system's temporary folder; None if neither
+    could be written."""
+    import tempfile
+
+    from modalctl.outdir import record
+
+    if folder is not None:
+        try:
+            with atomic(folder / INTERNAL_ERROR_FILE) as temporary:
+                temporary.write_text(text)
+            record(folder, [INTERNAL_ERROR_FILE])
+            return folder / INTERNAL_ERROR_FILE
+        except (OSError, OutDirError):
+            pass
+    try:
+        name = "".join(c for c in command if c.isalnum() or c in "-_")[:40] or "command"
+        with tempfile.NamedTemporaryFile("w", prefix=f"modalctl-{name}-internal-error-",
+                                         suffix=".txt", delete=False) as file:
+            file.write(text)
+        return Path(file.name)
+    except OSError:
+        return None
 
 
 def jsonable(value):
