@@ -243,7 +243,7 @@ def _prepared(values: np.ndarray, noise: NoiseStream | None, basis: np.ndarray):
     coefficients, energy = _sum_of_halves(block, len(values))
     peak = float(np.max(peaks)) if peaks else 0.0
     if not np.isfinite(peak):  # max and min propagate NaN
-        raise ModelError("field record: the field holds NaN or infinite samples")
+        raise ValueError("field record: the field holds NaN or infinite samples")
     return field, peak, energy, coefficients
 
 
@@ -294,17 +294,18 @@ def write_field_record(path, times, points, values, extra: dict | None = None, n
     nt))``: the field less its noise as a simulator made it (:meth:`Device.scan_modes
     <modalctl.io.device.Device.scan_modes>`), trusted as the noise's key is and stored as it is,
     without the passes, once blocks of points drawn across the field are found within half the finest
-    step of it (else as without it; see :func:`_as_made`)."""
+    step of it (else as without it; see :func:`_as_made`). A plain ValueError when these do not fit
+    one another or the field is not finite: what modalctl made, so a bug, not bad input (issue 39)."""
     field = np.ascontiguousarray(values, np.float32)
     times, points = np.asarray(times, float), _columns(points, len(field), float)
     if field.ndim != 2 or field.shape[1] != times.size:
-        raise ModelError(f"field record: field {field.shape} does not match {times.size} instants")
+        raise ValueError(f"field record: field {field.shape} does not match {times.size} instants")
     if basis is not None and np.shape(basis)[0] != field.shape[0]:
-        raise ModelError(f"field record: a basis of {np.shape(basis)[0]} points for a field on {field.shape[0]}")
+        raise ValueError(f"field record: a basis of {np.shape(basis)[0]} points for a field on {field.shape[0]}")
     if noise is not None and noise.shape != field.shape:
-        raise ModelError(f"field record: noise {noise.shape} for a field {field.shape}")
+        raise ValueError(f"field record: noise {noise.shape} for a field {field.shape}")
     if noise is not None and (noise.generator, noise.version) != (GENERATOR, NOISE_VERSION):
-        raise ModelError(f"field record: noise from generator {noise.generator!r} version {noise.version}; this "
+        raise ValueError(f"field record: noise from generator {noise.generator!r} version {noise.version}; this "
                          f"modalctl makes {GENERATOR!r} version {NOISE_VERSION} only")
     with serial_blas():  # small products but for the passes, which run on two threads of their own
         given = None if modes is None else _as_made(field, noise, modes, RESOLUTION)
@@ -345,12 +346,12 @@ def _as_made(field: np.ndarray, noise: NoiseStream | None, modes, resolution: fl
     shapes, velocity = (np.ascontiguousarray(a, np.float32) for a in modes)
     n, nt = field.shape
     if shapes.shape[0] != n or velocity.shape != (shapes.shape[1], nt):
-        raise ModelError(f"field record: modes {shapes.shape} x {velocity.shape} for a field {field.shape}")
+        raise ValueError(f"field record: modes {shapes.shape} x {velocity.shape} for a field {field.shape}")
     if shapes.shape[1] >= min(n, nt):
         return None
     peak = max(float(field.max(initial=0.0)), -float(field.min(initial=0.0)))
     if not np.isfinite(peak):
-        raise ModelError("field record: the field holds NaN or infinite samples")
+        raise ValueError("field record: the field holds NaN or infinite samples")
     if not (n and nt and peak > 0):
         return None
     step = peak * resolution
