@@ -49,6 +49,7 @@ __all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl"]
 
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
+TURNS = 1024  # periods of the frames' turns computed at once (ClusterControl._turn)
 # lock-in corners from a cluster's carriers within which its observer keeps a mode's dynamics (beyond, the lock-in
 # passes 5^-4 of it): cluster_poles' 20 made panel-rounded's 18 laws 1,132 states, an update 206 us; 5: 654 states,
 # 46 us, the finger benchmark's give-back within 0.1 point (3: 87.6% on the panel where 5 and 8 give 88.7, 88.6%)
@@ -380,7 +381,8 @@ class ClusterControl(Controller):
         laws = self.laws
         self._idx = np.concatenate([law.loops for law in laws]) if laws else np.zeros(0, int)
         lead = {law.lead for law in laws}.pop() if laws else 1
-        spin = np.exp(1j * np.concatenate([law.offsets for law in laws] or [np.zeros(0)]) * period)
+        self._angle = np.concatenate([law.offsets for law in laws] or [np.zeros(0)]) * period  # rad a period
+        spin = np.exp(1j * self._angle)
         self._spin, self._ahead, self._sent_ahead = spin, spin ** lead, spin ** (lead - 1)
         # sparse: the laws' blocks, and within them the modes' states (a 2 x 2 block each) and the delay line,
         # are mostly zeros (panel-rounded's 18 laws: 578 states, 8,132 of A's 334,084 entries; A x 31 -> 7 us)
@@ -388,6 +390,7 @@ class ClusterControl(Controller):
         self._A, self._C, self._M, self._K, self._Ki = (
             sparse.csr_array(block_diag(*(getattr(law, name) for law in laws)))
             for name in ("A", "C", "M", "K", "Ki"))
+        self._turns = (-1, np.ones((0, spin.size), complex))  # (first period, the frames' turns from it on)
         self._join()
         slots, start = [], 0  # where each law's newest command in flight sits in the stacked state
         for law in laws:
@@ -397,8 +400,22 @@ class ClusterControl(Controller):
         self._slot = np.concatenate(slots) if slots else np.zeros(0, int)
 
     def _join(self) -> None:
-        """``K`` over ``A``: the feedback and the state's next prediction from one product a period."""
-        self._KA = sparse.csr_array(sparse.vstack([self._K, self._A]))
+        """A period in two products: ``[C; K; A] x`` (the prediction's reading, its feedback and next
+        state), then ``[K; A] M`` times the surprise (the same of the observer's correction ``M s``)."""
+        if not self.laws:  # nothing stacked (block_diag of none is (1, 0))
+            return
+        ka = sparse.vstack([self._K, self._A])
+        self._CKA = sparse.csr_array(sparse.vstack([self._C, ka]))
+        self._KAM = sparse.csr_array(ka @ self._M)
+
+    def _turn(self, period: int) -> np.ndarray:
+        """``spin ** period``: the frames' turn at a period, from a table computed :data:`TURNS` periods at a
+        time (a complex power each period cost 6 us on panel-rounded's 42 clustered loops)."""
+        first, table = self._turns
+        if not 0 <= period - first < table.shape[0]:
+            first, table = self._turns = period, np.exp(1j * np.multiply.outer(np.arange(period, period + TURNS),
+                                                                               self._angle))
+        return table[period - first]
 
     def reset(self) -> None:
         if self.inner is not None:
@@ -423,7 +440,7 @@ class ClusterControl(Controller):
         if self.laws and period > self._n:
             held, x = sent[self._idx], self._x
             for lost in range(self._n, period):
-                now = self._spin ** (lost + 1)  # as update's: the frames' turn at that period's reading
+                now = self._turn(lost + 1)  # as update's: the frames' turn at that period's reading
                 x[self._slot] = (held * now * self._sent_ahead).view(float)
                 x = self._A @ x  # its rows of the delay line's first slot are zero: the held command enters
                 x[self._slot] += (held * now * self._ahead).view(float)
@@ -439,23 +456,27 @@ class ClusterControl(Controller):
             self._n += 1
             return command
         idx = self._idx
-        now = self._spin ** (self._n + 1)  # the frames' turn now: the reading of period n is the model's (n + 1) T
+        now = self._turn(self._n + 1)  # the frames' turn now: the reading of period n is the model's (n + 1) T
         played = now * self._ahead  # and when the command computed now is reached
         x = self._x
         if self._sent is not None:  # the command in flight last sent, as the supervisor let it through
             x[self._slot] = (self._sent[idx] * now * self._sent_ahead).view(float)
         z = -error[idx]  # the measured deviation from the plan, in each loop's frame
-        surprise = (z * now).view(float) - self._C @ x
+        predicted = self._CKA @ x  # C x, K x, A x of the prediction
+        k2 = idx.size * 2
+        surprise = (z * now).view(float) - predicted[:k2]
         self.innovation = surprise.view(complex) / now  # what the model did not predict
-        x = x + self._M @ surprise
-        joined = self._KA @ x
-        feedback, ahead = joined[:idx.size * 2], joined[idx.size * 2:]  # K x, A x
+        joined = predicted[k2:] + self._KAM @ surprise  # K x, A x of the corrected state x + M surprise
+        feedback, ahead = joined[:k2], joined[k2:]
         out = (-feedback - self._Ki @ (self._integral * now).view(float)).view(complex) / played
         size, cap = np.abs(out), limit[idx]
         over = size > cap
-        out[over] *= cap[over] / np.maximum(size[over], 1e-300)
-        self._integral = np.where(over, self._integral, self._integral + z)  # anti-windup
-        self._integral[cap <= 0] = 0  # a loop with no authority rests
+        if np.count_nonzero(over) or not cap.min() > 0:  # (a count and a min: the usual case in two numpy calls)
+            out[over] *= cap[over] / np.maximum(size[over], 1e-300)
+            self._integral = np.where(over, self._integral, self._integral + z)  # anti-windup
+            self._integral[cap <= 0] = 0  # a loop with no authority rests
+        else:
+            self._integral = self._integral + z
         ahead[self._slot] += (out * played).view(float)  # B: the command enters the delay line's first slot
         self._x = ahead
         self._n += 1  # the next period's, unless observe says otherwise (a lost reading)
