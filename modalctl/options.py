@@ -326,6 +326,10 @@ class LoopOptions(_Options):
             raise InputError("authority and latency must be zero or more, watchdog at least one period")
         if not 0 <= self.margin_headroom < 1 or self.margin_drift < 0:
             raise InputError("margin_headroom must lie in [0, 1) and margin_drift be zero or more")
+        named = getattr(self.controller, "name", self.controller)
+        if self.on_board and named not in (None, BOARD_CONTROLLER):
+            raise InputError(f"a board runs {BOARD_CONTROLLER} loops, not {named!r}: leave --controller out, or run "
+                             f"{named!r} on the host (--loop closed)")
 
 
 

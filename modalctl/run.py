@@ -18,7 +18,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from modalctl.errors import InputError, inputs_checked
+from modalctl.errors import InputError
 from modalctl.identify.trackers import updated_model
 from modalctl.identify.updating import update
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError, scan_indices
@@ -333,9 +333,8 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
                          "open loop (--loop open), or plan on a model with its sensors")
     caps, voltage_limit = _configure(device, options)
     if options.closed and options.loop.on_board:  # the shortest table the shot needs, before planning
-        with inputs_checked():  # check_table's ValueError: the shot asks more than the board holds
-            check_table(1, _periods(options.focus_time + options.plan.after, options), caps.table_values,
-                        f"the board at {device.url}")
+        check_table(1, _periods(options.focus_time + options.plan.after, options), caps.table_values,
+                    f"the board at {device.url}")
     elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
         _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
     plan_options = options.planned.but(voltage_limit=voltage_limit)
@@ -387,9 +386,8 @@ def _play(the_plan: Plan, device: Device, options: RunOptions, voltage_limit, lo
         return _Played(capture, _time.perf_counter() - start)
     loop, note = options.loop, None
     if loop.on_board:
-        with inputs_checked():  # check_table's ValueError: the shot asks more than the board holds
-            check_table(the_plan.modes.size, _periods(the_plan.duration, options), device.capabilities.table_values,
-                        f"the board at {device.url}")
+        check_table(the_plan.modes.size, _periods(the_plan.duration, options), device.capabilities.table_values,
+                    f"the board at {device.url}")
     else:
         loop, note = _sustained(loop, device, the_plan.modes.size, the_plan.sample_rate, the_plan.focus_time)
     board = device.phasor_board(the_plan.focus_peak, loop.control_rate, loop.latency)
@@ -580,8 +578,7 @@ def _loops_on_board(the_plan: Plan, board: PhasorBoard, parts: LoopParts, device
     configured = _time.perf_counter()
     board.configure(s)
     start = _time.perf_counter()
-    with inputs_checked():  # board_loop's ValueError: a controller other than PI asked to run on the board
-        loops = board_loop(parts)
+    loops = board_loop(parts)  # InputError: a controller other than PI asked to run on the board
     record = board.run_loops(loops)
     seconds = _time.perf_counter() - start
     if log is not None:

@@ -196,3 +196,17 @@ def test_a_board_refuses_a_program_beyond_its_memory_or_its_shot():
     assert "the shot has 2 x 200000" in sent[1].text and "the board holds 262144" in sent[2].text
     assert "580 reference values still to load" in sent[6].text
     board.close()
+
+
+def test_a_board_refuses_any_controller_but_pi_at_the_edge_and_in_its_loops(shot, tmp_path, capsys):
+    """A board runs PI loops: ``--loop board --controller lqg`` is bad input (exit 2, named) before any
+    work, and loops designed by per-mode LQG (whose design has no PI gains: NaN) are refused by
+    board_loop rather than sent as NaN gains (they were: a NaN field, found by issue 39's review)."""
+    from modalctl.errors import InputError
+
+    assert main([*RUN, "--loop", "board", "--controller", "lqg", "--out", str(tmp_path / "lqg")]) == 2
+    assert "'lqg'" in capsys.readouterr().err and not (tmp_path / "lqg").exists()
+    the_plan, _ = shot
+    lqg = loop_parts(the_plan, LoopOptions(control_rate=20e3, controller="lqg"), 1e-4)
+    with pytest.raises(InputError, match="a board runs PI loops"):
+        board_loop(lqg)

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from modalctl.errors import InputError
+
 from .pi import PIControl
 
 __all__ = ["BoardLoop", "BoardLog", "board_loop", "check_table", "TABLE_VALUES"]
@@ -31,12 +33,12 @@ TABLE_VALUES = 1 << 18  # complex reference values (modes x periods) an emulated
 
 
 def check_table(modes: int, periods: int, capacity: int | None, where: str = "the board") -> None:
-    """Raise ValueError (bad input: the shot asks more than the board holds) when ``modes``
+    """Raise InputError (the shot asks more than the board holds) when ``modes``
     reference tables of ``periods`` control periods exceed ``capacity`` complex values (None: no
     limit), saying the budget and what to change."""
     if capacity is None or modes * periods <= capacity:
         return
-    raise ValueError(f"loops on the board follow a reference table of modes x control periods: {modes} x {periods} "
+    raise InputError(f"loops on the board follow a reference table of modes x control periods: {modes} x {periods} "
                      f"= {modes * periods:,} values, and {where} holds {capacity:,} (at most {capacity // max(periods, 1)} "
                      f"modes at this rate, or {capacity // max(modes, 1)} periods with {modes}): lower --control-rate, "
                      "shorten the shot, keep fewer modes, or run the loops on the host (--loop closed)")
@@ -131,8 +133,9 @@ class BoardLoop:
 def board_loop(parts) -> BoardLoop:
     """The board-side loops of a shot's ``parts`` (:class:`modalctl.loops.shot.LoopParts`, PI
     controller): the schedule's references as the table, the design's gains, the authority and leak."""
-    if not hasattr(parts.design, "kp") or parts.controller.observes:
-        raise ValueError("a board runs PI loops: design the shot with the pi controller, or run the others on the "
+    kp = getattr(parts.design, "kp", None)  # per-mode LQG's design has none: its gains are NaN
+    if kp is None or not np.all(np.isfinite(kp)) or parts.controller.observes:
+        raise InputError("a board runs PI loops: design the shot with the pi controller, or run the others on the "
                          "host (--loop closed)")
     return BoardLoop(np.asarray(parts.schedule.reference, complex), np.asarray(parts.design.kp, float),
                      np.asarray(parts.design.ki, float), parts.authority.max(axis=1), np.asarray(parts.leak, complex))
