@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from modalctl.cli import main
-from modalctl.errors import InputError, inputs_checked
+from modalctl.errors import InputError
 from modalctl.model.modes import ModelError
 from modalctl.model.shape import ParamError
 from modalctl.outdir import OutDirError
@@ -61,17 +61,20 @@ def test_the_edge_s_errors_are_input_errors_and_the_core_s_value_errors_are_not(
         assert not issubclass(error, InputError)
 
 
-def test_inputs_checked_makes_a_plain_value_error_bad_input_and_lets_the_others_through():
-    with pytest.raises(InputError, match="^shot: too long$") as caught:
-        with inputs_checked("shot"):
-            raise ValueError("too long")
-    assert type(caught.value.__cause__) is ValueError
-    from modalctl.plan.planner import PlanError
+def test_the_simulator_s_truth_and_a_log_file_are_checked_as_bad_input(tmp_path):
+    """The checks reached from the command line through the HIL's truth and a log file raise InputError
+    themselves (a wrapper once took every plain ValueError around the device's opening for bad input)."""
+    from modalctl.hil.scenario import Perturbation
+    from modalctl.loops.recorder import read_log
 
-    for other in (ModelError("a file"), PlanError("no plan", 1.0, 0.5), KeyError("x")):
-        with pytest.raises(type(other)):
-            with inputs_checked():
-                raise other
+    with pytest.raises(InputError, match="need a finger"):
+        Perturbation(finger_lands=0.01)
+    with pytest.raises(InputError, match="gain_error"):
+        Perturbation(gain_error=-0.1)
+    (tmp_path / "log.json").write_text('{"version": 99, "fields": []}')
+    (tmp_path / "log.bin").write_bytes(b"")
+    with pytest.raises(InputError, match="log version 99"):
+        read_log(tmp_path / "log.bin")
 
 
 def test_a_value_error_of_numpy_s_in_a_command_is_an_internal_error_with_its_traceback_on_disk(

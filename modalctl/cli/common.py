@@ -16,7 +16,6 @@ import threading
 from contextlib import contextmanager
 from pathlib import Path
 
-from modalctl.errors import inputs_checked
 from modalctl.outdir import OutDirError, atomic, check_writable
 from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
@@ -167,8 +166,7 @@ def open_device(args, model=None, shape=None):
     misplaced = args.transports.misplaced(args, scheme)
     if misplaced:
         raise ParamError(f"{', '.join(misplaced)}: not an option of {scheme}:// (--transport {args.transport})")
-    with inputs_checked():  # modalctl/hil/scenario.py's checks of the truth's options still raise ValueError
-        return open_url(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
+    return open_url(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
 
 
 def refuse(command: str, code: int, message: str, as_json: bool, certificate=None, stderr: bool = True) -> int:

@@ -7,6 +7,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.shape import Shape
 from modalctl.model.touch import touch_at
@@ -99,23 +100,23 @@ class Perturbation:
 
     def __post_init__(self):
         if int(self.scan_repeats) != self.scan_repeats or self.scan_repeats < 1:
-            raise ValueError(f"scan_repeats must be a whole number of shots, 1 or more, got {self.scan_repeats!r}")
+            raise InputError(f"scan_repeats must be a whole number of shots, 1 or more, got {self.scan_repeats!r}")
         if not 0 <= self.gain_error <= GAIN_ERROR_MAX:
-            raise ValueError(f"gain_error must lie in [0, {GAIN_ERROR_MAX:g}], got {self.gain_error!r}")
+            raise InputError(f"gain_error must lie in [0, {GAIN_ERROR_MAX:g}], got {self.gain_error!r}")
         if self.finger < 0:
-            raise ValueError(f"finger damping must be zero or more N s/m, got {self.finger!r}")
+            raise InputError(f"finger damping must be zero or more N s/m, got {self.finger!r}")
         if self.finger and self.finger_at is None:
-            raise ValueError("a finger needs a place to rest (finger_at, m)")
+            raise InputError("a finger needs a place to rest (finger_at, m)")
         touching = (self.finger_lands, self.finger_lifts, self.finger_slide or None, self.finger_press or None)
         if not self.finger and any(x is not None for x in touching):
-            raise ValueError("the finger's landing, lifting, sliding and pressing need a finger (finger damping, N s/m)")
+            raise InputError("the finger's landing, lifting, sliding and pressing need a finger (finger damping, N s/m)")
         if self.finger_lands is not None and self.finger_lifts is not None and self.finger_lifts <= self.finger_lands:
-            raise ValueError(f"the finger lifts ({self.finger_lifts!r} s) before it lands ({self.finger_lands!r} s)")
+            raise InputError(f"the finger lifts ({self.finger_lifts!r} s) before it lands ({self.finger_lands!r} s)")
         if self.finger and self.moving:
-            raise ValueError("a finger on a structure whose resonances move during the shot is not simulated: "
+            raise InputError("a finger on a structure whose resonances move during the shot is not simulated: "
                              "give a fixed drift with the finger")
         if self.amplifier_bandwidth and (self.finger or self.moving):
-            raise ValueError("the amplifier's bandwidth is not simulated with a finger or a drift during the shot")
+            raise InputError("the amplifier's bandwidth is not simulated with a finger or a drift during the shot")
 
     @classmethod
     def from_options(cls, options: dict, model: ModalModel, target: Shape | None = None) -> "Perturbation":
@@ -124,10 +125,10 @@ class Perturbation:
         peak unless placed. ValueError names what is wrong."""
         finger, at = options.get("finger", 0.0), options.get("finger_at")
         if at is not None and not finger:
-            raise ValueError("--finger-at places a finger: give its damping too (--finger, e.g. 0.5Ns/m)")
+            raise InputError("--finger-at places a finger: give its damping too (--finger, e.g. 0.5Ns/m)")
         if finger and at is None:
             if target is None:
-                raise ValueError("--finger needs --finger-at here (no target to rest it on)")
+                raise InputError("--finger needs --finger-at here (no target to rest it on)")
             at = tuple(model.grid.points[int(np.argmax(np.abs(target.values)))])
         step, step_time = options.get("drift_step", (0.0, 0.0))
         return cls(drift=options.get("drift", 0.0), drift_spread=options.get("drift_spread", 0.0),

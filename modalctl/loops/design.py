@@ -16,6 +16,7 @@ import numpy as np
 from scipy.linalg import block_diag
 from scipy.signal import butter
 
+from modalctl.errors import InputError
 from modalctl.model.propagate import poles
 
 from .controller import LoopDesign, LoopPlant
@@ -82,7 +83,7 @@ def design_loops(frequencies, damping, bandwidths, control_rate: float, phase_ma
         margin_db = 20 * np.log10(np.abs(shape) / np.abs(shape[w180]))  # gain margin were the crossover here
         ok = (180 + phase >= phase_margin) & (margin_db >= gain_margin)
         if not ok[0]:
-            raise ValueError(f"no PI loop for the mode at {f:g} Hz keeps {phase_margin:g} deg and "
+            raise InputError(f"no PI loop for the mode at {f:g} Hz keeps {phase_margin:g} deg and "
                              f"{gain_margin:g} dB at {control_rate:g} Hz: raise the control rate")
         c = np.flatnonzero(~ok)
         c = (c[0] if c.size else omega.size) - 1  # the last good frequency before the first bad one

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.outdir import atomic
 
 __all__ = ["Recorder", "read_log", "LOG_VERSION"]
@@ -115,7 +116,7 @@ def read_log(path) -> tuple[np.ndarray, dict]:
     header = json.loads(path.with_suffix(".json").read_text())
     version = header.get("version")
     if version not in (1, LOG_VERSION):
-        raise ValueError(f"{path}: log version {version!r}, this reader knows 1 and {LOG_VERSION}")
+        raise InputError(f"{path}: log version {version!r}, this reader knows 1 and {LOG_VERSION}")
     dtype = np.dtype([(f["name"], np.dtype(f["dtype"]), tuple(f["shape"])) for f in header["fields"]])
     raw = path.with_suffix(".bin").read_bytes()
     start = header.get("count_bytes", 0)
