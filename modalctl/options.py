@@ -233,7 +233,7 @@ class PlanOptions(_Options):
 THESIS_PLAN = PlanOptions(planner="envelope", margin=None)
 
 
-HOST_CONTROLLER = "touch"  # the closed loop's controller on the host unless one is named (LoopOptions.controller)
+HOST_CONTROLLER = "touch+cluster"  # the closed loop's controller on the host unless one is named (LoopOptions)
 BOARD_CONTROLLER = "pi"  # and on a board, which runs PI loops
 
 
@@ -328,8 +328,8 @@ class LoopOptions(_Options):
             raise InputError("margin_headroom must lie in [0, 1) and margin_drift be zero or more")
         named = getattr(self.controller, "name", self.controller)
         if self.on_board and named not in (None, BOARD_CONTROLLER):
-            raise InputError(f"a board runs {BOARD_CONTROLLER} loops, not {named!r}: leave --controller out, or run "
-                             f"{named!r} on the host (--loop closed)")
+            raise InputError(f"a board runs PI loops ({BOARD_CONTROLLER}), not {named!r}: leave --controller out, or "
+                             f"run {named!r} on the host (--loop closed)")
 
 
 

@@ -458,7 +458,7 @@ def test_a_cluster_whose_observer_has_no_solution_keeps_per_mode_loops(plate, mo
         assert np.array_equal(controller.update(error, np.full(2, 1e-2)), lqg.update(error, np.full(2, 1e-2)))
 
 
-@pytest.mark.parametrize("controller, together", [(None, False), ("cluster", True)])
+@pytest.mark.parametrize("controller, together", [(None, True), ("cluster", True), ("touch", False)])
 def test_a_closed_loop_run_reports_the_clusters_whatever_the_controller(tmp_path, capsys, controller, together):
     """metrics.json's loop.clusters: the kept modes (labels) whose loops read each other, every pair's carrier
     spacing (the model's frequencies) against the rule's threshold, the groups the linked pairs join;

@@ -216,8 +216,8 @@ def test_a_damaged_universal_file_is_modalctls_error_not_pyuffs(uff_file, capsys
 
 # -- options that do not apply ---------------------------------------------------------------------------
 @pytest.mark.parametrize("options, words", [
-    (["--touch-at", "10mm"], "--touch-at tells the touch controller"),
-    (["--loop", "closed", "--controller", "pi", "--touch-at", "10mm"], "--touch-at tells the touch controller"),
+    (["--touch-at", "10mm"], "--touch-at tells a controller that estimates the touch"),
+    (["--loop", "closed", "--controller", "pi", "--touch-at", "10mm"], "--touch-at tells a controller that estimates the touch"),
     (["--planner", "envelope", "--robust-drift", "1%"], "--robust-drift holds the convex planner's margin"),
     (["--margin", "none", "--robust-drift", "1%"], "--robust-drift holds the convex planner's margin"),
     (["--planner", "envelope", "--slew-limit", "1V/s"], "--slew-limit is planned for by the convex planner only"),

@@ -205,7 +205,7 @@ def test_a_board_refuses_any_controller_but_pi_at_the_edge_and_in_its_loops(shot
     from modalctl.errors import InputError
 
     assert main([*RUN, "--loop", "board", "--controller", "lqg", "--out", str(tmp_path / "lqg")]) == 2
-    assert "'lqg'" in capsys.readouterr().err and not (tmp_path / "lqg").exists()
+    assert "PI loops (pi), not 'lqg'" in capsys.readouterr().err and not (tmp_path / "lqg").exists()
     the_plan, _ = shot
     lqg = loop_parts(the_plan, LoopOptions(control_rate=20e3, controller="lqg"), 1e-4)
     with pytest.raises(InputError, match="a board runs PI loops"):

@@ -206,19 +206,53 @@ def test_a_lost_reading_moves_the_commands_filter_on_with_the_held_command_and_r
     assert np.allclose(touch.filter.state, twin.filter.state, rtol=0, atol=1e-12)
 
 
+class _ClusterLawsAlone:
+    """The default's inner laws without the touch: the cluster laws, PI on the modes in no cluster."""
+
+    name = "cluster laws, PI alone"
+
+    def create(self, plant, **options):
+        from modalctl.loops.cluster import ClusterControl
+
+        return ClusterControl(plant, alone="pi")
+
+
 @pytest.mark.parametrize("snr", [None, 40.0])
-def test_the_default_closed_loop_is_the_pi_loops_on_an_untouched_structure(bump, snr):
-    """No finger, no drift (with 40 dB of noise or none): the default controller (touch) plays the PI loops'
-    shot exactly, nothing sure to give back."""
+def test_the_default_closed_loop_is_its_inner_laws_on_an_untouched_structure_and_pi_where_no_mode_clusters(bump, snr):
+    """No finger, no drift (with 40 dB of noise or none): the default controller (touch+cluster) plays the shot of
+    the laws it wraps exactly, nothing sure to give back; those are PI's on the modes in no cluster (the bump's
+    one cluster, modes 4-7, has its LQ law), and with no cluster they are the PI loops, update for update."""
+    from modalctl.loops.cluster import ClusterControl, Clusters
+    from modalctl.loops.design import pi_controller
+    from modalctl.loops.shot import loop_parts
     from modalctl.options import LoopOptions
 
-    assert LoopOptions().chosen_controller == "touch" and LoopOptions(on_board=True).chosen_controller == "pi"
+    assert LoopOptions().chosen_controller == "touch+cluster" and LoopOptions(on_board=True).chosen_controller == "pi"
     model, target, plans = bump
     shots = [run(model, target, SimDevice(model, Perturbation(snr_db=snr)),
                  RunOptions(FOCUS, PlanOptions(), LoopOptions(controller=name)), planned=plans[True])
-             for name in (None, "pi")]
-    assert shots[0].loop.controller == "touch" and shots[1].loop.controller == "pi"
+             for name in (None, _ClusterLawsAlone(), "pi")]
+    assert shots[0].loop.controller == "touch+cluster" and shots[2].loop.controller == "pi"
     assert np.array_equal(shots[0].focus_field, shots[1].focus_field)
+    assert abs(shots[0].metrics.tau - shots[2].metrics.tau) < 5e-3  # the cluster's law, measured: as PI's
+    assert abs(shots[0].metrics.margin_ratio - shots[2].metrics.margin_ratio) < 5e-3
+    made = {}
+
+    class Capture:  # the plant the runtime's loops are made for
+        name = "pi"
+
+        def create(self, plant, **options):
+            made["plant"] = plant
+            return pi_controller(plant)
+
+    pi = loop_parts(plans[True][1], LoopOptions(controller=Capture())).controller
+    alone = ClusterControl(made["plant"], Clusters((), ()), alone="pi")
+    assert alone.inner is not None and not alone.laws
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        error = rng.standard_normal(pi.kp.size) + 1j * rng.standard_normal(pi.kp.size)
+        limit = np.full(pi.kp.size, 1.5)
+        assert np.array_equal(alone.update(error, limit), pi.update(error, limit))
 
 
 def test_the_shift_given_back_is_the_clean_modes_median_within_its_bound(bump):
@@ -263,7 +297,6 @@ def test_run_uses_the_touch_controller_and_says_what_it_estimated(tmp_path, caps
 def test_what_the_touch_cannot_do_exits_2_saying_why(tmp_path, capsys, extra, words):
     assert main(RUN + ["--out", str(tmp_path / "t")] + extra) == 2
     assert words in capsys.readouterr().err
-
 
 
 def _envelopes(estimator, decay, periods=400, seed=0, extra=None):

@@ -85,10 +85,12 @@ def _add_loop_arguments(loop) -> None:
     loop.add_argument("--latency", type=number_type(int, "latency", low=0, high=1000, low_open=False),
                       default=LOOP.latency, help=f"extra periods the board takes to use a command ({LOOP.latency})")
     loop.add_argument("--controller", default=LOOP.controller,
-                      help=f"per-mode controller plugin: pi, lqg, or touch (pi plus the force a finger and a drift "
-                           f"take, estimated during the shot) ({HOST_CONTROLLER}; {BOARD_CONTROLLER} on a board)")
+                      help=f"per-mode controller plugin: pi, lqg, touch (pi plus the force a finger and a drift "
+                           f"take, estimated during the shot), cluster (one LQ law per cluster of close modes) or "
+                           f"touch+cluster (touch over the cluster laws, pi on the other modes) ({HOST_CONTROLLER}; "
+                           f"{BOARD_CONTROLLER} on a board)")
     loop.add_argument("--touch-at", type=quantity_type("m", "touch-at", point=True), metavar="POINT",
-                      help="touch controller: where a touch sensor says the finger rests, e.g. 0mm (default: "
+                      help="touch and touch+cluster: where a touch sensor says the finger rests, e.g. 0mm (default: "
                            "the controller finds it)")
     loop.add_argument("--watchdog", type=number_type(int, "watchdog", low=1, high=10**6, low_open=False),
                       default=LOOP.watchdog,
@@ -175,14 +177,25 @@ def _run_options(args, out: Path):
     return RunOptions(args.focus_time, plan, loop, args.learn, out / "log" if loop else None, progress_bars(args))
 
 
+def _senses_touch(controller: str) -> bool:
+    """Whether the controller plugin named estimates a touch (an unknown name: refused where the loops are made)."""
+    from modalctl.plugin.manager import PluginError, pick
+
+    try:
+        return bool(getattr(pick("controller", controller), "senses_touch", False))
+    except PluginError:
+        return False
+
+
 def _applying(args) -> list[tuple[bool, bool, str]]:
     """Each option the other choices can make meaningless: (given, applies, why not), so that an
     option is refused where it would be ignored."""
     closed, convex = args.loop != "open", args.planner == "convex"
     return [
         (bool(args.learn), closed, "--learn needs a closed loop (--loop closed or board)"),
-        (args.touch_at is not None, args.loop == "closed" and (args.controller or HOST_CONTROLLER) == "touch",
-         "--touch-at tells the touch controller where the finger rests: it needs --loop closed and that controller"),
+        (args.touch_at is not None, args.loop == "closed" and _senses_touch(args.controller or HOST_CONTROLLER),
+         "--touch-at tells a controller that estimates the touch (touch, touch+cluster) where the finger rests: it "
+         "needs --loop closed and one of them"),
         (args.robust_drift > 0, convex and args.margin is not None,
          "--robust-drift holds the convex planner's margin on drifted truths: it needs --planner convex and a "
          "--margin (not none)"),

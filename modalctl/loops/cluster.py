@@ -41,7 +41,7 @@ from scipy import sparse
 from scipy.linalg import block_diag
 
 from .controller import Controller, LoopDesign, LoopPlant
-from .design import _real, _series, cluster_model, design_loops
+from .design import _real, _series, cluster_model, design_loops, pi_controller
 from .lqg import NOISE_FLOOR, LQGControl, observer_loop_radius
 from .sensing import feedthrough
 
@@ -49,6 +49,7 @@ __all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl"]
 
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
+ALONE = {"lqg": LQGControl, "pi": pi_controller}  # the loops of the modes in no cluster (ClusterControl's alone)
 TURNS = 1024  # periods of the frames' turns computed at once (ClusterControl._turn)
 # lock-in corners from a cluster's carriers within which its observer keeps a mode's dynamics (beyond, the lock-in
 # passes 5^-4 of it): cluster_poles' 20 made panel-rounded's 18 laws 1,132 states, an update 206 us; 5: 654 states,
@@ -314,8 +315,8 @@ def closed_loop_radius(law: _Law) -> float:
 class ClusterControl(Controller):
     """Per-mode LQG loops, and one multivariable observer and LQ law per cluster of close modes.
 
-    Without the plant's ``model`` (and ``schedule``) there is no cluster to model: the controller is
-    :class:`~modalctl.loops.lqg.LQGControl`, and so it is where :func:`find_clusters` finds none.
+    Without the plant's ``model`` (and ``schedule``) there is no cluster to model: the controller is the
+    isolated modes' loops (``alone``) on every mode, and so it is where :func:`find_clusters` finds none.
 
     Parameters
     ----------
@@ -325,6 +326,9 @@ class ClusterControl(Controller):
         The groups to control together (default: :func:`find_clusters` on the LQG loops' crossovers, and
         their gain margins with ``rule`` "margin"; "band": the lock-in corners' rule).
     rule : {"margin", "band"}
+    alone : {"lqg", "pi"}
+        The loops of the modes in no cluster: per-mode LQG (:mod:`~modalctl.loops.lqg`) or the PI loops
+        (:func:`~modalctl.loops.design.pi_controller`; what the default closed loop runs).
 
     Attributes
     ----------
@@ -332,8 +336,8 @@ class ClusterControl(Controller):
         The groups controlled together.
     refused : list of (tuple, str)
         The groups asked for whose observer (dlqe) has no solution, and why: their modes keep per-mode loops.
-    inner : LQGControl or None
-        The per-mode LQG loops of the modes in no cluster (None when every mode is in one).
+    inner : Controller or None
+        The per-mode loops of the modes in no cluster (``alone``; None when every mode is in one).
     spectral_radius : ndarray, shape (c,)
         Each cluster's nominal closed loop (:func:`closed_loop_radius`; below 1: stable).
     innovation : ndarray, shape (c,)
@@ -346,9 +350,11 @@ class ClusterControl(Controller):
     # commands for those sent
     observes = True
 
-    def __init__(self, plant: LoopPlant, clusters: Clusters | None = None, rule: str = "margin"):
+    def __init__(self, plant: LoopPlant, clusters: Clusters | None = None, rule: str = "margin", alone: str = "lqg"):
         if rule not in ("margin", "band"):  # a misspelt rule would otherwise be the corners' rule, unsaid
             raise ValueError(f"cluster controller: rule must be 'margin' or 'band', got {rule!r}")
+        if alone not in ALONE:
+            raise ValueError(f"cluster controller: alone must be one of {sorted(ALONE)}, got {alone!r}")
         pi = design_loops(plant.frequencies, plant.damping, plant.bandwidths, plant.control_rate,
                           latency=plant.latency)  # the crossovers the LQ loops aim at (as per-mode LQG's design)
         nan = np.full(plant.frequencies.size, np.nan)
@@ -371,7 +377,7 @@ class ClusterControl(Controller):
         self.clusters = replace(clusters, groups=tuple(tuple(law.loops.tolist()) for law in self.laws))
         clustered = np.concatenate([law.loops for law in self.laws] or [np.zeros(0, int)])
         self._alone = np.setdiff1d(np.arange(plant.frequencies.size), clustered)  # per-mode LQG's loops
-        self.inner = LQGControl(_subplant(plant, self._alone)) if self._alone.size else None
+        self.inner = ALONE[alone](_subplant(plant, self._alone)) if self._alone.size else None
         self.spectral_radius = np.array([closed_loop_radius(law) for law in self.laws])
         self._stack(1 / plant.control_rate)
         self.reset()

@@ -121,10 +121,13 @@ class ControllerFactory(ABC):
     Attributes
     ----------
     name, summary : str
+    senses_touch : bool
+        Whether its controllers estimate a touch (and take a touch sensor's place, ``LoopOptions.touch_at``).
     """
 
     name: str = ""
     summary: str = ""
+    senses_touch: bool = False
 
     @abstractmethod
     def create(self, plant: LoopPlant, **options) -> Controller:

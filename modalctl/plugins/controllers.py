@@ -1,5 +1,6 @@
 """First-party per-mode controllers: PI loops designed on margins, a Kalman observer with LQ feedback,
-PI loops that give back the force a touch takes, and LQG loops that control close modes together.
+PI loops that give back the force a touch takes, LQG loops that control close modes together, and
+the default: the touch's give-back over the close modes' laws and PI loops on the others.
 
 Each is a :class:`~modalctl.loops.controller.ControllerFactory` subclass, as a third party's would
 be. They are designed with python-control, which loads matplotlib's pyplot when imported: the
@@ -39,12 +40,26 @@ class Touch(ControllerFactory):
     name = "touch"
     summary = "PI per mode plus the force a touch takes: its damping and place estimated from every mode's " \
               "envelope during the shot, given back on the planned motion"
+    senses_touch = True
 
     def create(self, plant: LoopPlant, inner: ControllerFactory | None = None, **options) -> Controller:
         """``inner``: the loops the touch's force is added to (the PI's by default)."""
         from modalctl.loops.touch import TouchControl
 
         return TouchControl(plant, (inner or PI()).create(plant), **options)
+
+
+class TouchCluster(ControllerFactory):
+    name = "touch+cluster"
+    summary = "the touch controller over one LQ law per cluster of close modes, PI on the modes in no cluster " \
+              "(default)"
+    senses_touch = True
+
+    def create(self, plant: LoopPlant, **options) -> Controller:
+        from modalctl.loops.cluster import ClusterControl
+        from modalctl.loops.touch import TouchControl
+
+        return TouchControl(plant, ClusterControl(plant, alone="pi"), **options)
 
 
 class Cluster(ControllerFactory):
@@ -60,4 +75,4 @@ class Cluster(ControllerFactory):
 
 @hookimpl
 def modalctl_controllers():
-    return [PI(), LQG(), Touch(), Cluster()]
+    return [PI(), LQG(), Touch(), TouchCluster(), Cluster()]
