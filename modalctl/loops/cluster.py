@@ -50,6 +50,8 @@ __all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl"]
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
 ALONE = {"lqg": LQGControl, "pi": pi_controller}  # the loops of the modes in no cluster (ClusterControl's alone)
+DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update dense / sparse, 22.5 / 17.8 us on
+# thesis-al-cc's one law (60 states), 27.8 / 24.8 on plate-glass's (192), 37 / 60 on panel-rounded's 18 (654)
 TURNS = 1024  # periods of the frames' turns computed at once (ClusterControl._turn)
 # lock-in corners from a cluster's carriers within which its observer keeps a mode's dynamics (beyond, the lock-in
 # passes 5^-4 of it): cluster_poles' 20 made panel-rounded's 18 laws 1,132 states, an update 206 us; 5: 654 states,
@@ -391,11 +393,13 @@ class ClusterControl(Controller):
         spin = np.exp(1j * self._angle)
         self._spin, self._ahead, self._sent_ahead = spin, spin ** lead, spin ** (lead - 1)
         # sparse: the laws' blocks, and within them the modes' states (a 2 x 2 block each) and the delay line,
-        # are mostly zeros (panel-rounded's 18 laws: 578 states, 8,132 of A's 334,084 entries; A x 31 -> 7 us)
+        # are mostly zeros (panel-rounded's 18 laws: 578 states, 8,132 of A's 334,084 entries; A x 31 -> 7 us);
+        # up to DENSE_STATES dense, where a sparse product's overhead is more than its work
         # (B is not stacked: it puts the command computed into the delay line's first slot, the rows _slot)
+        self._sparse = sum(law.A.shape[0] for law in laws) > DENSE_STATES
+        kind = sparse.csr_array if self._sparse else np.asarray
         self._A, self._C, self._M, self._K, self._Ki = (
-            sparse.csr_array(block_diag(*(getattr(law, name) for law in laws)))
-            for name in ("A", "C", "M", "K", "Ki"))
+            kind(block_diag(*(getattr(law, name) for law in laws))) for name in ("A", "C", "M", "K", "Ki"))
         self._turns = (-1, np.ones((0, spin.size), complex))  # (first period, the frames' turns from it on)
         self._join()
         slots, start = [], 0  # where each law's newest command in flight sits in the stacked state
@@ -410,9 +414,12 @@ class ClusterControl(Controller):
         state), then ``[K; A] M`` times the surprise (the same of the observer's correction ``M s``)."""
         if not self.laws:  # nothing stacked (block_diag of none is (1, 0))
             return
-        ka = sparse.vstack([self._K, self._A])
-        self._CKA = sparse.csr_array(sparse.vstack([self._C, ka]))
-        self._KAM = sparse.csr_array(ka @ self._M)
+        if self._sparse:
+            ka = sparse.vstack([self._K, self._A])
+            self._CKA, self._KAM = sparse.csr_array(sparse.vstack([self._C, ka])), sparse.csr_array(ka @ self._M)
+        else:
+            ka = np.vstack([self._K, self._A])
+            self._CKA, self._KAM = np.vstack([self._C, ka]), ka @ self._M
 
     def _turn(self, period: int) -> np.ndarray:
         """``spin ** period``: the frames' turn at a period, from a table computed :data:`TURNS` periods at a
