@@ -50,7 +50,7 @@ __all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl"]
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
 ALONE = {"lqg": LQGControl, "pi": pi_controller}  # the loops of the modes in no cluster (ClusterControl's alone)
-DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update dense / sparse, 22.5 / 17.8 us on
+DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update sparse / dense, 22.5 / 17.8 us on
 # thesis-al-cc's one law (60 states), 27.8 / 24.8 on plate-glass's (192), 37 / 60 on panel-rounded's 18 (654)
 TURNS = 1024  # periods of the frames' turns computed at once (ClusterControl._turn)
 # lock-in corners from a cluster's carriers within which its observer keeps a mode's dynamics (beyond, the lock-in
