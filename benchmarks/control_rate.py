@@ -70,7 +70,7 @@ def timed(truth, shot, shape, lifted: bool, logs: Path, discrete=None) -> tuple[
     peers = {rate: [] for rate in RATES}
     for _ in range(REPEATS):
         for rate, seed in keys:
-            play = run_focus(truth, shot, shape, LoopOptions(control_rate=rate), Bench(seed=seed, lifted=lifted),
+            play = run_focus(truth, shot, shape, LoopOptions(control_rate=rate, controller="pi"), Bench(seed=seed, lifted=lifted),
                              log=logs / f"{rate:g}-{seed}")
             if first.setdefault((rate, seed), play).tau != play.tau:
                 raise AssertionError(f"{rate:g} Hz seed {seed}: the same shot measured different tau")

@@ -10,7 +10,8 @@ grows it). It rests
 from the start, lands at 20 ms (the focus is at 25 ms), slides at 50 mm/s, presses harder
 (0.5 N s/m growing by 40 N s/m per s: 1.5 at the focus), or lifts at 15 ms. Methods: open loop
 (the plan alone), per-mode PI loops (``pi``), the ``touch`` controller (PI plus the force the
-estimated touch takes), the touch controller told where the finger is (a touch sensor), and
+estimated touch takes), the default closed loop (``touch+cluster``: the touch's force over one LQ law
+per cluster of close modes and PI on the others), the default told where the finger is (a touch sensor), and
 learned (a first closed-loop shot teaches the model, the second is reported: two shots; not on the
 plates, whose 21-mode output-error fit took over 6 GB and minutes per shot). Every
 shot on the HIL with 40 dB of sensor and vibrometer noise, the convex planner and its margin 0.5.
@@ -63,7 +64,7 @@ SCENARIOS = {  # label: Perturbation fields besides the finger's damping (1 N s/
     "presses 0.5 + 40/s": {"finger": 0.5, "finger_press": 40.0},
     "lifts at 15 ms": {"finger_lifts": 15e-3},
 }
-METHODS = ("open", "pi", "touch", "touch + sensor", "learned")
+METHODS = ("open", "pi", "touch", "default", "default + sensor", "learned")
 SWEEP_DAMPING = (0.0, 0.1, 0.3, 1.0, 2.0, 3.0)
 SEEDS = tuple(range(7))  # noise draws for the estimator's settling time
 SWEEP_PLACES = (0.0, 5e-3, 10e-3, 20e-3)
@@ -85,14 +86,20 @@ def _options(method: str, at) -> RunOptions:
         return RunOptions(FOCUS, PlanOptions())
     if method.startswith("controller "):  # --controllers: the named controller plugin, nothing else
         name = method.split()[1]
-        return RunOptions(FOCUS, PlanOptions(), LoopOptions(controller=_TouchOver(name) if "+" in name else name))
-    loop = LoopOptions(controller="pi" if method in ("pi", "learned") else "touch",
-                       touch_at=at if method == "touch + sensor" else None)
+        return RunOptions(FOCUS, PlanOptions(), LoopOptions(controller=name if name in _installed() else _TouchOver(name)))
+    named = {"pi": "pi", "learned": "pi", "touch": "touch"}  # the default's: None (LoopOptions.chosen_controller)
+    loop = LoopOptions(controller=named.get(method), touch_at=at if method == "default + sensor" else None)
     return RunOptions(FOCUS, PlanOptions(), loop, "record" if method == "learned" else None)
 
 
+def _installed() -> set[str]:
+    from modalctl.plugin.manager import controllers as installed
+
+    return set(installed())
+
+
 class _TouchOver(ControllerFactory):
-    """``touch+NAME``: the touch controller over the loops of controller plugin NAME (PI by default)."""
+    """``touch+NAME`` that no plugin is named: the touch controller over the loops of controller plugin NAME."""
 
     def __init__(self, name: str):
         self.name, self.inner = name, pick("controller", name.split("+")[1])
@@ -116,7 +123,8 @@ def _shot(model, target, method: str, perturbation: Perturbation, plans: dict) -
             "fault": shot.fault, "seconds": time.perf_counter() - start,
             "estimate": None if learned is None else {k: learned[k] for k in ("damping_n_s_per_m", "at_m", "sensed")},
             "estimate_per_period": None if learned is None else learned["damping_per_period"],
-            "control_rate_hz": None if shot.loop is None else shot.loop.control_rate_hz}
+            "control_rate_hz": None if shot.loop is None else shot.loop.control_rate_hz,
+            "step_seconds": None if shot.loop is None else shot.loop.step_seconds_median}
 
 
 def _settled(row: dict, truth, since: float) -> float | None:
@@ -172,14 +180,14 @@ def main() -> None:
 
 
 def _sweeps() -> list[dict]:
-    """The bump's finger damping 0-3 N s/m at the focus, and its place off the focus, pi and touch."""
+    """The bump's finger damping 0-3 N s/m at the focus, and its place off the focus, pi and the default."""
     scene, shape, params = CASES["al-cc bump 25 mm @ 0"]
     model, target, peak = _setup(scene, shape, params)
     plans: dict = {}
     out = []
     jobs = [("damping", c, (0.0,)) for c in SWEEP_DAMPING] + [("place", 1.0, (x,)) for x in SWEEP_PLACES]
     for kind, c, at in tqdm(jobs, desc="finger sweeps", unit="case"):
-        for method in ("open", "pi", "touch"):
+        for method in ("open", "pi", "default"):
             p = Perturbation(finger=c, finger_at=at if c else None, snr_db=SNR)
             row = _shot(model, target, method, p, plans)
             out.append({"sweep": kind, "finger": c, "at_mm": 1e3 * at[0], "method": method,
@@ -189,7 +197,7 @@ def _sweeps() -> list[dict]:
 
 
 def _settling() -> list[dict]:
-    """The touch controller's settling time (no touch sensor) over noise draws: a finger resting
+    """The default controller's settling time (no touch sensor) over noise draws: a finger resting
     from the start and one landing at 20 ms, on the bump and the sinc."""
     out = []
     cases = {case: _setup(*CASES[case]) for case in list(CASES)[:2]}
@@ -197,7 +205,7 @@ def _settling() -> list[dict]:
     for case, scenario, seed in tqdm(jobs, desc="finger settling", unit="shot"):
         model, target, peak = cases[case]
         p = Perturbation(finger_at=peak, snr_db=SNR, seed=seed, **{"finger": 1.0, **SCENARIOS[scenario]})
-        row = _shot(model, target, "touch", p, {})
+        row = _shot(model, target, "default", p, {})
         out.append({"case": case, "scenario": scenario, "seed": seed, "tau": row["tau"],
                     "settled_s": _settled(row, _truth(p), p.finger_lands or 0.0)})
     return out
@@ -208,8 +216,9 @@ def report(data: dict, path) -> None:
     md = ["# A finger on the focus", "",
           "`python benchmarks/finger.py`: one shot per row on the HIL (40 dB noise, convex planner, margin 0.5, "
           "focus at 25 ms), 1 N s/m unless said, the finger on the target's peak. recovered: the share of the "
-          "focus peak the finger took that the method gives back (open loop: 0 by definition). estimate: the touch "
-          "controller's damping at the end of the shot ('-': no touch sensed then); settled: how long after the finger landed (the shot's "
+          "focus peak the finger took that the method gives back (open loop: 0 by definition). default: the "
+          "default closed loop (touch+cluster). estimate: the touch "
+          "estimator's damping at the end of the shot ('-': no touch sensed then); settled: how long after the finger landed (the shot's "
           "start when it rests) the estimate is within 10% of the truth and stays there until the focus "
           "('-' if it is not within 10% at the focus). learned: two shots.", "",
           f"Wall time {data['wall_seconds']:.0f} s.", ""]
@@ -229,7 +238,7 @@ def report(data: dict, path) -> None:
         md.append(f"| {r['sweep']} | {r['finger']:g} | {r['at_mm']:g} | {r['method']} | {r['tau']:.3f} | "
                   f"{r['margin_ratio']:.3f} | {r['peak_voltage']:.1f} | {r['state'] or 'open'} | {_fmt(est, '.2f')} |")
     if data.get("settling"):
-        md += ["", "## The estimate's settling over noise draws (touch, no touch sensor)", "",
+        md += ["", "## The estimate's settling over noise draws (the default, no touch sensor)", "",
                f"Seeds {SEEDS[0]}-{SEEDS[-1]} of the HIL's noise; settled: within 10% of the truth and staying there "
                "until the focus, after the finger landed (the shot's start when it rests).", "",
                "| case | scenario | settled median (ms) | settled max (ms) | under 5 ms | tau median |",
@@ -256,8 +265,8 @@ def _fmt(value, spec: str) -> str:
 def _draw(rows, sweep) -> None:
     fig, axes = plt.subplots(2, 3, figsize=(18, 9.6))
     axes = axes.ravel()
-    colors = {"open": "0.6", "pi": "tab:blue", "touch": "tab:red", "touch + sensor": "tab:orange",
-              "learned": "tab:green"}
+    colors = {"open": "0.6", "pi": "tab:blue", "touch": "tab:red", "default": "tab:purple",
+              "default + sensor": "tab:orange", "learned": "tab:green"}
     width = 0.8 / len(METHODS)
     for ax, case in zip(axes[:len(CASES)], CASES):
         for i, method in enumerate(METHODS):
@@ -265,7 +274,7 @@ def _draw(rows, sweep) -> None:
                    for s in SCENARIOS]
             if None in got:
                 continue
-            ax.bar(np.arange(len(SCENARIOS)) + (i - 2) * width, [100 * (r["recovered"] or 0) for r in got], width,
+            ax.bar(np.arange(len(SCENARIOS)) + (i - (len(METHODS) - 1) / 2) * width, [100 * (r["recovered"] or 0) for r in got], width,
                    color=colors[method], label=method)
         ax.axhline(90, color="k", ls=":", lw=1)
         ax.set_xticks(np.arange(len(SCENARIOS)), list(SCENARIOS), rotation=15)
@@ -273,7 +282,7 @@ def _draw(rows, sweep) -> None:
         ax.set_title(case)
         ax.legend(fontsize=8)
     ax = axes[len(CASES)]
-    for method in ("open", "pi", "touch"):
+    for method in ("open", "pi", "default"):
         got = [r for r in sweep if r["sweep"] == "damping" and r["method"] == method]
         ax.plot([r["finger"] for r in got], [r["tau"] for r in got], "o-", color=colors[method], label=method)
     ax.axhline(0.95, color="k", ls=":", lw=1)
@@ -302,18 +311,20 @@ def controllers(names: list[str], cases: list[str]) -> None:
         for (method, finger), row in shots.items():
             back = (row["peak"] - shots["open", 1.0]["peak"]) / taken if finger and taken > 0 else None
             rows.append({"case": case, "method": method, "finger": finger, "recovered": back,
-                         **{k: row[k] for k in ("peak", "tau", "margin_ratio", "state", "fault", "seconds")}})
+                         **{k: row[k] for k in ("peak", "tau", "margin_ratio", "state", "fault", "seconds", "step_seconds")}})
     md = ["# A finger on the focus, per controller", "",
           "`python benchmarks/finger.py --controllers " + ",".join(names) + " --cases " + ",".join(cases) + "`: one "
           "shot per row on the HIL (40 dB, convex planner, margin 0.5, focus 25 ms); finger 1 N s/m resting on "
           "the target's peak or none. recovered: the share of the focus peak the finger took (open loop's) that "
-          f"the controller gives back. Wall time {time.perf_counter() - start:.0f} s.", "",
-          "| case | method | finger (N s/m) | tau | margin | recovered | state | s |",
-          "|---|---|---|---|---|---|---|---|"]
+          "the controller gives back; update: the median loop update (us, at 20 kHz). Wall time "
+          f"{time.perf_counter() - start:.0f} s.", "",
+          "| case | method | finger (N s/m) | tau | margin | recovered | state | update (us) | s |",
+          "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         back = "-" if r["recovered"] is None else f"{100 * r['recovered']:.1f}%"
+        update = "-" if r["step_seconds"] is None else f"{1e6 * r['step_seconds']:.0f}"
         md.append(f"| {r['case']} | {r['method']} | {r['finger']:g} | {r['tau']:.4f} | {r['margin_ratio']:.3f} | "
-                  f"{back} | {r['state']} | {r['seconds']:.1f} |")
+                  f"{back} | {r['state']} | {update} | {r['seconds']:.1f} |")
     write_markdown("finger_controllers", md, write_json("finger_controllers", {"rows": rows}))
 
 

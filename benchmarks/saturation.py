@@ -54,7 +54,7 @@ def shot_row(truth, shot, shape, rail: float | None, method: str, seed: int) -> 
     """One shot: ``method`` is open, exact (the supervisor) or bound (the phase-free bound)."""
     modalctl.loops.shot.Supervisor = PhaseFreeSupervisor if method == "bound" else Supervisor
     try:
-        r = run_focus(truth, shot, shape, LoopOptions(control_rate=RATE), Bench(voltage_limit=rail, seed=seed),
+        r = run_focus(truth, shot, shape, LoopOptions(control_rate=RATE, controller="pi"), Bench(voltage_limit=rail, seed=seed),
                       closed=method != "open")
     finally:
         modalctl.loops.shot.Supervisor = Supervisor

@@ -15,8 +15,9 @@ noise, each planned on the scene's model and played on truths that depart from i
 - the model lacking a mode the truth has inside its band: one the plan keeps, one it leaves.
 
 Each truth: tau and margin ratio of the convex plan in open loop and under the default loops
-(``run`` through ``sim://``, the vibrometer's noise on every grid point), and the loops' gain
-scale at which they go unstable: **predicted** from the closed-loop poles of each active loop, and
+(``run`` through ``sim://``, the vibrometer's noise on every grid point), and the PI loops' gain
+scale at which they go unstable (the ``pi`` controller: the default's close modes run LQ laws, which
+:func:`~modalctl.loops.design.cluster_poles` does not model): **predicted** from the closed-loop poles of each active loop, and
 of each pair of loops whose lock-ins pass each other's carrier (a cluster: each reads the other's
 drive), on everything their readings hold of the truth's answer to their drives (every truth mode,
 less the leak the runtime removes, through the lock-ins, sampled with the board's ramp, the
@@ -128,7 +129,7 @@ def predicted(plan, truth, sigma: float) -> dict:
     """Each active loop's, and each cluster's (two loops whose lock-ins pass each other's carrier),
     gain scale at which its closed loop on ``truth`` turns unstable (:func:`cluster_poles`); the
     smallest over them, and the loops that set it (their modes)."""
-    parts = loop_parts(plan, LoopOptions(), sigma)
+    parts = loop_parts(plan, LoopOptions(controller="pi"), sigma)
     active = np.flatnonzero(np.asarray(parts.authority).max(axis=1) > 0)
     found = {}
     for loops in _clusters(parts, active):
@@ -149,7 +150,7 @@ def observed(plan, truth, target) -> dict:
     shots = []
 
     def holds(scale: float) -> bool:
-        shot = run_focus(truth, plan, target, LoopOptions(authority=UNBOUNDED), Bench(snr_db=SNR, gain_scale=scale))
+        shot = run_focus(truth, plan, target, LoopOptions(authority=UNBOUNDED, controller="pi"), Bench(snr_db=SNR, gain_scale=scale))
         stopped = shot.result.state == State.ERROR or not np.isfinite(shot.tau)
         shots.append({"scale": float(scale), "stopped": bool(stopped), "reason": shot.result.reason,
                       "tau": float(shot.tau), "margin_ratio": float(shot.margin_ratio)})

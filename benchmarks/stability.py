@@ -44,7 +44,7 @@ def observe(point) -> dict:
     f = model.frequencies.copy()
     f[MODE] += detuning
     log = tempfile.mkdtemp() + "/log"
-    runtime, *_ = step_runtime(model, MODE, truth=replace(model, frequencies=f), loop=LoopOptions(control_rate=RATE),
+    runtime, *_ = step_runtime(model, MODE, truth=replace(model, frequencies=f), loop=LoopOptions(control_rate=RATE, controller="pi"),
                                periods=820, latency=int(extra), log=log)
     result = runtime.run()
     error = np.abs(read_log(log)[0]["measured"][:, 0] - 1e-4) / 1e-4
@@ -57,7 +57,7 @@ def observe(point) -> dict:
 
 def main() -> None:
     model = load_scene("thesis-al-cc", 105)
-    runtime, design, sigma, band = step_runtime(model, MODE, loop=LoopOptions(control_rate=RATE))
+    runtime, design, sigma, band = step_runtime(model, MODE, loop=LoopOptions(control_rate=RATE, controller="pi"))
     fine_d = np.linspace(DETUNING_HZ[0], DETUNING_HZ[-1], 61)
     fine_l = np.linspace(0, EXTRA[-1], 49)
     growth = np.array([[loop_poles(design, 0, sigma, band, RATE, 1 + extra, 2 * np.pi * d).real.max()

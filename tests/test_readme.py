@@ -132,7 +132,8 @@ HOW = {
         ("drop", None),
     ".venv/bin/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm "
     "--focus-time 25ms --drift 1% --damping-error 20% --snr 40 --loop closed [--control-rate 20kHz] "
-    "[--controller pi|lqg|touch] [--voltage-limit 100V|none] [--slew-limit 2V/us] [--authority 2] [--latency N] "
+    "[--controller touch+cluster|touch|pi|lqg|cluster] [--voltage-limit 100V|none] [--slew-limit 2V/us] "
+    "[--authority 2] [--latency N] "
     "--out DIR": ("first", None),
     ".venv/bin/modalctl emulate --scene thesis-al-cc --drift 1% --snr 40": ("emulate", None),
     ".venv/bin/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm "
@@ -143,7 +144,8 @@ HOW = {
     "--out DIR": ("drop", lambda tmp, out: _serial_shot(out, "note: control at 1824.82 Hz, not 2000: the link carries "
                                                        "1829 periods/s with 8 modes")),
     ".venv/bin/modalctl sweep --vary drift=0,1%,2%,3% --vary finger=0,0.1,0.3,1Ns/m --damping-error 20% "
-    "[--methods open,closed,tracked,learned] [--controller touch|pi|lqg] [--voltage-limit 70V|none] "
+    "[--methods open,closed,tracked,learned] [--controller touch+cluster|touch|pi|lqg|cluster] "
+    "[--voltage-limit 70V|none] "
     "[--workers N | --scheduler tcp://host:8786] --out DIR": ("drop", None),
 }
 #: Blocks of the README run here (by their first command), the slow ones (seconds each) marked.
