@@ -48,7 +48,7 @@ def cases():
                         damping_error=damping, finger=finger, modes=modes, points=points)
             yield name, truth, None, base
             for a in AUTHORITIES:
-                yield name, truth, a, Case(**{**base.__dict__, "method": "closed", "authority": a})
+                yield name, truth, a, Case(**{**base.__dict__, "method": "closed", "authority": a, "controller": "pi"})
 
 
 def main() -> None:

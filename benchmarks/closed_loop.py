@@ -43,7 +43,8 @@ def cases():
         for centre, thesis_tau in zip(centres, taus):
             base = Case(scene, shape, tuple(sorted({**params, "center": f"{centre}m"}.items())), tf,
                         planner="convex" if "margin" in name else THESIS_PLAN.planner,
-                        margin=0.5 if "margin" in name else None, modes=modes, points=None, **TRUTH)
+                        margin=0.5 if "margin" in name else None, modes=modes, points=None, controller="pi",
+                        **TRUTH)  # the PI loops (what the table measured before touch+cluster became the default)
             label = f"{name} @ {centre * 1e3:g} mm"
             by = {"perfect": Case(**{**base.__dict__, "method": "open", "drift": 0.0, "damping_error": 0.0,
                                      "snr_db": None})}

@@ -238,6 +238,7 @@ def part_focus() -> dict:
             argv = ["run", "--scene", scene, "--points", "51x36", "--drift", "1%",
                     "--shape", "bump", "--param", "width=40mm", "--param", "center=-20mm,5mm", "--tau-target",
                     str(TAU), "--focus-time", "25ms", "--loop", loop, "--out", str(folder), "--json", "--force"]
+            argv += ["--controller", "pi"] if loop == "closed" else []  # the PI loops, as measured (not the default)
             start = time.perf_counter()
             import contextlib
             import io

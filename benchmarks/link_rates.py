@@ -78,14 +78,16 @@ def main() -> None:
     rows = []
     for name, budget, loop, emulator, url in links:
         rate = ON_BOARD if budget is None else highest_rate(budget)
-        sim = shot([*TRUTH, "--loop", loop, "--control-rate", f"{rate}Hz"], tmp / f"sim{rate:g}{loop}")
+        sim = shot([*TRUTH, "--loop", loop, "--controller", "pi", "--control-rate", f"{rate}Hz"],
+                   tmp / f"sim{rate:g}{loop}")
         with emulator() as board:
-            link = shot(["--loop", loop, "--control-rate", f"{rate}Hz", "--transport", url(board)],
+            link = shot(["--loop", loop, "--controller", "pi", "--control-rate", f"{rate}Hz",
+                         "--transport", url(board)],
                         tmp / name.replace(" ", "_").replace(",", ""))
         rows.append({"link": name, "loop": loop, "budget_periods_per_s": budget, "rate_hz": rate, "link_shot": link,
                      "sim_shot": sim})
         print(f"{name}: {rate:g} Hz: tau {link['tau']:.4f} (sim {sim['tau']:.4f})")
-    host = shot([*TRUTH, "--loop", "closed", "--control-rate", f"{ON_BOARD}Hz"], tmp / "host20k")
+    host = shot([*TRUTH, "--loop", "closed", "--controller", "pi", "--control-rate", f"{ON_BOARD}Hz"], tmp / "host20k")
     path = write_json("link_rates", {"modes": MODES, "rows": rows, "host_loops_sim_20khz": host})
     md = ["# Closed loop over each link at its highest rate", "",
           "Command: `python benchmarks/link_rates.py`. sinc 18 mm at 24 mm, 7 modes, truth +1% / +20% damping / 40 dB, "
