@@ -103,7 +103,8 @@ def test_a_run_continues_the_scene_for_its_truth_and_cannot_scan_a_truth_coarser
 
 @pytest.fixture(scope="module")
 def margin_case():
-    """thesis-al-cc's margin case planned for the default closed loop, and its loops' parts."""
+    """thesis-al-cc's margin case planned for the default closed loop, and its PI loops' parts (the loops the
+    poles of cluster_poles model)."""
     from modalctl.loops.shot import loop_parts
     from modalctl.model.shape import parse_params
     from modalctl.options import LoopOptions, PlanOptions, RunOptions
@@ -114,7 +115,7 @@ def margin_case():
     sinc = get_shape("sinc")
     target = sinc.generate(model.grid, **parse_params(sinc, {"width": "18mm", "center": "24mm"}))
     _, plan = plan_shot(model, target, 25e-3, RunOptions(25e-3, PlanOptions(), LoopOptions()).planned)
-    return model, target, plan, loop_parts(plan, LoopOptions(), plan.focus_peak / 100)
+    return model, target, plan, loop_parts(plan, LoopOptions(controller="pi"), plan.focus_peak / 100)
 
 
 def _boundary(parts, truth, i, low=0.5, high=4.0) -> float:
@@ -155,7 +156,7 @@ def test_the_loops_poles_find_the_loop_the_hil_board_loses_first_and_about_where
     boundaries = {int(i): _boundary(parts, model, int(i), high=8.0) for i in active}
     weakest = min(boundaries, key=boundaries.get)
     assert model.labels[plan.modes[weakest]] == 7 and 1.0 < boundaries[weakest] < 1.8
-    unclamped = LoopOptions(authority=1e9)
+    unclamped = LoopOptions(authority=1e9, controller="pi")
     held = run_focus(model, plan, target, unclamped, Bench(snr_db=40, gain_scale=1.0))
     lost = run_focus(model, plan, target, unclamped, Bench(snr_db=40, gain_scale=1.8))
     assert held.result.state != State.ERROR
@@ -181,12 +182,12 @@ def test_a_close_pair_of_loops_holds_less_together_than_either_alone_as_the_hil_
     gaussian = get_shape("gaussian")
     target = gaussian.generate(model.grid, **parse_params(gaussian, {"width": "30mm", "center": "20mm,10mm"}))
     _, plan = plan_shot(model, target, 25e-3, RunOptions(25e-3, PlanOptions(), LoopOptions()).planned)
-    parts = loop_parts(plan, LoopOptions(), plan.focus_peak / 100)
+    parts = loop_parts(plan, LoopOptions(controller="pi"), plan.focus_peak / 100)
     pair = [int(np.flatnonzero(model.labels[plan.modes] == label)[0]) for label in (9, 10)]
     grows = lambda loops, g: cluster_poles(parts, loops, model, g).real.max() > 0  # noqa: E731
     assert not any(grows([i], 1.6) for i in pair)
     assert grows(pair, 1.25)
-    unclamped = LoopOptions(authority=1e9)
+    unclamped = LoopOptions(authority=1e9, controller="pi")
     assert run_focus(model, plan, target, unclamped, Bench(snr_db=40, gain_scale=0.8)).result.state != State.ERROR
     lost = run_focus(model, plan, target, unclamped, Bench(snr_db=40, gain_scale=1.4)).result
     assert lost.state == State.ERROR and any(f"slot {i} " in lost.reason for i in pair), lost.reason
