@@ -70,13 +70,14 @@ def write_markdown(name: str, lines: list[str], json_path: Path | None = None) -
     return path
 
 
-def save_figure(fig, name: str, dpi: int = 120) -> Path:
-    """Lay out, write ``results/<name>.png`` and close the figure."""
+def save_figure(fig, name: str, dpi: int = 120, rect=(0, 0, 1, 1)) -> Path:
+    """Lay out (the axes within ``rect``, figure fractions: room for a figure legend), write
+    ``results/<name>.png`` and close the figure."""
     import matplotlib.pyplot as plt
 
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{name}.png"
-    fig.tight_layout()
+    fig.tight_layout(rect=rect)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path

@@ -274,13 +274,12 @@ def _draw(rows, sweep) -> None:
                    for s in SCENARIOS]
             if None in got:
                 continue
-            ax.bar(np.arange(len(SCENARIOS)) + (i - (len(METHODS) - 1) / 2) * width, [100 * (r["recovered"] or 0) for r in got], width,
-                   color=colors[method], label=method)
+            ax.bar(np.arange(len(SCENARIOS)) + (i - (len(METHODS) - 1) / 2) * width,
+                   [100 * (r["recovered"] or 0) for r in got], width, color=colors[method], label=method)
         ax.axhline(90, color="k", ls=":", lw=1)
         ax.set_xticks(np.arange(len(SCENARIOS)), list(SCENARIOS), rotation=15)
         ax.set_ylabel("focus peak recovered (% of what the finger took)")
         ax.set_title(case)
-        ax.legend(fontsize=8)
     ax = axes[len(CASES)]
     for method in ("open", "pi", "default"):
         got = [r for r in sweep if r["sweep"] == "damping" and r["method"] == method]
@@ -290,7 +289,10 @@ def _draw(rows, sweep) -> None:
     ax.set_ylabel("tau")
     ax.set_title("al-cc bump 25 mm: one shot, finger at the focus")
     ax.legend()
-    save_figure(fig, "finger")
+    handles = {h.get_label(): h for a in axes[:len(CASES)] for h in a.containers}  # one legend: none covers bars
+    fig.legend([handles[m] for m in METHODS if m in handles], [m for m in METHODS if m in handles],
+               loc="upper center", ncol=len(METHODS), fontsize=9)
+    save_figure(fig, "finger", rect=(0, 0, 1, 0.96))  # room above the plots for the legend
 
 
 def controllers(names: list[str], cases: list[str]) -> None:
