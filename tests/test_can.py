@@ -197,3 +197,18 @@ def test_a_board_without_heartbeat_is_driven_with_heartbeat_zero(model, tmp_path
         assert main([*RUN, "--loop", "open", "--transport", board.url + "&heartbeat=0.2",
                      "--out", str(tmp_path / "refused")]) == 3
     assert "add heartbeat=0 to the URL" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("loop", [["--loop", "closed", "--control-rate", "20kHz"], ["--loop", "board"]],
+                         ids=["host", "board"])
+def test_the_default_planner_s_closed_loops_over_can_hold_the_margin(model, tmp_path, capsys, loop):
+    """The README's flow over CAN FD with the default planner (convex, margin 0.5): host loops at the rate the
+    bus carries and loops on the board both exit 0, hold the margin and print tau and the margin measured."""
+    default_planner = [arg for arg in RUN if arg not in ("--planner", "envelope", "--margin", "none")]
+    with CanBoardEmulator(model, PERTURBATION, channel=f"margin-{loop[1]}") as board:
+        code = main([*default_planner, *loop, "--transport", board.url, "--out", str(tmp_path)])
+    printed = capsys.readouterr().out
+    assert code == 0
+    metrics = _metrics(tmp_path)
+    assert metrics["planner"] == "convex" and metrics["margin_ok"] and metrics["margin_ratio"] <= 0.5
+    assert metrics["tau"] > 0.95 and "tau " in printed and "margin ratio" in printed
