@@ -178,13 +178,14 @@ def _run_options(args, out: Path):
 
 
 def _senses_touch(controller: str) -> bool:
-    """Whether the controller plugin named estimates a touch (an unknown name: refused where the loops are made)."""
+    """Whether the controller plugin named estimates a touch (an unknown name: True here, so that it is refused
+    where the loops are made, with the installed names, not as a misplaced --touch-at)."""
     from modalctl.plugin.manager import PluginError, pick
 
     try:
         return bool(getattr(pick("controller", controller), "senses_touch", False))
     except PluginError:
-        return False
+        return True
 
 
 def _applying(args) -> list[tuple[bool, bool, str]]:

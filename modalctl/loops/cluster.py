@@ -50,8 +50,9 @@ __all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl"]
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
 ALONE = {"lqg": LQGControl, "pi": pi_controller}  # the loops of the modes in no cluster (ClusterControl's alone)
-DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update sparse / dense, 22.5 / 17.8 us on
-# thesis-al-cc's one law (60 states), 27.8 / 24.8 on plate-glass's (192), 37 / 60 on panel-rounded's 18 (654)
+DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update sparse / dense,
+# 22.5 / 17.8 us on thesis-al-cc's one law (60 states), 27.8 / 24.8 on plate-glass's (192), 37 / 60 on panel-rounded's
+# 18 (654)
 TURNS = 1024  # periods of the frames' turns computed at once (ClusterControl._turn)
 # lock-in corners from a cluster's carriers within which its observer keeps a mode's dynamics (beyond, the lock-in
 # passes 5^-4 of it): cluster_poles' 20 made panel-rounded's 18 laws 1,132 states, an update 206 us; 5: 654 states,
@@ -315,7 +316,7 @@ def closed_loop_radius(law: _Law) -> float:
 
 
 class ClusterControl(Controller):
-    """Per-mode LQG loops, and one multivariable observer and LQ law per cluster of close modes.
+    """Per-mode loops (LQG or PI: ``alone``), and one multivariable observer and LQ law per cluster of close modes.
 
     Without the plant's ``model`` (and ``schedule``) there is no cluster to model: the controller is the
     isolated modes' loops (``alone``) on every mode, and so it is where :func:`find_clusters` finds none.
@@ -378,7 +379,7 @@ class ClusterControl(Controller):
                 self.refused.append((group, str(error)))
         self.clusters = replace(clusters, groups=tuple(tuple(law.loops.tolist()) for law in self.laws))
         clustered = np.concatenate([law.loops for law in self.laws] or [np.zeros(0, int)])
-        self._alone = np.setdiff1d(np.arange(plant.frequencies.size), clustered)  # per-mode LQG's loops
+        self._alone = np.setdiff1d(np.arange(plant.frequencies.size), clustered)  # the alone loops' modes
         self.inner = ALONE[alone](_subplant(plant, self._alone)) if self._alone.size else None
         self.spectral_radius = np.array([closed_loop_radius(law) for law in self.laws])
         self._stack(1 / plant.control_rate)
@@ -391,7 +392,7 @@ class ClusterControl(Controller):
         lead = {law.lead for law in laws}.pop() if laws else 1
         self._angle = np.concatenate([law.offsets for law in laws] or [np.zeros(0)]) * period  # rad a period
         spin = np.exp(1j * self._angle)
-        self._spin, self._ahead, self._sent_ahead = spin, spin ** lead, spin ** (lead - 1)
+        self._ahead, self._sent_ahead = spin ** lead, spin ** (lead - 1)
         # sparse: the laws' blocks, and within them the modes' states (a 2 x 2 block each) and the delay line,
         # are mostly zeros (panel-rounded's 18 laws: 578 states, 8,132 of A's 334,084 entries; A x 31 -> 7 us);
         # up to DENSE_STATES dense, where a sparse product's overhead is more than its work
@@ -414,12 +415,9 @@ class ClusterControl(Controller):
         state), then ``[K; A] M`` times the surprise (the same of the observer's correction ``M s``)."""
         if not self.laws:  # nothing stacked (block_diag of none is (1, 0))
             return
-        if self._sparse:
-            ka = sparse.vstack([self._K, self._A])
-            self._CKA, self._KAM = sparse.csr_array(sparse.vstack([self._C, ka])), sparse.csr_array(ka @ self._M)
-        else:
-            ka = np.vstack([self._K, self._A])
-            self._CKA, self._KAM = np.vstack([self._C, ka]), ka @ self._M
+        stack, kind = (sparse.vstack, sparse.csr_array) if self._sparse else (np.vstack, np.asarray)
+        ka = stack([self._K, self._A])
+        self._CKA, self._KAM = kind(stack([self._C, ka])), kind(ka @ self._M)
 
     def _turn(self, period: int) -> np.ndarray:
         """``spin ** period``: the frames' turn at a period, from a table computed :data:`TURNS` periods at a
