@@ -276,6 +276,11 @@ class LoopOptions(_Options):
         thesis-al-cc's margin case (1% and 2% drift, 20% more damping, 40 dB): the plan alone at 0.5
         measured 0.52-0.54; robust alone 0.52-0.55, the feedback breaking what open loop held (0.50);
         both, tau >= 0.955 and ratios 0.47-0.49 (README, "Planners and the transient margin").
+        A shot that learns the model first (``RunOptions.learn``) plans without that band: the
+        learned model is the drift's answer, and on a plate the band is what the plan cannot hold
+        (plate-glass's 30 mm bump: refused at 0.45 over +-2%, +-1% and even +-0.4%, the high
+        modes' phases turning by cycles over the shot; learned and planned on the learned model,
+        1% drift: tau 0.980, margin 0.470).
     lockin_fraction, lockin_image : float
         Each mode's lock-in corner: this fraction of the gap to its nearest mode, at most
         ``lockin_image`` times its frequency. The reference goes through the same lock-in as the
@@ -345,11 +350,11 @@ class RunOptions(_Options):
     loop : LoopOptions or None
         The per-mode loops; None plays the feed-forward alone (open loop, the thesis's set-up).
     learn : {"record", "tracker"} or None
-        Play a first closed-loop shot that teaches the model (see :data:`LEARN_FROM`), plan again on
-        what it learned, and report the second shot.
+        Play a first shot that teaches the model (see :data:`LEARN_FROM`; open loop from a record,
+        closed loop from a tracker), plan again on what it learned, and report the second shot.
     log : Path or None
-        Where a closed loop records every control period (``.json`` + ``.bin``; a learning shot's
-        beside it, ``<log>-learning``).
+        Where a closed loop records every control period (``.json`` + ``.bin``; a closed-loop
+        learning shot's beside it, ``<log>-learning``).
     progress : bool
         Progress bars on long work.
     tracker : str or modalctl.identify.trackers.TrackerFactory
@@ -368,12 +373,15 @@ class RunOptions(_Options):
     @property
     def planned(self) -> PlanOptions:
         """What the planner is asked: the plan options, but, for a closed loop under a margin, the
-        loop's headroom taken off the margin, its drift band added and the gaps of an automatic
-        mode set filled (see :class:`LoopOptions` and :attr:`PlanOptions.fill_gaps`)."""
+        loop's headroom taken off the margin, its drift band added (unless the shot learns the model
+        first) and the gaps of an automatic mode set filled (see :class:`LoopOptions` and
+        :attr:`PlanOptions.fill_gaps`)."""
         if self.loop is None or self.plan.margin is None:
             return self.plan
-        return self.plan.but(margin=self.plan.margin * (1 - self.loop.margin_headroom),
-                             robust_drift=max(self.plan.robust_drift, self.loop.margin_drift), fill_gaps=True)
+        band = self.plan.robust_drift if self.learn is not None else max(self.plan.robust_drift,
+                                                                          self.loop.margin_drift)
+        return self.plan.but(margin=self.plan.margin * (1 - self.loop.margin_headroom), robust_drift=band,
+                             fill_gaps=True)
 
     def __post_init__(self):
         if not self.focus_time > 0:

@@ -532,17 +532,22 @@ def _clusters(parts: LoopParts, the_plan: Plan) -> dict:
 
 
 def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):
-    """A closed-loop shot that teaches the model (from its record, or from a pole tracker during it);
-    ``(what it measured and taught, the updated model)``."""
+    """A shot that teaches the model; ``(what it measured and taught, the updated model)``.
+
+    From its record: played open loop, which cannot diverge however far the truth has drifted
+    (plate-glass at 3%: the loops on the nominal plan diverged, the supervisor stopped the shot),
+    and the fit needs only the voltages and the sensors. From a pole tracker: closed loop, the
+    trackers run in the loops."""
     model, caps = dec.model, device.capabilities
     log = None if options.log is None else type(options.log)(f"{options.log}-learning")
     tracker = None
     if options.learn == "tracker":  # the carriers stay on the plan's during the shot
         tracker = options.tracker.create(model.frequencies[the_plan.modes], model.damping[the_plan.modes],
                                              options.loop.control_rate, retune=np.inf)
+    played_by = options if tracker is not None else options.but(loop=None, learn=None)  # a record: open loop
     start = _time.perf_counter()
-    played = _play(the_plan, device, options, voltage_limit, log, tracker)
-    shot = _measure(dec, the_plan, played, device, caps, options, start)
+    played = _play(the_plan, device, played_by, voltage_limit, log, tracker)
+    shot = _measure(dec, the_plan, played, device, caps, played_by, start)
     if shot.fault is not None:
         raise DeviceError(f"the supervisor stopped the learning shot ({shot.fault}); log in {log}.json")
     tic = _time.perf_counter()

@@ -93,8 +93,46 @@ def test_closed_loop_learns_the_truth_and_focuses_better(capsys, tmp_path):
     assert well.sum() >= 6 and np.all(np.abs(error[well]) < 5e-4)
     assert abs(learned["common_shift"] - 0.01) < 3 * learned["common_shift_error"]
     assert m["tau"] > learned["tau"] and m["tau"] > 0.98
-    assert (tmp_path / "log-learning.json").exists() and (tmp_path / "log.json").exists()
-    assert (tmp_path / "learning.png").stat().st_size > 10_000
+    assert (tmp_path / "log.json").exists() and (tmp_path / "learning.png").stat().st_size > 10_000
+    assert not (tmp_path / "log-learning.json").exists()  # learnt from a record: the first shot played open loop
+
+
+def test_learning_from_a_record_holds_the_margin_past_the_drift_band(capsys, tmp_path):
+    """5% drift, past the closed loop's 2% band (without --learn: tau 0.953-0.959, margin
+    0.494-0.513): the learning shot, open loop, measures the truth's common drift within its stated
+    error, and the shot planned on the learned model without the band holds the margin."""
+    from modalctl.cli import main
+
+    code = main(["run", "--scene", "thesis-al-cc", "--shape", "sinc", "--param", "width=18mm", "--param",
+                 "center=24mm", "--quiet", "--focus-time", "25ms", "--drift", "5%", "--snr", "40", "--loop",
+                 "closed", "--learn", "--out", str(tmp_path)])
+    assert code == 0, capsys.readouterr().err
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    learned = m["learning_shot"]
+    assert abs(learned["common_shift"] - 0.05) < max(3 * learned["common_shift_error"], 1e-3)
+    assert learned["margin_ratio"] > 0.5  # the nominal plan on the drifted truth breaks the margin ...
+    assert m["program"]["robust_drift"] == 0.0  # ... and the second is planned without the loop's band
+    assert m["margin_ratio"] <= 0.5 and m["tau"] >= 0.95, (m["margin_ratio"], m["tau"])
+
+
+def test_a_refused_closed_loop_says_learn_plans_without_the_drift_band():
+    """The closed loop's plan holds the margin over the loop's drift band; its refusal says that
+    ``--learn`` plans without it (and the voltage limit's source), and says nothing of it when the
+    shot learns already."""
+    from types import SimpleNamespace
+
+    from modalctl.cli.run import _said_why
+    from modalctl.options import LoopOptions, PlanOptions, RunOptions
+    from modalctl.plan.planner import PlanError
+
+    model = SimpleNamespace(voltage_limit=70.0, meta={"voltage_limit_source": "piezo patches"})
+    args = SimpleNamespace(voltage_limit=None)
+    closed = RunOptions(0.025, PlanOptions(), LoopOptions())
+    said = str(_said_why(args, model, PlanError("refused", 0.6, 0.45), closed))
+    assert "over +-2% of resonance drift; --learn plans" in said and "piezo patches" in said
+    learning = RunOptions(0.025, PlanOptions(), LoopOptions(), learn="record")
+    assert "--learn" not in str(_said_why(args, model, PlanError("refused", 0.6, 0.45), learning))
+    assert learning.planned.robust_drift == 0.0 and closed.planned.robust_drift == 0.02
 
 
 def test_learn_needs_a_closed_loop(capsys, tmp_path):

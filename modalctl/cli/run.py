@@ -96,8 +96,9 @@ def _add_loop_arguments(loop) -> None:
                       default=LOOP.watchdog,
                       help=f"periods without a measurement before the supervisor stops the shot ({LOOP.watchdog})")
     loop.add_argument("--learn", nargs="?", const="record", choices=LEARN_FROM,
-                      help="a first closed-loop shot teaches the model: from its record (record, the default: "
-                           "every resonance and damping fitted to it) or from a pole tracker during it (tracker); "
+                      help="a first shot teaches the model: from its record (record, the default: played open "
+                           "loop, every resonance and damping fitted to it) or from a pole tracker during it "
+                           "(tracker: closed loop); planned without the loop's drift band; "
                            "the shot planned again on the updated model is the one reported")
 
 
@@ -132,16 +133,24 @@ def _voltage_said(args, model) -> dict:
             "voltage_limit_source": model.meta.get("voltage_limit_source", "the model's meta")}
 
 
-def _said_why(args, model, refused):
-    """A refusal under the default voltage limit says where the limit comes from (the model's
-    actuators) and how to change it."""
+def _said_why(args, model, refused, options):
+    """A refusal says what the user may change: under the default voltage limit, where the limit
+    comes from (the model's actuators); for a closed loop planned over the loop's drift band, that
+    ``--learn`` plans without it."""
     from modalctl.plan.planner import PlanError
 
-    if args.voltage_limit is not None or model.voltage_limit is None:
+    hints = []
+    if args.voltage_limit is None and model.voltage_limit is not None:
+        source = model.meta.get("voltage_limit_source", "its meta's voltage_limit_v")
+        hints.append(f"the {model.voltage_limit:g} V limit is the model's actuators' safe voltage: {source}; "
+                     "--voltage-limit sets another")
+    band = options.planned.robust_drift
+    if options.closed and options.learn is None and band > options.plan.robust_drift:
+        hints.append(f"a closed loop's plan holds the margin over +-{band:.0%} of resonance drift; --learn plans "
+                     "it on the model a first shot measures, without that band")
+    if not hints:
         return refused
-    source = model.meta.get("voltage_limit_source", "its meta's voltage_limit_v")
-    return PlanError(f"{refused} (the {model.voltage_limit:g} V limit is the model's actuators' safe voltage: "
-                     f"{source}; --voltage-limit sets another)", refused.needed, refused.limit, refused.certificate)
+    return PlanError(f"{refused} ({'; '.join(hints)})", refused.needed, refused.limit, refused.certificate)
 
 
 def _margin(text: str) -> float | None:
@@ -246,7 +255,7 @@ def _run(args) -> int:
         try:
             shot = play(model, shape, device, options)
         except PlanError as refused:  # a result: why, on disk beside where the report would be
-            refused = _said_why(args, model, refused)
+            refused = _said_why(args, model, refused, options)
             write_json(out / "refusal.json", {"refused": str(refused), "needed": refused.needed,
                                               "limit": refused.limit, "certificate": refused.certificate,
                                               "planner": options.plan.planner,
