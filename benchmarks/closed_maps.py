@@ -12,8 +12,9 @@ plan and again under the thesis's 0.5 margin (the convex planner). The same code
 
 The plates: finger.py's cases on plate-glass, plate-glass-clamped and panel-rounded (their models
 grown as ``run`` grows them), planned as ``run`` plans by default (convex, under the 0.5 margin),
-open loop against the default closed loop and against it after a learning shot (``run --learn``:
-a first shot, open loop, whose record updates the model; the reported shot planned on it without the
+open loop against the default closed loop and against it after a learning shot (tracked: ``run
+--learn tracker``, a closed-loop first shot whose pole trackers update the model; learned: ``run
+--learn``, an open-loop first shot whose record does; the reported shot planned on it without the
 closed loop's drift band), drift 0-3% and a finger of 0-1 N s/m on the target's peak, 40 dB, the
 models' damping exact.
 """
@@ -37,7 +38,7 @@ DRIFT = (0.0, 0.01, 0.02, 0.03)
 FINGER = (0.0, 0.1, 0.3, 1.0)
 PLANS = {"": {}, "_margin": {"planner": "convex", "margin": THESIS_MARGIN}}  # the thesis's plan; under the margin
 PLATE_CASES = [label for label in CASES if not label.startswith("al-cc")]  # finger.py's plates and panel
-PLATE_METHODS = ("open", "closed", "learned")
+PLATE_METHODS = ("open", "closed", "tracked", "learned")
 PLATE_FINGER = (0.0, 0.3, 1.0)
 HEAD = ["# Where each method fails: drift and a finger", "",
         "Command: `python benchmarks/closed_maps.py`. tau (margin ratio) measured as `modalctl run` measures (the "

@@ -1,11 +1,10 @@
 """A focus shot end to end: decompose, plan, (learn, plan again,) play on a device, measure.
 
 :func:`run` is the one path every shot takes, from the command line, an experiment or a sweep:
-:class:`~modalctl.options.RunOptions` in, :class:`ShotResult` out. Open loop plays the plan's
-waveforms (the thesis's set-up); closed loop plays it on the device's phasor board under the
-per-mode loops (:mod:`modalctl.loops.shot`), or loads the loops into the board; a learning shot
-first teaches the model from its record or a pole tracker. Everything measured is measured here,
-through the device (its record and its vibrometer's scan), into typed metrics.
+:class:`~modalctl.options.RunOptions` in, :class:`ShotResult` out. Open loop plays the plan's waveforms
+(the thesis's set-up); closed loop plays it on the device's phasor board under the per-mode loops
+(:mod:`modalctl.loops.shot`), or loads the loops into the board; a learning shot first teaches the model.
+Everything is measured here, through the device (its record and vibrometer's scan), into typed metrics.
 
 The device is any :class:`modalctl.io.device.Device` (``sim://`` or a board): this module opens no
 port itself and draws nothing (pictures are in :mod:`modalctl.report`).
@@ -35,7 +34,7 @@ from modalctl.plan.decompose import Decomposition
 from modalctl.plan.planner import Plan, plan_shot
 from modalctl.plugin.manager import name_of, pick
 
-__all__ = ["run", "resolved", "ShotResult", "ShotMetrics", "LoopMetrics", "LearningMetrics"]
+__all__ = ["run", "resolved", "ShotResult", "ShotMetrics", "LoopMetrics", "LearningMetrics", "LearningStopped"]
 
 
 @dataclass(frozen=True)
@@ -292,6 +291,14 @@ class ShotResult:
         return out
 
 
+class LearningStopped(DeviceError):
+    """The supervisor stopped the learning shot (``shot``, as measured to the stop): no second one."""
+
+    def __init__(self, message: str, shot: ShotResult):
+        super().__init__(message)
+        self.shot = shot
+
+
 @dataclass
 class _Played:
     """What playing a plan gave, before it is measured."""
@@ -532,12 +539,9 @@ def _clusters(parts: LoopParts, the_plan: Plan) -> dict:
 
 
 def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):
-    """A shot that teaches the model; ``(what it measured and taught, the updated model)``.
-
-    From its record: played open loop, which cannot diverge however far the truth has drifted
-    (plate-glass at 3%: the loops on the nominal plan diverged, the supervisor stopped the shot),
-    and the fit needs only the voltages and the sensors. From a pole tracker: closed loop, the
-    trackers run in the loops."""
+    """A shot that teaches the model; ``(what it measured and taught, the updated model)``. From its
+    record: open loop, which cannot diverge however far the truth drifted (on plate-glass at 3% the
+    loops diverged); from a pole tracker: closed loop, where the trackers run."""
     model, caps = dec.model, device.capabilities
     log = None if options.log is None else type(options.log)(f"{options.log}-learning")
     tracker = None
@@ -549,7 +553,8 @@ def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: 
     played = _play(the_plan, device, played_by, voltage_limit, log, tracker)
     shot = _measure(dec, the_plan, played, device, caps, played_by, start)
     if shot.fault is not None:
-        raise DeviceError(f"the supervisor stopped the learning shot ({shot.fault}); log in {log}.json")
+        raise LearningStopped(f"the supervisor stopped the learning shot ({shot.fault})"
+                              + ("" if log is None else f"; log in {log}.json"), shot)
     tic = _time.perf_counter()
     if tracker is not None:
         learned, fit = updated_model(model, the_plan.modes, tracker), None

@@ -133,3 +133,19 @@ def test_a_dead_scheduler_address_is_refused_in_seconds(tmp_path, capsys):
                  "--quiet", "--out", str(tmp_path / "s")])
     assert code == 2 and "no dask scheduler answers" in capsys.readouterr().err
     assert time.perf_counter() - start < 30
+
+
+def test_a_learning_shot_the_supervisor_stops_is_a_stopped_case_not_a_crash():
+    """closed_maps' clamped plate at 3% drift, tracked: the learning shot's loops (on the nominal
+    plan) are stopped by the supervisor. ``run`` raises :class:`LearningStopped` (the command exits
+    3); a sweep records the case as stopped, with the learning shot as measured, and goes on."""
+    from modalctl.experiments.sweep import Case, run_case
+    from modalctl.io.device import DeviceError
+    from modalctl.run import LearningStopped
+
+    assert issubclass(LearningStopped, DeviceError)
+    case = Case(scene="plate-glass-clamped", shape="gaussian", params=(("width", "30mm"), ("center", "10mm,5mm")),
+                method="tracked", drift=0.03, planner="convex", margin=0.5, points=None)
+    row = run_case(case)
+    assert row["state"] == "error" and "divergence" in row["fault"], (row["state"], row["fault"])
+    assert "first_shot_tau" not in row  # the stopped learning shot's row: no second shot was played

@@ -34,7 +34,7 @@ from modalctl.options import THESIS_PLAN, LoopOptions, PlanOptions, RunOptions
 from modalctl.plan.growth import model_for
 from modalctl.plan.planner import plan_shot
 from modalctl.plugin.manager import get_shape
-from modalctl.run import run
+from modalctl.run import LearningStopped, run
 
 __all__ = ["Case", "run_case", "METHODS"]
 
@@ -155,7 +155,10 @@ def run_case(case: Case) -> dict:
         truth = {"drift": case.drift, "damping_error": case.damping_error, "snr": case.snr_db, "seed": case.seed,
                  "finger": case.finger}
         device = open_device("sim://", DeviceContext(model, target, truth))
-        shot = run(model, target, device, options, planned)
+        try:
+            shot = run(model, target, device, options, planned)
+        except LearningStopped as stopped:  # a result of the case: the first shot's, as measured to the stop
+            shot = stopped.shot
     added = 0.0
     if case.finger > 0:
         modes = planned[1].modes
