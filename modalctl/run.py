@@ -543,12 +543,12 @@ def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: 
     record: open loop, which cannot diverge however far the truth drifted (on plate-glass at 3% the
     loops diverged); from a pole tracker: closed loop, where the trackers run."""
     model, caps = dec.model, device.capabilities
-    log = None if options.log is None else type(options.log)(f"{options.log}-learning")
-    tracker = None
+    tracker, log, played_by = None, None, options.but(loop=None, learn=None)  # a record: open loop, no log
     if options.learn == "tracker":  # the carriers stay on the plan's during the shot
         tracker = options.tracker.create(model.frequencies[the_plan.modes], model.damping[the_plan.modes],
                                              options.loop.control_rate, retune=np.inf)
-    played_by = options if tracker is not None else options.but(loop=None, learn=None)  # a record: open loop
+        log = None if options.log is None else type(options.log)(f"{options.log}-learning")
+        played_by = options
     start = _time.perf_counter()
     played = _play(the_plan, device, played_by, voltage_limit, log, tracker)
     shot = _measure(dec, the_plan, played, device, caps, played_by, start)

@@ -145,7 +145,7 @@ def _said_why(args, model, refused, options):
         hints.append(f"the {model.voltage_limit:g} V limit is the model's actuators' safe voltage: {source}; "
                      "--voltage-limit sets another")
     band = options.planned.robust_drift
-    if options.closed and options.learn is None and band > options.plan.robust_drift:
+    if band > options.plan.robust_drift:  # the closed loop's band, added to the plan (RunOptions.planned)
         hints.append(f"a closed loop's plan holds the margin over +-{band:.0%} of resonance drift; --learn plans "
                      "it on the model a first shot measures, without that band")
     if not hints:
