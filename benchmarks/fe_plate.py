@@ -44,7 +44,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import RESULTS, read_json, save_figure, write_json  # noqa: E402
+from common import RESULTS, read_json, save_figure, tablet_arguments, write_json  # noqa: E402
 
 from modalctl.model.fe_plate import MATERIALS, FEPlate, Material, Outline, Support  # noqa: E402
 from modalctl.model.structures import Plate  # noqa: E402
@@ -58,7 +58,6 @@ SS_TOLERANCE = 5e-4  # the simply supported rectangle is held to 0.1% against th
 REPEATS = 3
 TAU = 0.95
 WIDTHS_MM = (20, 25, 30, 40, 50, 60)
-TABLET_PATCHES_MM = [((x - 7, x + 7), (y - 5, y + 5)) for y in (55, -55) for x in (-75, -25, 25, 75)]
 #: The tablet's command on 8c95cc3, the commit before the solve was made to scale (issue 36), measured
 #: with /usr/bin/time -v on this 2-core machine shared with other work (load average about 5); run
 #: again later by part_tablet beside other work, it was killed out of memory at 13.5 GB after 280 s.
@@ -161,10 +160,8 @@ def part_speed() -> dict:
 
 
 def tablet_command(out) -> list[str]:
-    """``modalctl model fe`` on the tablet panel, every mode below 20 kHz, written to ``out``."""
-    patches = [f"--patch={x0}mm,{x1}mm,{y0}mm,{y1}mm" for (x0, x1), (y0, y1) in TABLET_PATCHES_MM]
-    return ["modalctl", "model", "fe", "--outline", "rect:210mm,150mm,r=8mm", "--thickness", "0.7mm", "--material",
-            "glass", "--boundary", "clamped", *patches, "--sensor", "0,0", "--band", "20kHz", "--out", str(out)]
+    """``modalctl model fe`` on the tablet panel (``common.tablet_arguments``), written to ``out``."""
+    return ["modalctl", *tablet_arguments(out)]
 
 
 #: Runs a command and writes its exit status, CPU time and peak resident memory (os.wait4) to the

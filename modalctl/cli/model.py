@@ -185,6 +185,7 @@ def _refuse_overlapping(patches) -> None:
 
 
 def run(args) -> int:
+    from modalctl.model.actuation import twin_modes
     from modalctl.model.fe_plate import FEPlate
     from modalctl.model.shape import ParamError
     from modalctl.model.structures import PlatePatch
@@ -208,8 +209,11 @@ def run(args) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     path = model.save(out)  # atomically: a file that was there stays whole if the disk refuses
+    twins = twin_modes(model)
     summary = {"model_file": str(path), "modes": model.n_modes, "frequencies_hz": model.frequencies.tolist(),
-               "convergence": convergence.to_dict(), "grid": list(model.grid.shape or (model.grid.n,))}
+               "convergence": convergence.to_dict(), "grid": list(model.grid.shape or (model.grid.n,)),
+               "twin_modes": [{"modes": [int(model.labels[t.first]), int(model.labels[t.second])],
+                               "spacing_hz": t.spacing_hz, "cosine": t.cosine} for t in twins]}
     if not args.no_plots:
         from modalctl.report import plot_fe_plate
 
@@ -220,5 +224,19 @@ def run(args) -> int:
     print(f"{model.n_modes} modes from {model.frequencies[0]:.1f} to {model.frequencies[-1]:.1f} Hz, converged to "
           f"{convergence.frequency_error.max():.3%} (shapes: subspace MAC >= {convergence.shape_mac.min():.4f}) on "
           f"{convergence.levels[-1].dofs} dofs")
+    if twins:
+        print(_twins_note(model, twins))
     print(f"model: {path}" + (f"; pictures: {', '.join(summary['pictures'])}" if "pictures" in summary else ""))
     return 0
+
+
+def _twins_note(model, twins) -> str:
+    """What a layout whose patches push close modes along one direction costs, in a sentence."""
+    from modalctl.model.actuation import CLOSE, PARALLEL
+
+    closest = twins[0]
+    return (f"note: the patches push {len(twins)} pair(s) of close modes (within {CLOSE:.0%}) along one direction "
+            f"(|cos| >= {PARALLEL}), the closest {closest.describe(model)}: a drive tells them apart only by "
+            f"their beat, so a focus shorter than 1/{closest.spacing_hz:.3g} Hz = {1e3 / closest.spacing_hz:.3g} ms "
+            f"that needs them in another proportion asks large, cancelling drives; patches placed off the "
+            f"plate's symmetry axes avoid it")

@@ -4,6 +4,7 @@ limits reaches, by bisection), as the :class:`~modalctl.plan.planner.PlanError` 
 
 from __future__ import annotations
 
+from modalctl.model.actuation import twin_modes
 from modalctl.options import PlanOptions
 
 from .convex_program import PROOFS, Program, Solution
@@ -14,7 +15,9 @@ __all__ = ["refusal"]
 
 
 def refusal(program: Program, options: PlanOptions, failed: Solution, progress: bool = False) -> PlanError:
-    """The margin program did not solve: say why, with proof where there is one.
+    """The margin program did not solve: say why, with proof where there is one, and name the
+    close modes the actuators push along one direction when the program has such a pair (see
+    :func:`_with_twins`).
 
     Every drive that builds the focus has the focus's own side lobes at T_F: a margin below them is
     out of reach whatever the limits (exact). Otherwise the smallest margin a drive within the
@@ -26,6 +29,31 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
     between. The certificate's ``status`` is ``infeasible`` when the margin program's failure was
     the solver's proof (infeasible, or past the energy bound), whatever the bisection found.
     """
+    return _with_twins(_refusal(program, options, failed, progress), program)
+
+
+def _with_twins(error: PlanError, program: Program) -> PlanError:
+    """``error`` with the pairs of modes (one of them kept) that the actuators push along one
+    direction and whose beat is slower than the focus time (:func:`~modalctl.model.actuation.
+    twin_modes`): a drive must then separate them by large, cancelling excursions, which is how a
+    mirror-symmetric patch layout makes a focus unreachable (a cause to look at, not a proof)."""
+    twins = [t for t in twin_modes(program.model, program.modes) if t.spacing_hz * program.focus_time < 1.0]
+    if not twins:
+        return error
+    model = program.model
+    if error.certificate is not None:
+        error.certificate["twin_modes"] = [{"modes": [int(model.labels[t.first]), int(model.labels[t.second])],
+                                            "spacing_hz": t.spacing_hz, "cosine": t.cosine} for t in twins]
+    more = f" and {len(twins) - 1} more pair(s)" if len(twins) > 1 else ""
+    message = (f"{error.args[0]}; the actuators push {twins[0].describe(model)}{more} along one direction, closer "
+               f"than the focus time's 1/T_F = {1 / program.focus_time:.3g} Hz: only large, cancelling drives tell "
+               f"them apart (a mirror-symmetric patch layout does this; patches off the symmetry axes, or a longer "
+               f"focus time, avoid it)")
+    return PlanError(message, error.needed, error.limit, error.certificate)
+
+
+def _refusal(program: Program, options: PlanOptions, failed: Solution, progress: bool) -> PlanError:
+    """:func:`refusal` without the twins' hint."""
     margin, lobes, solver = options.margin, program.focus_lobes, options.convex.solver
     limits = ", ".join(f"{name} {value:g} {unit}" for name, value, unit in
                        (("voltage", options.voltage_limit, "V"), ("slew", options.slew_limit, "V/s"))
