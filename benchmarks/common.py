@@ -50,7 +50,24 @@ def machine() -> dict:
 
     return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
             "control": control.__version__, "casadi": casadi.__version__, "machine": platform.machine(),
-            "cpus": os.cpu_count(), "load_average_1_5_15_min": list(os.getloadavg())}
+            "cpus": os.cpu_count(), "load_average_1_5_15_min": list(os.getloadavg()), "speed": speed_probe()}
+
+
+def speed_probe() -> dict:
+    """Seconds this machine takes, now, for a fixed interpreter loop (10^7 additions) and a fixed
+    BLAS product (five 1000 x 1000 matrix squares), medians of three: the scale against which
+    one run's seconds compare with another's (the loop took 1.48 s and 0.64 s on this 2-core machine
+    twenty minutes apart, 2026-11-28: it is shared)."""
+    a = np.random.default_rng(0).random((1000, 1000))
+
+    def loop():
+        total = 0
+        for i in range(10**7):
+            total += i
+        return total
+
+    return {"python_loop_s": median_seconds(loop, 3),
+            "matmul_s": median_seconds(lambda: [a @ a for _ in range(5)], 3)}
 
 
 def write_json(name: str, data: dict) -> Path:
