@@ -68,7 +68,7 @@ def twin_modes(model: ModalModel, modes=None, close: float = CLOSE, parallel: fl
     list of Twins
     """
     gains = np.asarray(model.actuator_gains, float)
-    if gains.shape[1] < 2:  # one actuator: every pair is parallel, and nothing can tell them apart
+    if gains.shape[1] < 2 or not gains.size:  # one actuator: every pair parallel by construction, none to name
         return []
     norms = np.linalg.norm(gains, axis=1)
     driven = norms > UNDRIVEN * norms.max()  # a mode on every patch's nodal line has no direction
