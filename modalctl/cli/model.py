@@ -212,8 +212,7 @@ def run(args) -> int:
     twins = twin_modes(model)
     summary = {"model_file": str(path), "modes": model.n_modes, "frequencies_hz": model.frequencies.tolist(),
                "convergence": convergence.to_dict(), "grid": list(model.grid.shape or (model.grid.n,)),
-               "twin_modes": [{"modes": [int(model.labels[t.first]), int(model.labels[t.second])],
-                               "spacing_hz": t.spacing_hz, "cosine": t.cosine} for t in twins]}
+               "twin_modes": [t.to_dict(model) for t in twins]}
     if not args.no_plots:
         from modalctl.report import plot_fe_plate
 

@@ -51,6 +51,11 @@ class Twins:
         return (f"{f[self.first]:.0f} and {f[self.second]:.0f} Hz ({self.spacing_hz:.3g} Hz apart, "
                 f"|cos| {self.cosine:.3f})")
 
+    def to_dict(self, model: ModalModel) -> dict:
+        """JSON-ready: ``modes`` (the model's labels), ``spacing_hz``, ``cosine``."""
+        return {"modes": [int(model.labels[self.first]), int(model.labels[self.second])],
+                "spacing_hz": self.spacing_hz, "cosine": self.cosine}
+
 
 def twin_modes(model: ModalModel, modes=None, close: float = CLOSE, parallel: float = PARALLEL) -> list[Twins]:
     """Pairs of modes within ``close`` of each other (relative spacing) whose actuator gains are

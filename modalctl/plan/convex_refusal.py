@@ -42,8 +42,7 @@ def _with_twins(error: PlanError, program: Program) -> PlanError:
         return error
     model = program.model
     if error.certificate is not None:
-        error.certificate["twin_modes"] = [{"modes": [int(model.labels[t.first]), int(model.labels[t.second])],
-                                            "spacing_hz": t.spacing_hz, "cosine": t.cosine} for t in twins]
+        error.certificate["twin_modes"] = [t.to_dict(model) for t in twins]
     more = f" and {len(twins) - 1} more pair(s)" if len(twins) > 1 else ""
     message = (f"{error.args[0]}; the actuators push {twins[0].describe(model)}{more} along one direction, closer "
                f"than the focus time's 1/T_F = {1 / program.focus_time:.3g} Hz: only large, cancelling drives tell "
