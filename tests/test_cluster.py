@@ -270,23 +270,24 @@ def test_with_no_close_modes_the_controller_is_per_mode_lqg(plate):
         assert np.array_equal(cluster.update(error, limit), lqg.update(error, limit))
 
 
-def _simulated_rate(controller: ClusterControl, periods: int, start: int) -> float:
+def _simulated_rate(controller: ClusterControl, periods: int, start: int, truth=None) -> float:
     """The controller's update closing the loop on its one cluster's own model (the law's ``A, B, C``: the
-    plant, the commands in flight, the readings less the runtime's leak) from a random plant state, told
-    the period and the commands sent, each loop's reading and command turned to and from its own frame as
-    the board's: the plant state's growth per period from ``start`` to the end (below 1: it decays)."""
+    plant, the commands in flight, the readings less the runtime's leak), or on ``truth`` (another
+    structure's ``A, B, C`` in the law's frame), from a random plant state, told the period and the commands
+    sent, each loop's reading and command turned to and from its own frame as the board's: the plant
+    state's growth per period from ``start`` to the end (below 1: it decays)."""
     law = controller.laws[0]
+    a, b, c = (law.A, law.B, law.C) if truth is None else truth
     spin = np.exp(1j * law.offsets / 20e3)
-    x = np.zeros(law.A.shape[0])
-    x[:law.A.shape[0] - law.lead * law.C.shape[0]] = np.random.default_rng(5).standard_normal(
-        law.A.shape[0] - law.lead * law.C.shape[0])
+    x, modes = np.zeros(a.shape[0]), a.shape[0] - law.lead * c.shape[0]
+    x[:modes] = np.random.default_rng(5).standard_normal(modes)
     sent, norms = np.zeros(2, complex), []
     for n in range(periods):
         now = spin ** (n + 1)  # the reading of period n, at the model's (n + 1) T
-        reading = (law.C @ x).view(complex) / now
+        reading = (c @ x).view(complex) / now
         controller.observe(n, reading, sent)
         sent = controller.update(-reading, np.full(2, np.inf))
-        x = law.A @ x + law.B @ (sent * now * spin ** law.lead).view(float)
+        x = a @ x + b @ (sent * now * spin ** law.lead).view(float)
         norms.append(np.linalg.norm(x))
     return float((norms[-1] / norms[start]) ** (1 / (periods - 1 - start)))
 
@@ -488,11 +489,46 @@ def test_a_closed_loop_run_reports_the_clusters_whatever_the_controller(tmp_path
     assert ("each controlled as one" in printed) is together
 
 
-def _pair_plant(model):
+def _pair_plant(model, drift: float = 0.01):
     from modalctl.loops.controller import LoopPlant
 
     return LoopPlant(model.frequencies, model.damping, _bands(model.frequencies), 20e3, level=np.full(2, 0.01),
-                     noise=np.full(2, 1e-4), model=model, modes=np.array([0, 1]), schedule=_schedule_of(model))
+                     noise=np.full(2, 1e-4), drift=drift, model=model, modes=np.array([0, 1]),
+                     schedule=_schedule_of(model))
+
+
+PERIODS = 40000  # the 5% band's worst mode grows by 1.8e-4 a period: 16,000 periods read it within 9e-6 only
+
+
+@pytest.mark.parametrize("drift", [0.01, 0.05])
+def test_a_cluster_law_is_kept_only_where_it_holds_over_the_drift_band(plate, drift):
+    """drift_radius against the controller's own update closing the loop on the pair drifted to the band's
+    worst case (the structure's model in the law's frame, not the block matrix): the same growth per
+    period. Over +-1% the pair's law holds (the worst radius below 1) and is kept; over +-5% it does not
+    (above 1 at an edge): the controller keeps per-mode LQG's loops on the pair, commands to the bit, and
+    says why."""
+    from modalctl.loops.cluster import _frame, _observed_model, drift_radius
+
+    pair = plate.select(_pair(plate))
+    plant = _pair_plant(pair, drift)
+    controller, lqg = ClusterControl(plant), LQGControl(plant)
+    kept = ClusterControl(_pair_plant(pair, 0.0))  # no band to hold: its law is kept, whatever it does at a drift
+    law = kept.laws[0]
+    radius, worst = drift_radius(plant, law)
+    assert abs(worst) in (drift, drift / 2)
+    truth = _observed_model(replace(plant, model=pair.drifted(worst)), law.loops, _frame(plant, law.loops))[:3]
+    assert _simulated_rate(kept, PERIODS, PERIODS - 2000, truth) == pytest.approx(radius, abs=1e-6)
+    if drift == 0.01:
+        assert controller.clusters.groups == ((0, 1),) and not controller.refused
+        return
+    assert controller.clusters.groups == () and controller.clusters.refused == tuple(controller.refused)
+    assert [g for g, _ in controller.refused] == [(0, 1)] and "5% drift (spectral radius 1.0" in controller.refused[0][1]
+    assert controller.clusters.summary()[0].startswith("modes 0, 1: per-mode loops, its law unstable at")
+    rng = np.random.default_rng(4)
+    for n in range(20):
+        error = 1e-3 * (rng.standard_normal(2) + 1j * rng.standard_normal(2))
+        controller.observe(n, error, np.zeros(2))
+        assert np.array_equal(controller.update(error, np.full(2, 1e-2)), lqg.update(error, np.full(2, 1e-2)))
 
 
 @pytest.mark.parametrize("lead", [1, 2, 3])

@@ -468,8 +468,8 @@ def _print_loop(m: dict, shot, out: Path) -> None:
             c = lp["clusters"]
             how = "each controlled as one" if c["together"] else "per-mode loops that read each other"
             print(f"clusters ({len(c['groups'])}, {how}; linked when {c['rule']}): "
-                  + ("" if c["groups"] else c["lines"][0]))
-            for line in c["lines"] if c["groups"] else ():
+                  + ("" if c["groups"] or c["refused"] else c["lines"][0]))
+            for line in c["lines"] if c["groups"] or c["refused"] else ():
                 print("  " + line)
     if shot.learning is not None:
         ls = shot.learning

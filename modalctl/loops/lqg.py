@@ -66,11 +66,12 @@ def _with_integrator(a, b, c):
     return big_a, np.vstack([b, np.zeros((1, 1))])
 
 
-def observer_loop_radius(a, b, c, k, ki, m, turn=None) -> float:
-    """Largest |eigenvalue| of a model under its observer-based feedback with integral action (below 1: stable).
+def observer_loop_radius(a, b, c, k, ki, m, turn=None, truth=None) -> float:
+    """Largest |eigenvalue| of a structure under an observer-based feedback with integral action (below 1: stable).
 
-    With ``xh = xp + M (C x - C xp)``, ``u = -K xh - Ki i``, ``i' = turn (i + C x)`` and ``xp' = A xh + B u``,
-    the state ``(x, xp, i)`` evolves by the block matrix below.
+    The observer runs on the model ``(a, b, c)``; the structure is ``truth`` (the model itself by default).
+    With ``y = Ct x``, ``xh = xp + M (y - C xp)``, ``u = -K xh - Ki i``, ``i' = turn (i + y)``,
+    ``x' = At x + Bt u`` and ``xp' = A xh + B u``, the state ``(x, xp, i)`` evolves by the block matrix below.
 
     Parameters
     ----------
@@ -81,15 +82,17 @@ def observer_loop_radius(a, b, c, k, ki, m, turn=None) -> float:
     turn : ndarray, shape (q, q), optional
         The integrators' turn per period (the cluster's common frame: each loop integrates in its own);
         the identity by default (each integrator in its own frame, as per-mode LQG's).
+    truth : tuple of ndarray, shapes (N, N), (N, p), (q, N), optional
+        The structure's ``(At, Bt, Ct)`` in the same frame, inputs and outputs (any number of states).
     """
     n, q = a.shape[0], c.shape[0]
     turn = np.eye(q) if turn is None else turn
-    mc = m @ c
-    rest = np.eye(n) - mc
-    u_x, u_p, u_i = -k @ mc, -k @ rest, -ki  # u = u_x x + u_p xp + u_i i
-    top = np.hstack([a + b @ u_x, b @ u_p, b @ u_i])
-    middle = np.hstack([a @ mc + b @ u_x, a @ rest + b @ u_p, b @ u_i])
-    bottom = np.hstack([turn @ c, np.zeros((q, n)), turn])
+    at, bt, ct = (a, b, c) if truth is None else truth
+    rest = np.eye(n) - m @ c
+    u_x, u_p, u_i = -k @ m @ ct, -k @ rest, -ki  # u = u_x x + u_p xp + u_i i
+    top = np.hstack([at + bt @ u_x, bt @ u_p, bt @ u_i])
+    middle = np.hstack([a @ m @ ct + b @ u_x, a @ rest + b @ u_p, b @ u_i])
+    bottom = np.hstack([turn @ ct, np.zeros((q, n)), turn])
     return float(np.max(np.abs(np.linalg.eigvals(np.vstack([top, middle, bottom])))))
 
 

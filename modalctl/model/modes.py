@@ -18,7 +18,7 @@ import numpy as np
 from modalctl.errors import InputError
 from modalctl.outdir import atomic
 
-__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "VOLTAGE_LIMIT_KEY"]
+__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "drift_cases", "VOLTAGE_LIMIT_KEY"]
 
 FORMAT_VERSION = 1
 VOLTAGE_LIMIT_KEY = "voltage_limit_v"  # meta: the actuators' safe drive voltage (V), run's default --voltage-limit
@@ -191,6 +191,13 @@ def _mode_numbers(labels) -> np.ndarray:
     return numbers.astype(int)
 
 
+def drift_cases(band: float) -> list[float]:
+    """The uniform drifts a design is checked on for a band of +-``band`` (a fraction): both edges of the band
+    and its middle points (none for no band). The convex planner's robust margin holds on them, and a
+    cluster's law must stay stable on them (:mod:`modalctl.loops.cluster`)."""
+    return [] if not band else [-band, -band / 2, band / 2, band]
+
+
 @dataclass(frozen=True, eq=False)
 class ModalModel:
     """Modes of a structure sampled on a grid.
@@ -304,6 +311,11 @@ class ModalModel:
         return replace(self, frequencies=self.frequencies[idx], damping=self.damping[idx],
                        shapes=self.shapes[idx], actuator_gains=self.actuator_gains[idx],
                        sensor_gains=self.sensor_gains[idx], labels=self.labels[idx])
+
+    def drifted(self, shift: float) -> "ModalModel":
+        """The model with every resonance moved by the fraction ``shift`` (0.01: 1% higher): the structure
+        a uniform drift (temperature, a clamp's stiffness) makes, as the HIL's ``--drift`` does."""
+        return replace(self, frequencies=self.frequencies * (1 + shift))
 
     def index_of(self, labels) -> np.ndarray:
         """Positional indices of the modes numbered ``labels``."""

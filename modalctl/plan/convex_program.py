@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from tqdm.auto import tqdm
 
-from modalctl.model.modes import ModalModel
+from modalctl.model.modes import ModalModel, drift_cases
 from modalctl.model.propagate import Plant
 from modalctl.options import PlanOptions
 
@@ -136,7 +136,7 @@ class Program:
         if options.convex.leak is not None:  # the left-out modes' own share at T_F, at most
             lobes -= options.convex.leak * (model.n_modes - self.modes.size)
         self.focus_lobes = max(lobes, 0.0)  # every drive's ratio is at least this
-        self.plants = [model] + [_drifted(model, s) for s in _drifts(options.robust_drift)]
+        self.plants = [model] + [model.drifted(s) for s in drift_cases(options.robust_drift)]
         self.responses = [Responses(m, self.basis, self.fs, self.focus_time) for m in self.plants]
         self.offset = None if offset is None else np.asarray(offset, float)[:, :self.samples]
         driven = [r.driven(self.offset) for r in self.responses] if offset is not None else None
@@ -476,15 +476,6 @@ class _Checks:
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown()
-
-
-def _drifts(band: float) -> list:
-    """The drifted copies the robust margin holds on: both edges of the band and its middle points."""
-    return [] if not band else [-band, -band / 2, band / 2, band]
-
-
-def _drifted(model: ModalModel, shift: float) -> ModalModel:
-    return replace(model, frequencies=model.frequencies * (1 + shift))
 
 
 def _local_peaks(values: np.ndarray) -> np.ndarray:
