@@ -240,3 +240,33 @@ def test_a_certificate_with_no_time_gives_the_least_energy_drives_ratio(beam_cas
     assert bisection["complete"] is False and bisection["programs"] == 1 and bisection["free"] == "optimal"
     assert certificate["largest_refused"] == 0.5 and refused.value.needed > 0.5
     assert certificate["status"] == "infeasible" and "solver's proof" in str(refused.value)
+
+
+@pytest.mark.parametrize("certify_seconds", [0.0, None])
+def test_a_margin_program_stopped_by_its_budget_says_so_and_proves_nothing(beam_case, certify_seconds):
+    """The margin case's program needs more than one round (its first drive reaches 0.66 of the focus
+    peak). With no time (``program_seconds`` 0) its first round ends and it stops there: the refusal
+    says so first, and since the program proved nothing the certificate is "not certified" whatever
+    its bisection did. Without a budget on the bisection, the bisection finds the drive that holds
+    the margin, and the refusal says a longer budget finds the plan; the plan found with the default
+    budget holds it on every sample of the plant run independently."""
+    from modalctl.options import ConvexOptions
+    from modalctl.plan.planner import PlanError
+
+    model, shape, dec = beam_case
+    budget = ConvexOptions(program_seconds=0.0, certify_seconds=certify_seconds)
+    with pytest.raises(PlanError, match=r"stopped at its 0 s budget \(ConvexOptions.program_seconds\) after 1 "
+                                        r"rounds") as refused:
+        plan(dec, TF, convex(convex=budget))
+    certificate = refused.value.certificate
+    assert certificate["status"] == "not certified" and certificate["program_seconds"] == 0.0
+    assert certificate["margin_program"] == "out of time"
+    if certify_seconds is None:
+        assert refused.value.needed <= 0.5 * (1 + 1e-4) and "a longer ConvexOptions.program_seconds finds the plan" \
+            in str(refused.value)
+    else:
+        assert refused.value.needed > 0.5 and "unproven" in str(refused.value)
+    held = plan(dec, TF, convex())
+    field = model.shapes.T @ Plant(model, FS).simulate(held.voltages())
+    focus = int(round(TF * FS))
+    assert np.abs(field[~shape.target_mask]).max() / np.abs(field[:, focus]).max() <= 0.5 * (1 + 1e-4) + 1e-9

@@ -125,7 +125,8 @@ def plan_convex(dec: Decomposition, focus_time: float, options: PlanOptions = Pl
     base = _reference(dec, focus_time, options)
     program = Program(model, modes, targets, dec.shape.target_mask, focus_time, options,
                       None if base is None else base.voltages())
-    solution = program.solve(progress=progress)
+    budget = options.convex.program_seconds
+    solution = program.solve(progress=progress, deadline=None if budget is None else start + budget)
     info = {"planner": "convex", "margin_asked": margin, "voltage_limit": options.voltage_limit,
             "slew_limit": options.slew_limit, "robust_drift": options.robust_drift, "after_s": options.after,
             "reference": options.convex.reference, "program": _summary(program, solution)}

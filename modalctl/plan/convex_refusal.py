@@ -7,7 +7,7 @@ from __future__ import annotations
 from modalctl.model.actuation import twin_modes
 from modalctl.options import PlanOptions
 
-from .convex_program import PROOFS, Program, Solution
+from .convex_program import OUT_OF_TIME, PROOFS, Program, Solution
 from .planner import PlanError
 from .qp import SOLVERS
 
@@ -29,7 +29,21 @@ def refusal(program: Program, options: PlanOptions, failed: Solution, progress: 
     between. The certificate's ``status`` is ``infeasible`` when the margin program's failure was
     the solver's proof (infeasible, or past the energy bound), whatever the bisection found.
     """
-    return _with_twins(_refusal(program, options, failed, progress), program)
+    return _with_twins(_out_of_time(_refusal(program, options, failed, progress), options, failed), program)
+
+
+def _out_of_time(error: PlanError, options: PlanOptions, failed: Solution) -> PlanError:
+    """``error`` saying first that the margin program stopped at its time budget (``ConvexOptions.
+    program_seconds``), where it did: what the certificate found comes after."""
+    if failed.status != OUT_OF_TIME:
+        return error
+    budget = options.convex.program_seconds
+    said = (f"the margin program stopped at its {budget:g} s budget (ConvexOptions.program_seconds) after "
+            f"{failed.rounds} rounds and {failed.rows} rows, its last drive at a ratio of "
+            f"{max([failed.ratio, *failed.robust_ratios]):.3f}")
+    if error.certificate is not None:
+        error.certificate["program_seconds"] = budget
+    return PlanError(f"{said}; {error.args[0]}", error.needed, error.limit, error.certificate)
 
 
 def _with_twins(error: PlanError, program: Program) -> PlanError:
@@ -98,6 +112,14 @@ def _refusal(program: Program, options: PlanOptions, failed: Solution, progress:
         return PlanError(f"the {margin:g} margin cannot be held: the focus's own side lobes at T_F are "
                          f"{lobes:.3f} of its peak, on every drive that builds it (the smallest ratio a drive "
                          f"within {limits} reaches: {reached:.3f})", reached, margin, certificate)
+    if failed.status == OUT_OF_TIME:  # the bisection took the margin asked as refused: nothing proves it
+        certificate["status"] = "not certified"
+        if reached <= margin * (1 + 1e-4):
+            return PlanError(f"the certificate's bisection, after it, found a drive within {limits} that holds "
+                             f"{reached:.3f}: a longer ConvexOptions.program_seconds finds the plan", reached,
+                             margin, certificate)
+        return PlanError(f"the smallest ratio a drive within {limits} was found to reach is {reached:.3f}; whether "
+                         f"{margin:g} can be held is not proven", reached, margin, certificate)
     if reached <= margin * (1 + 1e-4):
         certificate["status"] = "solver failure"
         return PlanError(f"{solver} failed on the margin program ({failed.status}) though a drive within "
@@ -131,6 +153,8 @@ def _incomplete(certificate: dict, best: Solution | None) -> PlanError:
     if reached <= margin * (1 + 1e-4):
         certificate["status"] = "solver failure"
     return PlanError(f"the {margin:g} margin was refused: {why}; {stopped}: a drive within {limits} reaches "
-                     f"{reached:.3f} (its plan holds it on every sample), {refused:.3f} was refused"
-                     f"{'' if done['proven'] else ' (not every refusal proven)'}: the smallest ratio lies "
+                     f"{reached:.3f} (its plan holds it on every sample), {refused:.3f} was "
+                     f"{'refused' if failed != OUT_OF_TIME else 'asked'}"
+                     f"{'' if done['proven'] or failed == OUT_OF_TIME else ' (not every refusal proven)'}: the "
+                     f"smallest ratio lies "
                      f"between", reached, margin, certificate)
