@@ -270,3 +270,16 @@ def test_a_margin_program_stopped_by_its_budget_says_so_and_proves_nothing(beam_
     field = model.shapes.T @ Plant(model, FS).simulate(held.voltages())
     focus = int(round(TF * FS))
     assert np.abs(field[~shape.target_mask]).max() / np.abs(field[:, focus]).max() <= 0.5 * (1 + 1e-4) + 1e-9
+
+
+@pytest.mark.parametrize("name", ["certify_seconds", "program_seconds", "attempts_seconds"])
+def test_a_time_budget_is_none_or_zero_or_more_seconds(name):
+    """Each budget: None (no limit) and 0 (stop after the first round or program) are budgets; a
+    negative or NaN number is refused naming the option, never taken for no limit."""
+    from modalctl.errors import InputError
+    from modalctl.options import ConvexOptions
+
+    assert getattr(ConvexOptions(**{name: None}), name) is None and getattr(ConvexOptions(**{name: 0.0}), name) == 0
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(InputError, match=name):
+            ConvexOptions(**{name: bad})
