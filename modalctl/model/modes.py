@@ -314,7 +314,8 @@ class ModalModel:
 
     def drifted(self, shift: float) -> "ModalModel":
         """The model with every resonance moved by the fraction ``shift`` (0.01: 1% higher): the structure
-        a uniform drift (temperature, a clamp's stiffness) makes, as the HIL's ``--drift`` does."""
+        a uniform drift (temperature, a clamp's stiffness) makes, as the HIL's ``--drift`` does without its
+        spread (:func:`modalctl.hil.scenario.perturb`)."""
         return replace(self, frequencies=self.frequencies * (1 + shift))
 
     def index_of(self, labels) -> np.ndarray:
