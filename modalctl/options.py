@@ -339,6 +339,8 @@ class LoopOptions(_Options):
             raise InputError("authority and latency must be zero or more, watchdog at least one period")
         if not 0 <= self.margin_headroom < 1 or self.margin_drift < 0:
             raise InputError("margin_headroom must lie in [0, 1) and margin_drift be zero or more")
+        if not 0 <= self.drift <= ROBUST_DRIFT_MAX:  # the cluster laws are checked on the model drifted by it
+            raise InputError(f"drift must lie in [0, {ROBUST_DRIFT_MAX:g}] (a fraction), got {self.drift!r}")
         named = getattr(self.controller, "name", self.controller)
         if self.on_board and named not in (None, BOARD_CONTROLLER):
             raise InputError(f"a board runs PI loops ({BOARD_CONTROLLER}), not {named!r}: leave --controller out, or "

@@ -573,3 +573,14 @@ def test_a_rule_the_controller_does_not_know_is_refused(plate):
     plant = LoopPlant(plate.frequencies[kept], plate.damping[kept], bands, 20e3)
     with pytest.raises(ValueError, match="rule must be 'margin' or 'band', got 'margn'"):
         ClusterControl(plant, rule="margn")
+
+
+@pytest.mark.parametrize("drift", [-0.01, 0.6, float("nan")])
+def test_a_drift_the_loops_cannot_expect_is_refused_naming_it(drift):
+    """The loops' expected drift moves the model the cluster laws are checked on: negative, past half
+    the resonance (a model with resonances at zero or below) or NaN is refused as bad input."""
+    from modalctl.errors import InputError
+
+    assert LoopOptions(drift=0.0).drift == 0.0 and LoopOptions(drift=0.5).drift == 0.5
+    with pytest.raises(InputError, match="drift must lie in"):
+        LoopOptions(drift=drift)
