@@ -91,6 +91,22 @@ def test_the_convex_planner_holds_the_margin_and_its_refusal_is_written_with_the
     assert refusal["certificate"]["status"] == "infeasible" and refusal["needed"] > 0.2
 
 
+def test_a_margin_program_out_of_plan_time_is_refused_saying_so_and_none_lifts_the_budget(capsys, tmp_path):
+    """``--plan-time 0s``: the margin program stops after its first round (its first drive is over the
+    margin here): exit 1, the refusal saying where it stopped, its certificate not certified; ``none``
+    plans it. With the envelope planner the option does not apply: exit 2, nothing written."""
+    case = [*RUN, "--focus-time", "25ms", "--modes", "9", "--margin", "0.5"]
+    code, _, err = run(capsys, *case, "--plan-time", "0s", "--out", str(tmp_path / "no"))
+    refusal = json.loads((tmp_path / "no" / "refusal.json").read_text())
+    assert code == 1 and "stopped at its 0 s budget (ConvexOptions.program_seconds) after 1 rounds" in err
+    assert refusal["certificate"]["status"] == "not certified" and refusal["certificate"]["program_seconds"] == 0
+    code, _, err = run(capsys, *case, "--plan-time", "none", "--out", str(tmp_path / "ok"))
+    assert code == 0, err
+    code, _, err = run(capsys, *case, "--planner", "envelope", "--plan-time", "10s", "--out", str(tmp_path / "env"))
+    assert code == 2 and "--plan-time bounds the convex planner" in err
+    assert not (tmp_path / "env").exists()
+
+
 def test_an_unknown_planner_exits_2_before_any_work(capsys, tmp_path):
     code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--planner", "magic", "--out", str(tmp_path / "r"))
     assert code == 2 and "unknown planner 'magic'" in err and "convex" in err
@@ -118,7 +134,8 @@ def test_bad_units_exit_2(capsys, tmp_path):
     ("--margin", "0", "margin must lie in (0, 1]"), ("--robust-drift", "-1%", "robust-drift must lie in [0, 0.5]"),
     ("--robust-drift", "150%", "robust-drift must lie in [0, 0.5]"),
     ("--latency", "-1", "latency must lie in [0, 1000]"), ("--voltage-limit", "0V", "voltage-limit must lie in (0"),
-    ("--watchdog", "0", "watchdog must lie in [1"), ("--latency", "x", "invalid latency value")])
+    ("--watchdog", "0", "watchdog must lie in [1"), ("--latency", "x", "invalid latency value"),
+    ("--plan-time", "-1s", "plan-time must lie in [0"), ("--plan-time", "2V", "plan-time")])
 def test_out_of_range_options_exit_2_before_any_work(capsys, tmp_path, option, value, words):
     with pytest.raises(SystemExit) as exit_:
         main([*RUN, "--focus-time", "25ms", "--loop", "closed", option, value, "--out", str(tmp_path / "r")])

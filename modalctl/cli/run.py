@@ -54,6 +54,10 @@ def _add_plan_arguments(p) -> None:
                    help="largest drive voltage, e.g. 100V, or none; a plan above it is refused (exit 1). Default: "
                         "the model's actuators' safe voltage (its meta's voltage_limit_v: 70 V for the scenes' "
                         "0.2 mm PZT-5A patches), none when the model does not say")
+    p.add_argument("--plan-time", type=plan_time,
+                   help="convex planner: the time a margin program may take, e.g. 300s, or none (until it is done); "
+                        "past it the plan is refused, saying where it stopped: a plan found within it does not "
+                        f"depend on the machine's speed ({PLAN.convex.program_seconds:g}s)")
     p.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=0),
                    help="largest output slope, e.g. 2e6V/s: planned for by the convex planner, and the "
                         "closed loop's feedback clipped to it")
@@ -105,14 +109,19 @@ def _add_loop_arguments(loop) -> None:
 _VOLTS = quantity_type("V", "voltage-limit", low=0)
 
 
-def voltage_limit(text: str):
-    """``--voltage-limit``: a voltage (V) above zero, or ``none`` (no limit but the device's rails)."""
-    if text.strip().lower() == "none":
-        return "none"
-    return _VOLTS(text)
+def _or_none(quantity):
+    """An option's type: what ``quantity`` (a :func:`~modalctl.units.quantity_type`) reads, or ``none``."""
+    def read(text: str):
+        return "none" if text.strip().lower() == "none" else quantity(text)
+
+    read.bounds, read.__name__ = quantity.bounds, quantity.__name__  # its range, for the property suite
+    return read
 
 
-voltage_limit.bounds, voltage_limit.__name__ = _VOLTS.bounds, _VOLTS.__name__  # its range, for the property suite
+#: ``--voltage-limit``: a voltage (V) above zero, or ``none`` (no limit but the device's rails)
+voltage_limit = _or_none(_VOLTS)
+#: ``--plan-time``: the seconds a margin program may take (zero or more), or ``none`` (until it is done)
+plan_time = _or_none(quantity_type("s", "plan-time", low=0, low_open=False))
 
 
 def _planned_voltage(args, model, options):
@@ -179,6 +188,8 @@ def _run_options(args, out: Path):
                        voltage_limit=None if args.voltage_limit == "none" else args.voltage_limit,
                        slew_limit=args.slew_limit, robust_drift=args.robust_drift, kappa=args.kappa,
                        brake=not args.no_brake, after=args.after, sample_rate=args.sample_rate)
+    if args.plan_time is not None:
+        plan = plan.but(convex=plan.convex.but(program_seconds=None if args.plan_time == "none" else args.plan_time))
     loop = None if args.loop == "open" else LoopOptions(
         control_rate=args.control_rate, controller=args.controller, on_board=args.loop == "board",
         authority=args.authority, latency=args.latency, slew_limit=args.slew_limit, watchdog=args.watchdog,
@@ -211,6 +222,7 @@ def _applying(args) -> list[tuple[bool, bool, str]]:
          "--margin (not none)"),
         (args.slew_limit is not None, convex,
          "--slew-limit is planned for by the convex planner only: the envelope planner's drive would exceed it"),
+        (args.plan_time is not None, convex, "--plan-time bounds the convex planner's margin program only"),
     ]
 
 
