@@ -95,7 +95,8 @@ HOW = {
         ("first", None),
     ".venv/bin/modalctl run --scene thesis-al-cc --shape sinc --param width=18mm --param center=24mm "
     "--focus-time 25ms [--planner convex|envelope] [--margin 0.5|none] [--robust-drift 1%] "
-    "[--voltage-limit 100V|none] [--slew-limit 2e6V/s] [--drift 1%] [--damping-error 20%] [--snr 40] "
+    "[--voltage-limit 100V|none] [--slew-limit 2e6V/s] [--plan-time 120s|none] [--drift 1%] [--damping-error 20%] "
+    "[--snr 40] "
     "[--scan-repeats N] [--amplifier-bandwidth 500kHz] [--seed N] [--transport sim://] --out DIR [--force] [--json]":
         ("first", None),
     ".venv/bin/modalctl model fe --outline rect:120mm,70mm,r=8mm --hole rect:42mm,0,20mm,10mm,r=4mm "
