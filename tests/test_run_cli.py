@@ -98,7 +98,7 @@ def test_a_margin_program_out_of_plan_time_is_refused_saying_so_and_none_lifts_t
     case = [*RUN, "--focus-time", "25ms", "--modes", "9", "--margin", "0.5"]
     code, _, err = run(capsys, *case, "--plan-time", "0s", "--out", str(tmp_path / "no"))
     refusal = json.loads((tmp_path / "no" / "refusal.json").read_text())
-    assert code == 1 and "stopped at its 0 s budget (ConvexOptions.program_seconds) after 1 rounds" in err
+    assert code == 1 and "stopped at its 0 s budget (--plan-time, ConvexOptions.program_seconds) after 1 rounds" in err
     assert refusal["certificate"]["status"] == "not certified" and refusal["certificate"]["program_seconds"] == 0
     code, _, err = run(capsys, *case, "--plan-time", "none", "--out", str(tmp_path / "ok"))
     assert code == 0, err

@@ -38,8 +38,8 @@ def _out_of_time(error: PlanError, options: PlanOptions, failed: Solution) -> Pl
     if failed.status != OUT_OF_TIME:
         return error
     budget = options.convex.program_seconds
-    said = (f"the margin program stopped at its {budget:g} s budget (ConvexOptions.program_seconds) after "
-            f"{failed.rounds} rounds and {failed.rows} rows, its last drive at a ratio of "
+    said = (f"the margin program stopped at its {budget:g} s budget (--plan-time, ConvexOptions.program_seconds) "
+            f"after {failed.rounds} rounds and {failed.rows} rows, its last drive at a ratio of "
             f"{max([failed.ratio, *failed.robust_ratios]):.3f}")
     if error.certificate is not None:
         error.certificate["program_seconds"] = budget
@@ -116,8 +116,8 @@ def _refusal(program: Program, options: PlanOptions, failed: Solution, progress:
         certificate["status"] = "not certified"
         if reached <= margin * (1 + 1e-4):
             return PlanError(f"the certificate's bisection, after it, found a drive within {limits} that holds "
-                             f"{reached:.3f}: a longer ConvexOptions.program_seconds finds the plan", reached,
-                             margin, certificate)
+                             f"{reached:.3f}: a longer --plan-time (ConvexOptions.program_seconds) finds the plan",
+                             reached, margin, certificate)
         return PlanError(f"the smallest ratio a drive within {limits} was found to reach is {reached:.3f}; whether "
                          f"{margin:g} can be held is not proven", reached, margin, certificate)
     if reached <= margin * (1 + 1e-4):
