@@ -12,6 +12,8 @@ integrator holds while the command is at its limit and the error pushes further)
 
 from __future__ import annotations
 
+import functools
+
 import control
 import numpy as np
 from scipy.linalg import block_diag
@@ -30,10 +32,14 @@ __all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "l
            "cluster_model", "pi_controller"]
 
 
+@functools.lru_cache(maxsize=4096)
 def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
     """The lock-in's low-pass as seen by the envelope: the analog Butterworth of corner
     ``bandwidth`` (Hz) (the digital filter runs far above its corner), as a cascade of unit-gain
-    sections (one polynomial of degree ``order`` in rad/s would be ill-conditioned)."""
+    sections (one polynomial of degree ``order`` in rad/s would be ill-conditioned). Kept once made
+    (python-control's operations return new systems; nobody changes one in place): a cluster's
+    model asks for each of its loops' filters at every drift checked, half the check's time on the
+    tablet."""
     poles = butter(order, 2 * np.pi * bandwidth, analog=True, output="zpk")[1]
     sections = [control.ss(control.tf([abs(p) ** 2], [1, -2 * p.real, abs(p) ** 2])) for p in poles if p.imag > 0]
     sections += [control.ss(control.tf([-p.real], [1, -p.real])) for p in poles if p.imag == 0]
