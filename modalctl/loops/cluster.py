@@ -340,16 +340,17 @@ def drift_radius(plant: LoopPlant, law: _Law, drifted: list | None = None) -> tu
     """The cluster's closed loop at its worst over the drift band: ``(radius, drift)``, the largest
     |eigenvalue| (below 1: stable) of the structure drifted uniformly by each of
     :func:`~modalctl.model.modes.drift_cases` (``plant.drift``) under the law designed on the model, and
-    the drift (a fraction) where it is; the nominal loop (:func:`closed_loop_radius`) at drift 0.
+    the drift (a fraction) where it is; ``(0, 0)`` with no band (the nominal loop is
+    :func:`closed_loop_radius`'s).
 
     A cluster's observer predicts its modes' beating from their carriers' spacing: a drift moves the modes
     from the carriers, and where two of them are close and their loops' gains high, the prediction's error
     turns the loop unstable (the tablet's 30 mm bump, 1% drift: 12 of its 37 linked groups, radius 1.0001 to
     261; the shot had been stopped by the supervisor). Per-mode loops hold there. ``drifted``:
     :func:`drifted_plants` of ``plant``, if made."""
-    worst = (closed_loop_radius(law), 0.0)
+    worst, frame = (0.0, 0.0), _frame(plant, law.loops)
     for shift, truth in drifted_plants(plant) if drifted is None else drifted:
-        at, bt, ct = _observed_model(truth, law.loops, _frame(plant, law.loops))[:3]
+        at, bt, ct = _observed_model(truth, law.loops, frame)[:3]
         radius = observer_loop_radius(law.A, law.B, law.C, law.K, law.Ki, law.M, law.turn, truth=(at, bt, ct))
         worst = max(worst, (radius, shift))
     return worst
@@ -414,15 +415,18 @@ class ClusterControl(Controller):
         noise = np.maximum(level * NOISE_FLOOR, 0 if plant.noise is None else plant.noise)  # as lqg's
         self.laws, self.refused = [], []  # refused: (group, why) of the clusters left to per-mode loops
         drifted = drifted_plants(plant) if clusters.groups else []
+        nominal = []  # the kept laws' nominal radii
         for group in clusters.groups:
             try:
                 law = _design(plant, np.array(group), self.design.crossover_hz, noise)
             except np.linalg.LinAlgError as error:  # no observer or LQ law (_solved): per-mode loops
                 self.refused.append((group, f"no law ({error})"))
                 continue
-            radius, drift = drift_radius(plant, law, drifted)
+            stable = closed_loop_radius(law)
+            radius, drift = max((stable, 0.0), drift_radius(plant, law, drifted))
             if radius < 1:
                 self.laws.append(law)
+                nominal.append(stable)
             else:
                 self.refused.append((group, f"its law unstable at {100 * drift:+g}% drift (spectral radius "
                                             f"{radius:.5f})"))
@@ -431,7 +435,7 @@ class ClusterControl(Controller):
         clustered = np.concatenate([law.loops for law in self.laws] or [np.zeros(0, int)])
         self._alone = np.setdiff1d(np.arange(plant.frequencies.size), clustered)  # the alone loops' modes
         self.inner = ALONE[alone](_subplant(plant, self._alone)) if self._alone.size else None
-        self.spectral_radius = np.array([closed_loop_radius(law) for law in self.laws])
+        self.spectral_radius = np.array(nominal)
         self._stack(1 / plant.control_rate)
         self.reset()
 
