@@ -302,7 +302,9 @@ def report(data: dict, json_path: Path) -> None:
             lines += ["The machine's pace (`common.speed_probe`: an interpreter loop of 10^7 additions, five 1000 x "
                       f"1000 products) before the commands: {pace['before']['python_loop_s']:.2f} s and "
                       f"{pace['before']['matmul_s']:.2f} s; after: {pace['after']['python_loop_s']:.2f} s and "
-                      f"{pace['after']['matmul_s']:.2f} s (0.64 s and 0.13 s on a quiet hour of 2026-11-28).", ""]
+                      f"{pace['after']['matmul_s']:.2f} s. The probe misses slowdowns that come and go within minutes "
+                      "(0.45-1.05 s within an hour of 2026-11-28, commands 1.5-2.5 times slower at its fast end): "
+                      "compare each command with the baseline in the same run.", ""]
         lines += [f"Tablet panel `modalctl model fe --band 20kHz` (from the cache's mesh-free start, a fresh solve): "
                   f"{t['wall_s']:.1f} s, {t['peak_mb']:.0f} MB peak, exit {t['exit']}.", "",
                   "| case | loop | wall s (baseline) | peak MB (baseline) | folder MB | plan s | play s | scan s | write s "
