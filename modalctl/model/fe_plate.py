@@ -535,21 +535,19 @@ def _factor(matrix) -> tuple[object, int | None]:
 
 
 def _lanczos(k, m, shift: float, count: int, below: float | None, grow: bool) -> tuple[np.ndarray, np.ndarray]:
-    """ARPACK's ``count`` eigenpairs of ``K x = w2 M x`` nearest ``shift`` (shift-invert on
-    :func:`_factor`'s factors), ascending; with ``grow``, asked again for more while the highest
-    lies below ``below`` (Hz)."""
+    """ARPACK's ``count`` eigenpairs of ``K x = w2 M x`` nearest ``shift`` (shift-invert on :func:`_factor`'s
+    factors, from a fixed start: ARPACK's own moves from call to call, and a model solved afresh differed from
+    its cached copy), ascending; with ``grow``, asked again for more while the highest lies below ``below`` (Hz)."""
     factors, _ = _factor(k - shift * m)
     inverse = scipy.sparse.linalg.LinearOperator(k.shape, matvec=factors.solve, dtype=float)
-    size = k.shape[0]
-    start = np.random.default_rng(0).standard_normal(size)  # ARPACK's own start moves from call to call:
-    while True:  # with it a model solved afresh differed from its cached copy in the last bits
+    size, start = k.shape[0], np.random.default_rng(0).standard_normal(k.shape[0])
+    while True:
         if count > 2 * MODES_MAX:
             raise ModelError(f"fe plate: over {2 * MODES_MAX} modes below {below:g} Hz; a model holds {MODES_MAX}")
         count = min(count, size - 2)
         ncv = min(size - 1, max(int(NCV_FACTOR * count), count + 20))
         with serial_blas():
-            w2, x = scipy.sparse.linalg.eigsh(k, k=count, M=m, sigma=shift, which="LM", OPinv=inverse, ncv=ncv,
-                                              v0=start)
+            w2, x = scipy.sparse.linalg.eigsh(k, count, m, sigma=shift, which="LM", OPinv=inverse, ncv=ncv, v0=start)
         if not grow or w2.max() >= (2 * np.pi * below) ** 2 or count == size - 2:
             break
         count = int(count * 1.5) + 4  # the count fell short (superLU pivoted: Weyl's estimate)
