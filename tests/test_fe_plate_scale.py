@@ -15,9 +15,9 @@ import pytest
 import scipy.linalg
 import scipy.sparse
 
-from modalctl.model import fe_plate
+from modalctl.model import fe_eigen, fe_plate
 from modalctl.model.fe_plate import MATERIALS, FEPlate, Hole, Outline, Support
-from modalctl.model.plate_geometry import distance_to_segments, near_segments
+from modalctl.model.plate_geometry import distance_to_segments, in_segments, near_segments
 from modalctl.model.structures import PlatePatch
 
 GLASS = MATERIALS["glass"]
@@ -70,7 +70,7 @@ def test_the_inertia_counts_the_modes_a_dense_solution_finds(support):
     assert len(w2) > 200
     for f in (2e3, 1e4, 3e4):
         sigma = (2 * np.pi * f) ** 2
-        _, count = fe_plate._factor(k - sigma * m)
+        _, count = fe_eigen.factor(k - sigma * m)
         assert count == np.count_nonzero(w2 < sigma), f
 
 
@@ -99,10 +99,10 @@ def test_the_band_solved_about_its_middle_is_checked_and_sound_on_a_clamped_plat
     residuals, which on a sound factor are round-off, so no second solve."""
     plate = FEPlate(Outline.rectangle(0.06, 0.04), 1e-3, GLASS, {"rim": Support("clamped")})
     mesh = plate.mesh(6e-3)
-    residual, factor, seen, factored = fe_plate._residual, fe_plate._factor, [], []
-    monkeypatch.setattr(fe_plate, "_residual", lambda *pairs: seen.append(residual(*pairs)) or seen[-1])
-    monkeypatch.setattr(fe_plate, "_factor", lambda matrix: factored.append(matrix) or factor(matrix))
-    monkeypatch.setattr(fe_plate, "ROUNDOFF", 0.0)  # every residual counted, round-off too
+    residual, factor, seen, factored = fe_eigen.residual, fe_eigen.factor, [], []
+    monkeypatch.setattr(fe_eigen, "residual", lambda *pairs: seen.append(residual(*pairs)) or seen[-1])
+    monkeypatch.setattr(fe_eigen, "factor", lambda matrix: factored.append(matrix) or factor(matrix))
+    monkeypatch.setattr(fe_eigen, "ROUNDOFF", 0.0)  # every residual counted, round-off too
     freqs = plate.solve(mesh, below=25e3)[0]
     assert len(freqs) > 5 and len(seen) == 1 and 0 < seen[0] < 1e-8, seen
     assert len(factored) == 2  # the inertia's and the mid-band shift's: no solve from below
@@ -116,7 +116,7 @@ def test_unsound_mid_band_factors_are_solved_again_from_below_the_lowest_mode(mo
     mesh = plate.mesh(6e-3)
     sound = plate.solve(mesh, below=25e3)[0]
     safe = plate.solve(mesh, len(sound))[0]  # the lowest modes: solved from below them
-    residual, factor, seen, factored = fe_plate._residual, fe_plate._factor, [], []
+    residual, factor, seen, factored = fe_eigen.residual, fe_eigen.factor, [], []
     rng = np.random.default_rng(5)
 
     def unsound(matrix):
@@ -125,10 +125,74 @@ def test_unsound_mid_band_factors_are_solved_again_from_below_the_lowest_mode(mo
             matrix = matrix + scipy.sparse.diags(1e-3 * np.abs(matrix.diagonal()) * rng.uniform(-1, 1, matrix.shape[0]))
         return factor(matrix)
 
-    monkeypatch.setattr(fe_plate, "_residual", lambda *pairs: seen.append(residual(*pairs)) or seen[-1])
-    monkeypatch.setattr(fe_plate, "_factor", unsound)
+    monkeypatch.setattr(fe_eigen, "residual", lambda *pairs: seen.append(residual(*pairs)) or seen[-1])
+    monkeypatch.setattr(fe_eigen, "factor", unsound)
     freqs, vectors, rigid, _ = plate.solve(mesh, below=25e3)
-    assert len(seen) == 1 and seen[0] > 100 * fe_plate.RESIDUAL_TOLERANCE and len(factored) == 3, seen
+    assert len(seen) == 1 and seen[0] > 100 * fe_eigen.RESIDUAL_TOLERANCE and len(factored) == 3, seen
     np.testing.assert_allclose(freqs, safe, rtol=1e-9)
     np.testing.assert_allclose(freqs, sound, rtol=1e-9)
     assert vectors.shape[1] == len(sound) and rigid.shape[1] == 0
+
+
+@pytest.mark.parametrize("support", ["clamped", "free"])
+def test_a_band_cut_in_two_slices_holds_the_modes_solved_at_once(support, monkeypatch):
+    """The tablet's band is solved in two slices, the lower in a forked child: on a panel whose band
+    is cut the same way (the thresholds lowered), the same modes, frequencies to 1e-9 and shapes
+    mode by mode, as the band solved at once; the rigid ones with the lower slice."""
+    plate = panel(support)
+    mesh = plate.mesh(6e-3)
+    whole = plate.solve(mesh, below=25e3)
+    shifts, launched, lanczos, beside = [], [], fe_eigen.lanczos, fe_eigen.beside
+    monkeypatch.setattr(fe_eigen, "SLICE_MODES", 5)
+    monkeypatch.setattr(fe_eigen, "SLICE_DOFS", 100)
+    monkeypatch.setattr(fe_eigen, "lanczos", lambda k, m, shift, *rest: shifts.append(shift) or lanczos(k, m, shift, *rest))
+    monkeypatch.setattr(fe_eigen, "beside", lambda job: launched.append(job) or beside(job))
+    sliced = plate.solve(mesh, below=25e3)
+    top = (2 * np.pi * 25e3) ** 2
+    assert len(launched) == 1 and np.allclose(shifts, [(1 + fe_eigen.SLICE_AT) * top / 2]), shifts  # the upper
+    # slice here, the lower in the child (whose calls this process does not see)
+    np.testing.assert_allclose(sliced[0], whole[0], rtol=1e-9)
+    _, mass, _, _ = plate.assemble(mesh)
+    overlap = sliced[1].T @ (mass @ whole[1])  # mass-normalized: the identity up to each mode's sign
+    np.testing.assert_allclose(np.abs(np.diag(overlap)), 1, atol=1e-8)
+    assert sliced[2].shape[1] == whole[2].shape[1] == (3 if support == "free" else 0)
+
+
+def test_inside_an_outline_with_a_hole_as_matplotlib_s_path_says(rng):
+    """The even-odd rule, each block of points against the segments of its heights only, against
+    matplotlib's point-in-path on a seven-lobed outline with a hole: a lattice (blocks of a row) and
+    scattered points (blocks of every height), those nearer the rim than round-off left out."""
+    from matplotlib.path import Path
+
+    t = np.linspace(0, 2 * np.pi, 301)[:-1]
+    outer = (1 + 0.3 * np.sin(7 * t))[:, None] * np.c_[np.cos(t), np.sin(t)]
+    hole = 0.2 * np.c_[np.cos(t), np.sin(t)]
+    segments = np.concatenate([np.stack([loop, np.roll(loop, -1, axis=0)], axis=1) for loop in (outer, hole)])
+    x = np.linspace(-1.4, 1.4, 301)
+    for points in (np.column_stack([a.ravel() for a in np.meshgrid(x, x)]), rng.uniform(-1.4, 1.4, (20000, 2))):
+        clear = ~near_segments(points, segments, 1e-9)
+        truth = Path(outer).contains_points(points) & ~Path(hole).contains_points(points)
+        got = in_segments(points, segments)
+        assert 0.3 < got.mean() < 0.6 and np.array_equal(got[clear], truth[clear])
+
+
+def test_the_plate_triangle_s_basis_made_at_once_is_scikit_fem_s(rng):
+    """Every function's value, gradient and Hessian at the quadrature points of every element, and at
+    points sampled on some elements (as the probes ask), equal scikit-fem's own, one at a time."""
+    import skfem
+
+    from modalctl.model.fe_element import PlateTriangle
+
+    mesh = panel("free").mesh(6e-3)
+    ours, theirs = skfem.Basis(mesh, PlateTriangle()), skfem.Basis(mesh, skfem.ElementTri15ParamPlate())
+    cells = rng.integers(0, mesh.nelements, 50)
+    local = rng.uniform(0, 0.5, (2, 50, 1))
+    for i in range(ours.Nbfun):
+        made, own = ours.basis[i][0], theirs.basis[i][0]
+        for a, b in ((made, own), (made.grad, own.grad), (made.hess, own.hess)):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12 * np.abs(b).max())
+    for i in range(ours.Nbfun):
+        made = ours.elem.gbasis(ours.mapping, local, i, tind=cells)[0]
+        own = theirs.elem.gbasis(theirs.mapping, local, i, tind=cells)[0]
+        np.testing.assert_allclose(np.asarray(made.hess), np.asarray(own.hess), rtol=1e-12,
+                                   atol=1e-12 * np.abs(own.hess).max())

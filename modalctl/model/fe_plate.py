@@ -30,12 +30,12 @@ import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse.linalg
+import scipy.sparse
 import scipy.spatial
 
 from modalctl.forked import beside
-from modalctl.threads import serial_blas
 
+from . import fe_eigen
 from .fe_convergence import Convergence, Level, compare_levels
 from .modes import Grid, ModalModel, ModelError
 from .plate_geometry import (MATERIALS, SUPPORTS, Hole, Material, Outline, Support, distance_to_edges, in_segments,
@@ -58,11 +58,7 @@ KIRCHHOFF_WAVELENGTHS = 10  # a bending wavelength shorter than this many thickn
 RIGID_FRACTION = 1e-3  # a mode below this fraction of the first elastic estimate is a rigid-body mode
 BAND_MARGIN = 1.03  # a band's meshes solve every mode below this much above it: the shape test's 2% window
 BAND_SHIFT = 0.45  # a band's Lanczos shift, times its top eigenvalue: the band [0, top] lies within 0.55 top of it
-NCV_FACTOR = 1.5  # Lanczos vectors per mode sought
 PARTNERS = 4  # modes solved past the N lowest asked: a (near-)degenerate partner of the Nth in each shape test's span
-RESIDUAL_TOLERANCE = 1e-6  # a relative residual r moves a frequency by about r / 2: above this, 20 times under...
-ROUNDOFF = 1e-12  # ...the least tolerance (1e-5), and a backward error above this (sound: 1e-16; a tiny pivot's
-# growth g: g 1e-16), a band's mid-band factors were unsound and it is solved again from below (see _residual)
 RIM_TOLERANCE = 1e-9  # m: a patch or sensor this near the rim is on it (flush, as lengths in mm round)
 PROBE_BLOCK = 16384  # sampling: this many points at a time (the 15-parameter basis: 40 MB per array)
 PROBE_NEIGHBOURS = 8  # a point's element sought among this many nearest element centroids
@@ -235,12 +231,13 @@ class FEPlate:
 
     def assemble(self, mesh):
         """Stiffness and mass matrices (scipy sparse), the held degrees of freedom and the basis."""
-        import skfem
         from skfem import Basis, BilinearForm, FacetBasis
         from skfem.helpers import dd, ddot, dot, eye, grad, trace
 
+        from .fe_element import element  # (scikit-fem: imported when a plate is solved, not at start-up)
+
         m, h = self.material, self.thickness
-        basis = Basis(mesh, getattr(skfem, ELEMENTS[self.element][0])())
+        basis = Basis(mesh, element(ELEMENTS[self.element][0]))
 
         @BilinearForm
         def bending(u, v, _):
@@ -278,19 +275,20 @@ class FEPlate:
         frequencies (Hz), mass-normalized FE vectors (N, k), rigid-body vectors (N, r) and the
         basis.
 
-        Shift-invert Lanczos (ARPACK) on superLU's factors of ``K - shift M`` in a symmetric
-        minimum-degree ordering without pivoting: a third of the fill and half the solve time of
-        the default column ordering. Every mode below ``below`` is counted first by Sylvester's law
-        of inertia (the negative pivots of ``K - w^2 M`` factored the same way), so Lanczos asks
-        for as many as there are, about the middle of the band (``BAND_SHIFT``): the band is then
-        the modes nearest the shift, and its edge modes lie far apart once inverted, so a Krylov
-        space of 1.5 times the count holds them (``NCV_FACTOR``; 2 is scipy's default), 20% less
-        work than below the lowest mode. ARPACK's products are many matrix-vector ones, which
-        BLAS threads only slow down (:mod:`modalctl.threads`: 2.7 times as long on 2 loaded cores).
-        When the count is unknown (superLU pivoted) it solves from below the lowest mode, asking
-        again for more while the highest it found lies below ``below``. The mid-band factors are
-        of an indefinite matrix, unpivoted: a tiny pivot would make them unsound, so the band's
-        modes are checked (:func:`_residual`) and solved again from below the lowest if they fail."""
+        Shift-invert Lanczos (ARPACK, :mod:`~.fe_eigen`) on superLU's factors of ``K - shift M`` in a
+        symmetric minimum-degree ordering without pivoting: a third of the fill and half the solve time
+        of the default column ordering. Every mode below ``below`` is counted first by Sylvester's law
+        of inertia (the negative pivots of ``K - w^2 M`` factored the same way), so Lanczos asks for as
+        many as there are, about the middle of the band (``BAND_SHIFT``; a wide band on a large mesh in
+        two slices on two cores, :func:`~.fe_eigen.band`): the band is then the modes nearest the shift,
+        and its edge modes lie far apart once inverted, so a Krylov space of 1.5 times the count holds
+        them (``fe_eigen.NCV_FACTOR``; 2 is scipy's default), 20% less work than below the lowest mode.
+        ARPACK's products are many matrix-vector ones, which BLAS threads only slow down
+        (:mod:`modalctl.threads`: 2.7 times as long on 2 loaded cores). When the count is unknown
+        (superLU pivoted) it solves from below the lowest mode, asking again for more while the highest
+        it found lies below ``below``. The mid-band factors are of an indefinite matrix, unpivoted: a
+        tiny pivot would make them unsound, so the band's modes are checked
+        (:func:`~.fe_eigen.residual`) and solved again from below the lowest if they fail."""
         if (n_modes is None) == (below is None):
             raise ModelError("fe plate: solve either n_modes or every mode below a frequency")
         stiffness, mass, held, basis = self.assemble(mesh)
@@ -303,15 +301,18 @@ class FEPlate:
             count = n_modes + rigid + 4
         else:
             top = (2 * np.pi * below) ** 2
-            _, under = _factor(k - top * m)  # the modes below `below`, rigid ones included
+            _, under = fe_eigen.factor(k - top * m)  # the modes below `below`, rigid ones included
             count = (under if under is not None else int(np.ceil(1.3 * self.modes_below(below))) + rigid) + 4
-            if under is not None and NCV_FACTOR * count < free.size:  # (else nearly every mode: from below)
+            if under is not None and fe_eigen.NCV_FACTOR * count < free.size:  # (else nearly every mode: from below)
                 shift = BAND_SHIFT * top
         cut = (2 * np.pi * RIGID_FRACTION * self.frequency_of_mode(1)) ** 2  # below it: a rigid-body mode
-        w2, x = _lanczos(k, m, shift, count, below, grow=below is not None and under is None)
+        if shift != safe:  # the band about its middle (in two slices when wide: fe_eigen.band)
+            w2, x = fe_eigen.band(k, m, top, under, shift)
+        else:
+            w2, x = fe_eigen.lanczos(k, m, shift, count, below, below is not None and under is None, 2 * MODES_MAX)
         kept = np.flatnonzero((w2 > cut) & (w2 < top))[:n_modes]
-        if shift != safe and not _residual(k, m, w2[kept], x[:, kept]) <= RESIDUAL_TOLERANCE:  # (NaN fails too)
-            w2, x = _lanczos(k, m, safe, count, below, grow=False)  # the count is known: no more asked
+        if shift != safe and not fe_eigen.residual(k, m, w2[kept], x[:, kept]) <= fe_eigen.RESIDUAL_TOLERANCE:
+            w2, x = fe_eigen.lanczos(k, m, safe, count)  # (NaN fails too) the count is known: no more asked
             kept = np.flatnonzero((w2 > cut) & (w2 < top))[:n_modes]
         full = np.zeros((basis.N, x.shape[1]))
         full[free] = x
@@ -521,57 +522,6 @@ class FEPlate:
                 "sensors": [{"name": f"sensor{i + 1}", "position_m": list(map(float, s))}
                             for i, s in enumerate(sensors)], **self.piezo.voltage_meta(),
                 "convergence": convergence.to_dict()}
-
-
-def _factor(matrix) -> tuple[object, int | None]:
-    """superLU's factors of a symmetric sparse ``matrix`` (symmetric minimum-degree ordering, no
-    pivoting: ``P A P^T = L D L^T`` up to the scaling of ``U``) and its inertia, the count of
-    negative pivots; None when superLU had to pivot (a zero pivot), and the count means nothing."""
-    factors = scipy.sparse.linalg.splu(matrix.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
-                                       options={"SymmetricMode": True})
-    if not np.array_equal(factors.perm_r, factors.perm_c):
-        return factors, None
-    return factors, int(np.count_nonzero(factors.U.diagonal() < 0))
-
-
-def _lanczos(k, m, shift: float, count: int, below: float | None, grow: bool) -> tuple[np.ndarray, np.ndarray]:
-    """ARPACK's ``count`` eigenpairs of ``K x = w2 M x`` nearest ``shift`` (shift-invert on :func:`_factor`'s
-    factors, from a fixed start: ARPACK's own moves from call to call, and a model solved afresh differed from
-    its cached copy), ascending; with ``grow``, asked again for more while the highest lies below ``below`` (Hz)."""
-    factors, _ = _factor(k - shift * m)
-    inverse = scipy.sparse.linalg.LinearOperator(k.shape, matvec=factors.solve, dtype=float)
-    size, start = k.shape[0], np.random.default_rng(0).standard_normal(k.shape[0])
-    while True:
-        if count > 2 * MODES_MAX:
-            raise ModelError(f"fe plate: over {2 * MODES_MAX} modes below {below:g} Hz; a model holds {MODES_MAX}")
-        count = min(count, size - 2)
-        ncv = min(size - 1, max(int(NCV_FACTOR * count), count + 20))
-        with serial_blas():
-            w2, x = scipy.sparse.linalg.eigsh(k, count, m, sigma=shift, which="LM", OPinv=inverse, ncv=ncv, v0=start)
-        if not grow or w2.max() >= (2 * np.pi * below) ** 2 or count == size - 2:
-            break
-        count = int(count * 1.5) + 4  # the count fell short (superLU pivoted: Weyl's estimate)
-    order = np.argsort(w2)
-    return w2[order], x[:, order]
-
-
-def _residual(k, m, w2: np.ndarray, x: np.ndarray, block: int = 64) -> float:
-    """The largest relative eigen-residual ``||K x - w2 M x|| / ||K x||`` of the pairs (columns of
-    ``x``; their sparse products ``block`` columns at a time) whose residual is more than round-off,
-    its backward error ``||K x - w2 M x|| / (||K|| + w2 ||M||) ||x||`` above ``ROUNDOFF``; 0 for none,
-    NaN for a pair that is not a number. (A sound solve's relative residual grows with the mesh, as
-    ``||K||`` does, while its backward error stays at 1e-16: a free 100 x 70 mm plate's band, 1e-8
-    on 9k degrees of freedom, 1e-7 on 74k; solved from below the lowest mode, the same.)"""
-    norm_k, norm_m = abs(k).sum(axis=0).max(), abs(m).sum(axis=0).max()
-    worst = [0.0]
-    for i in range(0, len(w2), block):
-        part, values = x[:, i:i + block], w2[i:i + block]
-        kx = k @ part
-        residual = np.linalg.norm(kx - (m @ part) * values, axis=0)
-        relative = residual / np.linalg.norm(kx, axis=0)
-        relative[residual <= ROUNDOFF * (norm_k + values * norm_m) * np.linalg.norm(part, axis=0)] = 0.0
-        worst.append(np.max(relative))
-    return float(np.max(worst))
 
 
 def _probes(basis, points: np.ndarray):

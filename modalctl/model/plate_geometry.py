@@ -271,13 +271,16 @@ def _in_polygon(p: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 def in_segments(p: np.ndarray, segments: np.ndarray) -> np.ndarray:
     """Even-odd rule: whether points ``p`` (n, 2) lie inside the closed loops that
-    ``segments`` (m, 2 ends, 2) draw (an outline and its holes at once)."""
+    ``segments`` (m, 2 ends, 2) draw (an outline and its holes at once). Each block of points is
+    tested against the segments whose height range meets the block's only (the others cannot
+    straddle its points): a lattice's block spans a row or two, and meets a few segments of the rim."""
     x, y = p[:, :1], p[:, 1:]
-    x1, y1 = segments[:, 0, 0][None, :], segments[:, 0, 1][None, :]
-    x2, y2 = segments[:, 1, 0][None, :], segments[:, 1, 1][None, :]
+    low, high = segments[:, :, 1].min(axis=1), segments[:, :, 1].max(axis=1)
     inside = np.zeros(len(p), bool)
     for chunk in range(0, len(p), 2048):  # (chunk, m) at a time: bounded memory
         cy, cx = y[chunk:chunk + 2048], x[chunk:chunk + 2048]
+        near = segments[(high >= cy.min()) & (low <= cy.max())] if len(cy) else segments[:0]
+        x1, y1, x2, y2 = (near[None, :, end, axis] for end in (0, 1) for axis in (0, 1))
         straddle = (y1 > cy) != (y2 > cy)
         with np.errstate(divide="ignore", invalid="ignore"):
             cross = cx < x1 + (cy - y1) * (x2 - x1) / (y2 - y1)
