@@ -6,9 +6,10 @@ modes below the shift (Sylvester's law of inertia). A wide band is cut in two sl
 about its own middle, the lower in a forked child (:mod:`modalctl.forked`) while this process solves
 the upper: a Krylov space's orthogonalization costs ``n ncv^2``, and the two halves run on two cores.
 Measured on the tablet panel's fine mesh (49,671 degrees of freedom, 262 modes below 20.6 kHz, one
-core each, serial BLAS): one band 27.0 s; cut at a quarter of its top eigenvalue (half the modes, as
-a plate's count grows with the frequency), 13.6 s and 11.2 s. The slices' frequencies agree with the
-single band's to 5e-9.
+process at a time, serial BLAS): one band 27.0-28.3 s; cut at 0.35 of its top eigenvalue, 13.2 s
+(149 modes) and 12.2 s (113 modes), the two balanced (at 0.25: 11.5 s and 17.3 s, the upper slice's
+eigenvalues spread wider about its shift; at 0.5: 14.8 s and 8.6 s); solved one after the other,
+no faster than at once. The slices' frequencies agree with the single band's to 3e-9.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ ROUNDOFF = 1e-12  # ...the least tolerance (1e-5), and a backward error above th
 # growth g: g 1e-16), a band's mid-band factors were unsound and it is solved again from below (see residual)
 SLICE_MODES = 150  # a band of at least this many modes...
 SLICE_DOFS = 20_000  # ...on at least this many degrees of freedom is solved in two slices (see the module doc)
-SLICE_AT = 0.25  # where the band is cut, times its top eigenvalue: half its modes below (a plate's count ~ w)
+SLICE_AT = 0.35  # where the band is cut, times its top eigenvalue: the two slices' times balance (module doc)
 EXTRA = 4  # modes each slice asks for past those it holds: its edges' modes found, not guessed
 
 
