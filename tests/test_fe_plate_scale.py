@@ -16,7 +16,7 @@ import scipy.linalg
 import scipy.sparse
 
 from modalctl.model import fe_eigen, fe_plate
-from modalctl.model.fe_plate import MATERIALS, FEPlate, Hole, Outline, Support
+from modalctl.model.fe_plate import BAND_SHIFT, MATERIALS, FEPlate, Hole, Outline, Support
 from modalctl.model.plate_geometry import distance_to_segments, in_segments, near_segments
 from modalctl.model.structures import PlatePatch
 
@@ -196,3 +196,27 @@ def test_the_plate_triangle_s_basis_made_at_once_is_scikit_fem_s(rng):
         own = theirs.elem.gbasis(theirs.mapping, local, i, tind=cells)[0]
         np.testing.assert_allclose(np.asarray(made.hess), np.asarray(own.hess), rtol=1e-12,
                                    atol=1e-12 * np.abs(own.hess).max())
+
+
+def test_a_slice_that_misses_a_mode_at_its_edge_gives_the_band_solved_at_once(monkeypatch):
+    """The lower slice made to lose its highest mode (as a slice whose edge mode ARPACK missed): the
+    counts disagree with the inertia's, and the band is solved at once, the same modes as untouched."""
+    plate = panel("clamped")
+    mesh = plate.mesh(6e-3)
+    whole = plate.solve(mesh, below=25e3)
+    top, lanczos, shifts = (2 * np.pi * 25e3) ** 2, fe_eigen.lanczos, []
+
+    def losing(k, m, shift, *rest):
+        shifts.append(shift)
+        w2, x = lanczos(k, m, shift, *rest)
+        below = w2 < fe_eigen.SLICE_AT * top
+        if shift < fe_eigen.SLICE_AT * top:  # the lower slice (in the child): its highest mode lost
+            return w2[below][:-1], x[:, below][:, :-1]
+        return w2, x
+
+    monkeypatch.setattr(fe_eigen, "SLICE_MODES", 5)
+    monkeypatch.setattr(fe_eigen, "SLICE_DOFS", 100)
+    monkeypatch.setattr(fe_eigen, "lanczos", losing)
+    again = plate.solve(mesh, below=25e3)
+    assert np.isclose(shifts[-1], BAND_SHIFT * top)  # the last solve: the whole band about its middle
+    np.testing.assert_allclose(again[0], whole[0], rtol=1e-9)
