@@ -47,16 +47,16 @@ def factor(matrix) -> tuple[object, int | None]:
 
 
 def lanczos(k, m, shift: float, count: int, below: float | None = None, grow: bool = False,
-            most: int = 1000) -> tuple[np.ndarray, np.ndarray]:
+            most: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """ARPACK's ``count`` eigenpairs of ``K x = w2 M x`` nearest ``shift`` (shift-invert on :func:`factor`'s
     factors, from a fixed start: ARPACK's own moves from call to call, and a model solved afresh differed
     from its cached copy), ascending; with ``grow``, asked again for more while the highest lies below
-    ``below`` (Hz), up to ``most``."""
+    ``below`` (Hz), up to ``most`` (ModelError past it)."""
     factors, _ = factor(k - shift * m)
     inverse = scipy.sparse.linalg.LinearOperator(k.shape, matvec=factors.solve, dtype=float)
     size, start = k.shape[0], np.random.default_rng(0).standard_normal(k.shape[0])
     while True:
-        if count > most:
+        if most is not None and count > most:
             raise ModelError(f"fe plate: over {most} modes below {below:g} Hz; a model holds {most // 2}")
         count = min(count, size - 2)
         ncv = min(size - 1, max(int(NCV_FACTOR * count), count + 20))

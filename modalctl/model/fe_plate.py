@@ -306,12 +306,13 @@ class FEPlate:
             if under is not None and fe_eigen.NCV_FACTOR * count < free.size:  # (else nearly every mode: from below)
                 shift = BAND_SHIFT * top
         cut = (2 * np.pi * RIGID_FRACTION * self.frequency_of_mode(1)) ** 2  # below it: a rigid-body mode
-        if shift != safe:  # the band about its middle (in two slices when wide: fe_eigen.band)
+        mid_band = shift != safe
+        if mid_band:  # the band about its middle (in two slices when wide: fe_eigen.band)
             w2, x = fe_eigen.band(k, m, top, under, shift)
         else:
             w2, x = fe_eigen.lanczos(k, m, shift, count, below, below is not None and under is None, 2 * MODES_MAX)
         kept = np.flatnonzero((w2 > cut) & (w2 < top))[:n_modes]
-        if shift != safe and not fe_eigen.residual(k, m, w2[kept], x[:, kept]) <= fe_eigen.RESIDUAL_TOLERANCE:
+        if mid_band and not fe_eigen.residual(k, m, w2[kept], x[:, kept]) <= fe_eigen.RESIDUAL_TOLERANCE:
             w2, x = fe_eigen.lanczos(k, m, safe, count)  # (NaN fails too) the count is known: no more asked
             kept = np.flatnonzero((w2 > cut) & (w2 < top))[:n_modes]
         full = np.zeros((basis.N, x.shape[1]))

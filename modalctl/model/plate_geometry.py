@@ -279,7 +279,7 @@ def in_segments(p: np.ndarray, segments: np.ndarray) -> np.ndarray:
     inside = np.zeros(len(p), bool)
     for chunk in range(0, len(p), 2048):  # (chunk, m) at a time: bounded memory
         cy, cx = y[chunk:chunk + 2048], x[chunk:chunk + 2048]
-        near = segments[(high >= cy.min()) & (low <= cy.max())] if len(cy) else segments[:0]
+        near = segments[(high >= cy.min()) & (low <= cy.max())]
         x1, y1, x2, y2 = (near[None, :, end, axis] for end in (0, 1) for axis in (0, 1))
         straddle = (y1 > cy) != (y2 > cy)
         with np.errstate(divide="ignore", invalid="ignore"):
