@@ -32,6 +32,25 @@ Sets (``SETS``; their published modal parameters are in ``benchmarks/identify_re
     1/3 Hz with its coherence. The rim's radius is not given: 0.3 m is assumed (it scales the
     geometry only); the hammer's place is not given either, so its node has no coordinates.
     Written with the coherence (function type 6) beside each FRF.
+``liege-aircraft``
+    Renkinios/MECA0062-1_vibration_testing (University of Liège, MECA0062 Vibration Testing and
+    Experimental Modal Analysis, 2024), folder ``data``: a roving-hammer test of a free aluminium
+    aircraft model (fuselage box, 1.5 m wing, tails, two engine masses), 74 hammer points
+    (``node_shock.csv``, mm), three fixed accelerometers; ``sec_lab/DPsvNNNNN.mat`` are DataPhysics
+    SignalCalc MAT exports, ``H1_k`` the accelerance (g/N) of accelerometer k (channels 2-4) to the
+    hammer (channel 1), 0 to 200 Hz every 0.125 Hz, ``C1_k`` its coherence. Files 1-28, 31-58 and
+    61-78 are the hammer points in ``node_shock.csv``'s order (``src/PullData.py``,
+    ``extract_H_general``, and ``src/main.py``): the 56 wing points and 12 horizontal-tail points hit
+    along z, the vertical tail's 6 along x (``src/VizMode.py``); files 29, 30, 59, 60 are hits the
+    author does not use (no coordinates), file 0 repeats file 78. Two responses are written, the
+    accelerometers of ``H1_2`` and ``H1_3`` (by the modes they see, the wing tip's and the horizontal
+    tail tip's, along z; the other team's code, QUICKguils/vibtest, places the three there and at the
+    fin's tip), as nodes 1000 and 1001 without coordinates (their places are not given). The third
+    (``H1_4``, the fin's, along x) is left out: modalctl takes one response axis per file
+    ('responses or references along directions [1, 3]'). g/N converted to m/s^2/N (g = 9.80665);
+    written with the coherence. The points are written unfolded onto one plane
+    (``aircraft_plane``): modalctl refuses points that lie on neither a line nor a plane, as the
+    measured ones do.
 
 Usage::
 
@@ -39,6 +58,7 @@ Usage::
     python benchmarks/real_data/convert.py tool-tip PATH/TO/ExperimentalModalAnalysis OUT.uff
     python benchmarks/real_data/convert.py strip PATH/TO/Modal-identification-of-plate/20201016 OUT.uff
     python benchmarks/real_data/convert.py rail-wheel "PATH/TO/ADMS-Assignments/Assignment 1" OUT.uff
+    python benchmarks/real_data/convert.py liege-aircraft PATH/TO/MECA0062-1_vibration_testing/data OUT.uff
 """
 
 from __future__ import annotations
@@ -180,7 +200,48 @@ def rail_wheel(folder: Path, out: Path) -> Path:
     return write_uff(out, nodes, functions)
 
 
-SETS = {"modelab-beam": modelab_beam, "tool-tip": tool_tip, "strip": strip, "rail-wheel": rail_wheel}
+G = 9.80665  # m/s^2 per g
+AIRCRAFT_FILES = [*range(1, 29), *range(31, 59), *range(61, 79)]  # node_shock.csv's rows, in order
+AIRCRAFT_Z_POINTS = 68  # the wing's and the horizontal tail's points, hit along z; the fin's along x
+AIRCRAFT_ACCELEROMETERS = {2: 1000, 3: 1001}  # H1_k -> its node: the wing tip's and the horizontal tail tip's (z)
+
+
+def aircraft_plane(xyz: list[float], fin: bool) -> tuple[float, float, float]:
+    """A hammer point (m) laid on the wing's plane, z = 0, as the structure unfolded: modalctl
+    takes points on a line or a plane, and refuses the measured 3-D layout ('the measured nodes
+    do not lie on a line or a plane'). The horizontal tail (75 mm above the wing) keeps its x and
+    y; the fin (x = 0, its points at y and height z) is folded down behind the tail, to x = y,
+    y = -z. Its shapes are read on these points; the frequencies and dampings do not depend on them."""
+    x, y, z = xyz
+    return (y, -z, 0.0) if fin else (x, y, 0.0)
+
+
+def liege_aircraft(folder: Path, out: Path) -> Path:
+    """The aircraft model's 74 hammer points (DataPhysics MAT exports), two accelerometers."""
+    from scipy.io import loadmat
+
+    with (folder / "node_shock.csv").open(newline="") as handle:
+        rows = [[float(v) / 1000.0 for v in row] for row in list(csv.reader(handle))[1:] if row]
+    if len(rows) != len(AIRCRAFT_FILES):
+        raise SystemExit(f"{folder}: {len(rows)} hammer points in node_shock.csv for {len(AIRCRAFT_FILES)} files")
+    nodes = {k + 1: aircraft_plane(xyz, k >= AIRCRAFT_Z_POINTS) for k, xyz in enumerate(rows)}
+    functions = []
+    for sensor, node in AIRCRAFT_ACCELEROMETERS.items():
+        for k, number in enumerate(AIRCRAFT_FILES):
+            data = loadmat(folder / "sec_lab" / f"DPsv{number:05d}.mat")
+            frf, coherence = data[f"H1_{sensor}"], data[f"C1_{sensor}"]
+            common = dict(rsp_node=node, rsp_dir=3, ref_node=k + 1, ref_dir=3 if k < AIRCRAFT_Z_POINTS else 1,
+                          x=frf[:, 0].real, rsp_ent_name="aircraft", ref_ent_name="aircraft")
+            functions.append(dict(common, data=frf[:, 1] * G, id1=f"DPsv{number:05d} H1_{sensor}",
+                                  ordinate_spec_data_type=12, orddenom_spec_data_type=13,
+                                  ordinate_axis_units_lab="m/s^2", orddenom_axis_units_lab="N"))
+            functions.append(dict(common, func_type=6, data=coherence[:, 1].real, id1=f"DPsv{number:05d} C1_{sensor}",
+                                  ordinate_spec_data_type=0, orddenom_spec_data_type=0))
+    return write_uff(out, nodes, functions)
+
+
+SETS = {"modelab-beam": modelab_beam, "tool-tip": tool_tip, "strip": strip, "rail-wheel": rail_wheel,
+        "liege-aircraft": liege_aircraft}
 
 
 def main(argv=None) -> int:
