@@ -63,6 +63,9 @@ class Schedule:
         Each kept mode's planned modal velocity as a complex envelope on its carrier at the end of
         each period, unfiltered (the analytic signal's; m/s sqrt(kg)): what a touch damps, so what
         a controller that gives it back must add (:mod:`modalctl.loops.touch`).
+    focus_time : float, optional
+        s from the shot's start: the instant the plan's field is focused (what a controller that
+        catches up a loss aims at: :mod:`modalctl.loops.catch_up`).
     """
 
     control_rate: float
@@ -76,6 +79,7 @@ class Schedule:
     feedforward: np.ndarray
     weights: np.ndarray
     velocity: np.ndarray | None = None
+    focus_time: float | None = None
 
     @property
     def periods(self) -> int:
@@ -120,7 +124,8 @@ def schedule(plan, sensors: np.ndarray, bandwidths: np.ndarray, control_rate: fl
     padded = hilbert(kept, next_fast_len(2 * t.size), axis=1)[:, :t.size]  # zeros after: no wrap-around
     analytic = (padded * phasors.conj())[:, decimation - 1::decimation]  # at each period's end
     return Schedule(float(control_rate), decimation, carriers, np.asarray(bandwidths, float), np.asarray(sensors),
-                    reference, planned, own, volts, np.asarray(plan.weights), analytic)
+                    reference, planned, own, volts, np.asarray(plan.weights), analytic,
+                    float(plan.focus_time))
 
 
 def envelope_noise(sigma: float, sensors: np.ndarray, bandwidths: np.ndarray, sample_rate: float,

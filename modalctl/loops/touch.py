@@ -32,6 +32,7 @@ import numpy as np
 
 from modalctl.model.touch import velocity_residues
 
+from .catch_up import CatchUp
 from .controller import Controller, LoopPlant
 from .design import lockin_filter
 from .lockin import hold_gain
@@ -172,6 +173,9 @@ class TouchControl(Controller):
         self._learned_mask = np.isin(np.arange(plant.frequencies.size), self.learned)
         self._nothing = np.zeros(plant.frequencies.size, complex)
         self.points, self.rate = plant.points, float(plant.control_rate)
+        self.catch_up = None if self.estimator is None or s.focus_time is None else CatchUp(
+            np.asarray(plant.frequencies)[use], np.asarray(plant.damping)[use], self.residues[use],
+            np.asarray(plant.bandwidths)[use], plant.control_rate, self.lead, s.focus_time, np.asarray(s.reference)[use])
         self._read_every = max(1, int(round(READ_EVERY * self.rate)))  # periods
         # one contiguous row per period, read period by period: the planned drive of the modes learned
         # from, and the force per unit of added decay on the planned motion when the command plays
@@ -189,6 +193,9 @@ class TouchControl(Controller):
             self.filter.reset()
         if self.lift is not None:
             self.lift.reset()
+        if self.catch_up is not None:
+            self.catch_up.reset()
+        self._catching = False  # from the first period something is given back (see update)
         self._sent = deque([np.zeros(self.learned.size, complex)] * (self.lead - 1))  # commands on their way
         self._pattern = (None, None)  # (grid index, q over every kept mode there)
         self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
@@ -242,14 +249,14 @@ class TouchControl(Controller):
             self._retune()
         estimate = self._estimate
         lifting = self.lift is not None and self.lift.active(self.period)
-        if not estimate.sure > 0 and self._shared == 0.0 and not lifting:  # nothing sure: the inner controller's
-            return feedback  # command
+        if not self._catching and not estimate.sure > 0 and self._shared == 0.0 and not lifting:  # nothing sure
+            return feedback  # yet: the inner controller's command
+        if self.catch_up is not None:  # what the touch took before it was read, caught up by the focus on the
+            self._catching = True  # loops it learns from (clean readings), from the first period anything is given
+            feedback = feedback.copy()  # back to the shot's end (its doc)
+            feedback[self._use] += self.catch_up.correction(self.period, error[self._use], limit[self._use])
         if not np.count_nonzero(limit):  # no loop has authority (a shot played open through the loops):
             return feedback  # nothing given back either
-        # to every mode, a resting loop's too: the give-back is a feed-forward on the planned motion, and
-        # not bounded by the authority, which bounds the feedback (a finger of 1 N s/m takes five times
-        # a mode's planned drive at the focus; only to loops with authority: plate-glass's landing finger
-        # given back 80 -> 77%, the panel's 76 -> 72%)
         rows = self._give_rows
         row = rows[min(self.period + self.lead, rows.shape[0] - 1)]
         touch = estimate.sure * self._pattern_at(estimate.index) * row if estimate.sure > 0 else self._nothing
