@@ -41,14 +41,16 @@ def accelerance(x_points, x_drive, freqs=FREQS, noise=0.0, seed=0):
     return h + noise * (rng.standard_normal(h.shape) + 1j * rng.standard_normal(h.shape)) / np.sqrt(2)
 
 
-def write(path, nodes: dict, functions: list[tuple]):
-    """Dataset 15 of ``nodes`` {number: x (m)} and one accelerance per ``(rsp, ref, data)``."""
+def write(path, nodes: dict, functions: list[tuple], directions: list[tuple] | None = None):
+    """Dataset 15 of ``nodes`` {number: x (m)} and one accelerance per ``(rsp, ref, data)``, measured
+    along ``directions`` (one ``(rsp_dir, ref_dir)`` per function; default +z for all)."""
     uff = pyuff.UFF(str(path))
     numbers = sorted(nodes)
     uff.write_sets(pyuff.prepare_15(node_nums=numbers, x=[nodes[n] for n in numbers], y=[0.0] * len(numbers),
                                     z=[0.0] * len(numbers)), mode="add")
-    for rsp, ref, data in functions:
-        uff.write_sets(pyuff.prepare_58(func_type=4, rsp_node=rsp, rsp_dir=3, ref_node=ref, ref_dir=3, data=data,
+    for (rsp, ref, data), (rsp_dir, ref_dir) in zip(functions, directions or [(3, 3)] * len(functions)):
+        uff.write_sets(pyuff.prepare_58(func_type=4, rsp_node=rsp, rsp_dir=rsp_dir, ref_node=ref, ref_dir=ref_dir,
+                                        data=data,
                                         x=FREQS, id1="frf", rsp_ent_name="beam", ref_ent_name="beam",
                                         abscissa_spacing=1, abscissa_spec_data_type=18, ordinate_spec_data_type=12,
                                         orddenom_spec_data_type=13), mode="add")
@@ -328,3 +330,21 @@ def test_a_peak_narrower_than_the_lines_is_not_called_a_peak_of_the_noise():
     (i,) = np.flatnonzero(np.abs(modes.frequencies - 100) < 1)
     assert not modes.resolved[i] and modes.misfit[i] > 1
     assert modes.reasons[i] != NOISE and "lines" in modes.reasons[i] and "too coarse" in modes.reasons[i]
+
+
+def test_the_points_share_one_axis_the_inputs_need_not(tmp_path):
+    """A shape is one component of the motion: the points' directions must be one axis, whichever role
+    the points play. A roving hammer read by reciprocity with one point hit along x is refused, naming
+    the references; the same hammer points (all along z) with two accelerometers along x and z, its
+    inputs, is read (a multi-reference shaker test may likewise drive along several axes)."""
+    x = np.linspace(0.1, 1.2, 10)
+    nodes = {i + 1: xi for i, xi in enumerate(x)}
+    mixed = write(tmp_path / "mixed.uff", nodes, [(4, i + 1, h) for i, h in enumerate(accelerance(x, x[3]))],
+                  [(3, 1 if i == 7 else 3) for i in range(10)])
+    with pytest.raises(ModelError, match=r"references \(the points, read by reciprocity\) along directions \[1, 3\]"):
+        read_uff58_references(mixed)
+    sensors = (1, 5)
+    functions = [(s, i + 1, h) for s in sensors for i, h in enumerate(accelerance(x, x[s - 1]))]
+    two_axes = write(tmp_path / "two_axes.uff", nodes, functions, [(1 if s == 5 else 3, 3) for s, _, _ in functions])
+    inputs = read_uff58_references(two_axes)
+    assert len(inputs) == 2 and all(np.all(np.isfinite(f.values)) for f in inputs)

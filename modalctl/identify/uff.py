@@ -115,9 +115,11 @@ def input_unit(frfs: list[dict]) -> str:
     return "unit input"
 
 
-def _mobility(path, frfs: list[dict], freqs: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+def _mobility(path, frfs: list[dict], freqs: np.ndarray, point_dir: str) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """Every FRF as a mobility (m/s per unit input) along +axis, rows in file order; the bins
-    kept (those where the conversion is finite) and the notes."""
+    kept (those where the conversion is finite) and the notes. ``point_dir``: the key of the
+    points' directions (``rsp_dir``, or ``ref_dir`` for a roving hammer read by reciprocity): the
+    points must share one axis (a shape is one component of the motion); the inputs may not."""
     kinds = sorted({int(s.get("ordinate_spec_data_type", 11)) for s in frfs})
     unknown = [k for k in kinds if k not in RESPONSES]
     if unknown or len(kinds) != 1:
@@ -126,9 +128,11 @@ def _mobility(path, frfs: list[dict], freqs: np.ndarray) -> tuple[np.ndarray, np
                             f"are identified, one kind per file")
     name, power = RESPONSES[kinds[0]]
     axes = {abs(int(s.get(k, 3))) for s in frfs for k in ("rsp_dir", "ref_dir")} - {0}
-    if len({abs(int(s.get("rsp_dir", 3))) for s in frfs} - {0}) > 1 or axes - {1, 2, 3}:
-        raise _refuse(path, f"responses or references along directions {sorted(axes)}; one translational "
-                            f"axis (1-3, signed) is expected")
+    along = sorted({abs(int(s.get(point_dir, 3))) for s in frfs} - {0})
+    if len(along) > 1 or axes - {1, 2, 3}:
+        points = "responses" if point_dir == "rsp_dir" else "references (the points, read by reciprocity)"
+        raise _refuse(path, f"{points} along directions {along}, every direction {sorted(axes)}; the points along "
+                            f"one translational axis (1-3, signed) are expected, the inputs along any")
     sign = np.array([np.sign(int(s.get("rsp_dir", 3)) or 1) * np.sign(int(s.get("ref_dir", 3)) or 1)
                      for s in frfs])
     raw = np.array([np.asarray(s["data"], complex) for s in frfs]) * sign[:, None]
@@ -170,9 +174,10 @@ def _plane_coordinates(path, xyz: np.ndarray) -> np.ndarray:
     return centred @ vh[:2].T
 
 
-def _layout(path, frfs: list[dict]) -> tuple[list[list[int]], list[int], list[str]]:
+def _layout(path, frfs: list[dict]) -> tuple[list[list[int]], list[int], list[str], str]:
     """Which function is which: per input, the indices of its FRFs (one per point, the same
-    points in the same order for every input), the point node of each row, and a note.
+    points in the same order for every input), the point node of each row, a note, and the key of
+    the points' directions (``rsp_dir`` or ``ref_dir``).
 
     More references than responses (a roving hammer, one accelerometer or a few): the references
     are the points (reciprocity), each response an input. Else the responses are the points,
@@ -210,7 +215,7 @@ def _layout(path, frfs: list[dict]) -> tuple[list[list[int]], list[int], list[st
     elif len(inputs) > 1:
         notes.append(f"{len(inputs)} references (nodes {inputs[:8]}) at the same {len(points)} responses: "
                      f"a multi-reference test, one FRF per reference")
-    return [[by_input[a][p] for p in points] for a in inputs], points, notes
+    return [[by_input[a][p] for p in points] for a in inputs], points, notes, point_key.replace("node", "dir")
 
 
 def _node_table(path, sets: list[dict]) -> tuple[dict, np.ndarray]:
@@ -243,7 +248,7 @@ def read_uff58_references(path) -> list[FRF]:
     sets = read_uff_sets(path)
     frfs, coherences = _frf_sets(path, sets)
     where, xyz = _node_table(path, sets)
-    groups, point_nodes, layout_notes = _layout(path, frfs)
+    groups, point_nodes, layout_notes, point_dir = _layout(path, frfs)
     missing = [n for n in point_nodes if n not in where]
     if missing:
         raise _refuse(path, f"measured nodes {missing[:5]} have no coordinates in dataset 15")
@@ -254,7 +259,7 @@ def read_uff58_references(path) -> list[FRF]:
     step = np.diff(freqs)
     if not np.all(np.isfinite(freqs)) or step.min() <= 0 or np.ptp(step) > 1e-6 * step.mean():
         raise _refuse(path, "the frequencies must be evenly spaced and increasing")
-    values, keep, notes = _mobility(path, frfs, freqs)
+    values, keep, notes = _mobility(path, frfs, freqs, point_dir)
     coherence, coherence_notes = _coherence(path, frfs, coherences, freqs)
     if np.count_nonzero(keep) < 8:
         raise _refuse(path, "fewer than 8 bins left where the conversion to mobility is finite")
