@@ -42,15 +42,14 @@ Sets (``SETS``; their published modal parameters are in ``benchmarks/identify_re
     61-78 are the hammer points in ``node_shock.csv``'s order (``src/PullData.py``,
     ``extract_H_general``, and ``src/main.py``): the 56 wing points and 12 horizontal-tail points hit
     along z, the vertical tail's 6 along x (``src/VizMode.py``); files 29, 30, 59, 60 are hits the
-    author does not use (no coordinates), file 0 repeats file 78. Two responses are written, the
-    accelerometers of ``H1_2`` and ``H1_3`` (by the modes they see, the wing tip's and the horizontal
-    tail tip's, along z; the other team's code, QUICKguils/vibtest, places the three there and at the
-    fin's tip), as nodes 1000 and 1001 without coordinates (their places are not given). The third
-    (``H1_4``, the fin's, along x) is left out: modalctl takes one response axis per file
-    ('responses or references along directions [1, 3]'). g/N converted to m/s^2/N (g = 9.80665);
-    written with the coherence. The points are written unfolded onto one plane
-    (``aircraft_plane``): modalctl refuses points that lie on neither a line nor a plane, as the
-    measured ones do.
+    author does not use (no coordinates), file 0 repeats file 78. The 68 points hit along z are written
+    (a shape is one component of the motion: modalctl refuses points along several axes, and the fin's
+    six, hit along x, are left out) with the three accelerometers as three responses, nodes 1000-1002
+    without coordinates (their places are not given; the other team's code, QUICKguils/vibtest, puts
+    them at the wing tip, the horizontal tail's tip, along z, and the fin's tip, along x): read by
+    reciprocity, three inputs, along any axis. g/N converted to m/s^2/N (g = 9.80665); written with
+    the coherence. The points are written onto the wing's plane (``aircraft_plane``): modalctl refuses
+    points that lie on neither a line nor a plane, as the measured ones do (the tail 75 mm above).
 
 Usage::
 
@@ -202,35 +201,34 @@ def rail_wheel(folder: Path, out: Path) -> Path:
 
 G = 9.80665  # m/s^2 per g
 AIRCRAFT_FILES = [*range(1, 29), *range(31, 59), *range(61, 79)]  # node_shock.csv's rows, in order
-AIRCRAFT_Z_POINTS = 68  # the wing's and the horizontal tail's points, hit along z; the fin's along x
-AIRCRAFT_ACCELEROMETERS = {2: 1000, 3: 1001}  # H1_k -> its node: the wing tip's and the horizontal tail tip's (z)
+AIRCRAFT_Z_POINTS = 68  # the wing's and the horizontal tail's points, hit along z, first; the fin's 6 along x
+AIRCRAFT_ACCELEROMETERS = {2: (1000, 3), 3: (1001, 3), 4: (1002, 1)}  # H1_k -> its node and direction
 
 
-def aircraft_plane(xyz: list[float], fin: bool) -> tuple[float, float, float]:
-    """A hammer point (m) laid on the wing's plane, z = 0, as the structure unfolded: modalctl
-    takes points on a line or a plane, and refuses the measured 3-D layout ('the measured nodes
-    do not lie on a line or a plane'). The horizontal tail (75 mm above the wing) keeps its x and
-    y; the fin (x = 0, its points at y and height z) is folded down behind the tail, to x = y,
-    y = -z. Its shapes are read on these points; the frequencies and dampings do not depend on them."""
-    x, y, z = xyz
-    return (y, -z, 0.0) if fin else (x, y, 0.0)
+def aircraft_plane(xyz: list[float]) -> tuple[float, float, float]:
+    """A hammer point (m) of the wing or the horizontal tail laid on the wing's plane, z = 0: modalctl
+    takes points on a line or a plane, and refuses the measured 3-D layout ('the measured nodes do not
+    lie on a line or a plane'): the tail, 75 mm above the wing, keeps its x and y. Its shapes are read
+    on these points; the frequencies and dampings do not depend on them."""
+    x, y, _ = xyz
+    return (x, y, 0.0)
 
 
 def liege_aircraft(folder: Path, out: Path) -> Path:
-    """The aircraft model's 74 hammer points (DataPhysics MAT exports), two accelerometers."""
+    """The aircraft model's 68 hammer points along z (DataPhysics MAT exports), three accelerometers."""
     from scipy.io import loadmat
 
     with (folder / "node_shock.csv").open(newline="") as handle:
         rows = [[float(v) / 1000.0 for v in row] for row in list(csv.reader(handle))[1:] if row]
     if len(rows) != len(AIRCRAFT_FILES):
         raise SystemExit(f"{folder}: {len(rows)} hammer points in node_shock.csv for {len(AIRCRAFT_FILES)} files")
-    nodes = {k + 1: aircraft_plane(xyz, k >= AIRCRAFT_Z_POINTS) for k, xyz in enumerate(rows)}
+    nodes = {k + 1: aircraft_plane(xyz) for k, xyz in enumerate(rows[:AIRCRAFT_Z_POINTS])}
     functions = []
-    for sensor, node in AIRCRAFT_ACCELEROMETERS.items():
-        for k, number in enumerate(AIRCRAFT_FILES):
+    for sensor, (node, direction) in AIRCRAFT_ACCELEROMETERS.items():
+        for k, number in enumerate(AIRCRAFT_FILES[:AIRCRAFT_Z_POINTS]):
             data = loadmat(folder / "sec_lab" / f"DPsv{number:05d}.mat")
             frf, coherence = data[f"H1_{sensor}"], data[f"C1_{sensor}"]
-            common = dict(rsp_node=node, rsp_dir=3, ref_node=k + 1, ref_dir=3 if k < AIRCRAFT_Z_POINTS else 1,
+            common = dict(rsp_node=node, rsp_dir=direction, ref_node=k + 1, ref_dir=3,
                           x=frf[:, 0].real, rsp_ent_name="aircraft", ref_ent_name="aircraft")
             functions.append(dict(common, data=frf[:, 1] * G, id1=f"DPsv{number:05d} H1_{sensor}",
                                   ordinate_spec_data_type=12, orddenom_spec_data_type=13,
