@@ -112,7 +112,7 @@ def _section(title: str, picture: str, rows: list, wall: float) -> list[str]:
 
 def _added(rows: list) -> dict:
     """The largest damping a finger adds to a kept mode, relative to its own, per finger (N s/m)."""
-    return {r["finger"]: r["finger_added_damping_max"] for r in rows}
+    return {r["finger"]: r["finger_added_damping_max"] for r in rows if r["finger_added_damping_max"] is not None}
 
 
 if __name__ == "__main__":

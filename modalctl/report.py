@@ -435,8 +435,8 @@ def sweep_table(rows, axes) -> str:
         cells = [f"{v * _AXIS_SCALE.get(a, 1):g}" for a, v in zip(axes, key)]
         for m in methods:
             r = by.get((m, *key))
-            cells.append("" if r is None else f"{r['tau']:.3f} ({r['margin_ratio']:.2f})"
-                         + ("" if r["state"] != "error" else " stopped"))
+            cells.append("" if r is None else "refused" if r["state"] == "refused" else
+                         f"{r['tau']:.3f} ({r['margin_ratio']:.2f})" + ("" if r["state"] != "error" else " stopped"))
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
@@ -449,7 +449,7 @@ def _sweep_panel(ax, rows, axes, method: str, criterion: tuple):
     ys = sorted({r[axes[1]] for r in rows}) if len(axes) == 2 else [None]
     table = np.full((len(ys), len(xs)), np.nan)
     for r in rows:
-        if r["method"] == method:
+        if r["method"] == method and r[metric] is not None:  # a refused case: left blank
             table[ys.index(r[axes[1]]) if len(axes) == 2 else 0, xs.index(r[x_name])] = r[metric]
     if len(axes) == 2:
         image = ax.imshow(table, origin="lower", aspect="auto", cmap="RdYlGn" if metric == "tau" else "RdYlGn_r",

@@ -149,3 +149,31 @@ def test_a_learning_shot_the_supervisor_stops_is_a_stopped_case_not_a_crash():
     row = run_case(case)
     assert row["state"] == "error" and "divergence" in row["fault"], (row["state"], row["fault"])
     assert "first_shot_tau" not in row  # the stopped learning shot's row: no second shot was played
+
+
+def test_a_case_the_shot_refuses_is_a_refused_row_and_the_sweep_goes_on(capsys, tmp_path, monkeypatch):
+    """A case whose loops cannot be designed (panel-rounded learned at 3% drift: 'no PI loop for the mode
+    at 16560.9 Hz keeps 50 deg and 6 dB') ended a whole closed_maps run. Here the closed loop at 2% drift
+    is refused in the same way (``run`` raising the loops' InputError for it alone): the sweep writes every
+    other case, the refused one a row saying so (no metrics), in the table with its reason, blank in the maps."""
+    from modalctl.errors import InputError
+    from modalctl.experiments import sweep
+
+    played = sweep.run
+
+    def refusing(model, target, device, options, planned):
+        if options.loop is not None and device.perturbation.drift == 0.02:
+            raise InputError("no PI loop for the mode at 1234 Hz keeps 50 deg and 6 dB at 20000 Hz")
+        return played(model, target, device, options, planned)
+
+    monkeypatch.setattr(sweep, "run", refusing)
+    code = main(["sweep", "--vary", "drift=0,2%", "--methods", "open,closed", "--workers", "1", "--out",
+                 str(tmp_path), "--json", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    rows = {(r["method"], r["drift"]): r for r in json.loads((tmp_path / "sweep.json").read_text())["rows"]}
+    refused = rows[("closed", 0.02)]
+    assert refused["state"] == "refused" and "1234 Hz" in refused["fault"] and refused["tau"] is None
+    assert all(r["tau"] > 0.5 for key, r in rows.items() if key != ("closed", 0.02))
+    table = (tmp_path / "sweep.md").read_text()
+    assert "| refused |" in table and "closed, drift 0.02: no PI loop for the mode at 1234 Hz" in table
+    assert (tmp_path / "maps.png").stat().st_size > 10_000

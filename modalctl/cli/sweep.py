@@ -170,8 +170,11 @@ def _report(args, summary: dict, rows: list, out: Path, fields: list) -> None:
     from modalctl.outdir import atomic, record
     from modalctl.report import plot_sweep_maps, sweep_table
 
+    refused = [f"- {r['method']}, " + ", ".join(f"{f} {r[f]:g}" for f in fields) + f": {r['fault']}"
+               for r in rows if r["state"] == "refused"]  # run_case's rows of a shot that was refused
     with atomic(out / "sweep.md") as temporary:
-        temporary.write_text(sweep_table(rows, fields))
+        temporary.write_text(sweep_table(rows, fields) + ("\nRefused (no shot played):\n" + "\n".join(refused) + "\n"
+                                                          if refused else ""))
     record(out, ["maps.png"])
     summary["pictures"] = {"maps": str(plot_sweep_maps(rows, fields, summary["methods"], out / "maps.png"))}
     if args.json:

@@ -32,7 +32,7 @@ from modalctl.model.shape import parse_params
 from modalctl.model.touch import Touch, added_decay
 from modalctl.options import THESIS_PLAN, LoopOptions, PlanOptions, RunOptions
 from modalctl.plan.growth import model_for
-from modalctl.plan.planner import plan_shot
+from modalctl.plan.planner import PlanError, plan_shot
 from modalctl.plugin.manager import get_shape
 from modalctl.run import LearningStopped, run
 
@@ -144,7 +144,10 @@ def _nominal_plan(scene: str, points, shape: str, params: tuple, focus_time: flo
 def run_case(case: Case) -> dict:
     """Play one case on the HIL; returns the case's fields plus ``tau``, ``margin_ratio``,
     ``peak_voltage``, ``state`` (how the runtime ended), ``fault``, ``seconds`` and, after a
-    learning shot, ``first_shot_tau``."""
+    learning shot, ``first_shot_tau``. A case the shot refuses (its loops cannot be designed, its
+    plan after a learning shot cannot be made: :class:`InputError`, :class:`PlanError`) is a row
+    too: ``state`` ``"refused"``, the reason in ``fault``, no metrics; the sweep goes on (one case of
+    panel-rounded's 48, learned at 3% drift, ended a whole closed_maps run)."""
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -159,6 +162,10 @@ def run_case(case: Case) -> dict:
             shot = run(model, target, device, options, planned)
         except LearningStopped as stopped:  # a result of the case: the first shot's, as measured to the stop
             shot = stopped.shot
+        except (InputError, PlanError) as refused:
+            return {**asdict(case), "params": dict(case.params), "tau": None, "margin_ratio": None,
+                    "peak_voltage": None, "state": "refused", "fault": str(refused),
+                    "finger_added_damping_max": None, "seconds": time.perf_counter() - start}
     added = 0.0
     if case.finger > 0:
         modes = planned[1].modes
