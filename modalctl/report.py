@@ -447,17 +447,17 @@ def _sweep_panel(ax, rows, axes, method: str, criterion: tuple):
     x_name = axes[0]
     xs = sorted({r[x_name] for r in rows})
     ys = sorted({r[axes[1]] for r in rows}) if len(axes) == 2 else [None]
-    table = np.full((len(ys), len(xs)), np.nan)
-    for r in rows:
-        if r["method"] == method and r[metric] is not None:  # a refused case: left blank
-            table[ys.index(r[axes[1]]) if len(axes) == 2 else 0, xs.index(r[x_name])] = r[metric]
+    table = np.full((len(ys), len(xs)), np.nan)  # a refused case (no metric) stays nan: blank, said so
+    for r in (r for r in rows if r["method"] == method and r[metric] is not None):
+        table[ys.index(r[axes[1]]) if len(axes) == 2 else 0, xs.index(r[x_name])] = r[metric]
     if len(axes) == 2:
         image = ax.imshow(table, origin="lower", aspect="auto", cmap="RdYlGn" if metric == "tau" else "RdYlGn_r",
                           vmin=0.5 if metric == "tau" else 0.3, vmax=1.0)
         for i in range(len(ys)):
             for j in range(len(xs)):
                 ok = table[i, j] >= good if metric == "tau" else table[i, j] <= good
-                ax.text(j, i, f"{table[i, j]:.3f}" + ("" if ok else "\n✗"), ha="center", va="center", fontsize=8)
+                ax.text(j, i, "refused" if np.isnan(table[i, j]) else f"{table[i, j]:.3f}" + ("" if ok else "\n✗"),
+                        ha="center", va="center", fontsize=8)
         ax.set_xticks(range(len(xs)), [f"{v * _AXIS_SCALE.get(x_name, 1):g}" for v in xs])
         ax.set_yticks(range(len(ys)), [f"{v * _AXIS_SCALE.get(axes[1], 1):g}" for v in ys])
         ax.set_ylabel(_AXIS_LABELS.get(axes[1], axes[1]))
