@@ -44,6 +44,8 @@ import numpy as np
 
 from modalctl.model.propagate import hold_coefficients
 
+from .design import CommandFilter
+
 __all__ = ["CatchUp", "TAU_MIN"]
 
 TAU_MIN = 2e-3  # s: the shortest horizon a loss is caught up over, so that the loop's gain 1 / tau stays
@@ -76,8 +78,6 @@ class CatchUp:
 
     def __init__(self, frequencies, damping, residues, bandwidths, control_rate: float, lead: int,
                  focus_time: float, planned: np.ndarray):
-        from .touch import CommandFilter  # the lock-in's low-pass at the control rate (touch imports this module)
-
         p = -2 * np.pi * np.asarray(frequencies, float) * np.asarray(damping, float) + 0j
         self.period = 1 / float(control_rate)
         self.a, g0, g1 = hold_coefficients(p, self.period, "foh")

@@ -28,7 +28,7 @@ from .pi import PIControl
 # python-control loads matplotlib's pyplot when imported (~0.4 s): the controller plugins import
 # this module only when a controller is made, so commands that design no loop do not pay for it
 
-__all__ = ["design_loops", "loop_response", "lockin_filter", "settling_time", "loop_poles", "cluster_poles",
+__all__ = ["design_loops", "loop_response", "lockin_filter", "CommandFilter", "settling_time", "loop_poles", "cluster_poles",
            "cluster_model", "pi_controller"]
 
 
@@ -47,6 +47,54 @@ def lockin_filter(bandwidth: float, order: int = 4) -> control.StateSpace:
     for section in sections[1:]:
         out = control.series(out, section)
     return out
+
+
+class CommandFilter:
+    """Each mode's lock-in low-pass at the control rate, for inputs ramped linearly between periods.
+
+    Parameters
+    ----------
+    bandwidths : array_like, shape (k,)
+        Lock-in corners (Hz).
+    control_rate : float
+        Hz.
+    """
+
+    def __init__(self, bandwidths, control_rate: float):
+        systems = [control.c2d(lockin_filter(b), 1 / control_rate, method="foh") for b in np.atleast_1d(bandwidths)]
+        self.A = np.array([np.asarray(s.A, float) for s in systems])  # (k, o, o)
+        self.B = np.array([np.asarray(s.B, float)[:, 0] for s in systems])  # (k, o)
+        self.C = np.array([np.asarray(s.C, float)[0] for s in systems])  # (k, o)
+        self.D = np.array([float(np.asarray(s.D)[0, 0]) for s in systems])  # (k,)
+        k, o = self.B.shape
+        # each mode's step as one real product: [y; x'] = [[D, C], [B, A]] [u; x], real and imaginary
+        # parts side by side (one batched product a sample: half the time of two einsums)
+        self._step = np.zeros((k, o + 1, o + 1))
+        self._step[:, 0, 0], self._step[:, 0, 1:], self._step[:, 1:, 0], self._step[:, 1:, 1:] = \
+            self.D, self.C, self.B, self.A
+        self.reset()
+
+    @property
+    def state(self) -> np.ndarray:
+        """Each mode's filter state (k, o), complex."""
+        return self._io[:, 1:]
+
+    def reset(self) -> None:
+        k, o = self.B.shape
+        self._io = np.zeros((k, o + 1), complex)  # (input, state) per mode
+        self._input = self._io[:, 0]
+        self._parts = self._io.view(float).reshape(k, o + 1, 2)  # the same, real and imaginary parts
+        self._next = np.empty((k, o + 1, 2))  # a step's output and next state, real and imaginary parts
+        self._state, self._state_next = self._parts[:, 1:], self._next[:, 1:]
+        self._output = self._next.view(complex)[:, 0, 0]
+
+    def step(self, value: np.ndarray) -> np.ndarray:
+        """The filtered value (k,) at this sample of the input ``value`` (k,); the filter moves on. The
+        array returned is the filter's own, overwritten by the next step: use it before."""
+        self._input[:] = value
+        np.matmul(self._step, self._parts, out=self._next)  # the output, then the next state
+        self._state[:] = self._state_next
+        return self._output
 
 
 def _loop(row: tuple, sigma: float, bandwidth: float) -> control.StateSpace:
