@@ -15,6 +15,23 @@ def test_loop_design_keeps_its_phase_margin():
     assert design.crossover_hz[1] > design.crossover_hz[0]  # a wider lock-in, less delay: a faster loop
 
 
+def test_a_lock_in_too_narrow_for_any_loop_is_refused_naming_its_corner():
+    """Two modes 0.27 Hz apart (where a learned model once put a pair on panel-rounded): their
+    lock-ins' corners, 0.4 of the gap, leave no crossover with 50 degrees above the design's
+    lowest frequency (0.1 Hz); the refusal says why, not only 'raise the control rate'. (Its
+    phase unwrapped from that frequency, the design once lost the low-pass's turn below it: a
+    corner of 0.04 Hz got a crossover of 2.2 kHz.)"""
+    import pytest
+
+    from modalctl.errors import InputError
+    from modalctl.loops.lockin import lockin_bandwidths
+
+    f = np.array([16560.65, 16560.92])
+    bands = lockin_bandwidths(f, 20e3)
+    with pytest.raises(InputError, match=r"corner of 0\.108 Hz .*two modes on top of each other"):
+        design_loops(f, [0.005, 0.005], bands, 20e3)
+
+
 def test_loop_design_margins_are_python_controls_on_the_same_loop():
     """The design's margins, on its own grid, against python-control's ``stability_margins`` of the
     loop built from python-control's systems (PI, envelope, Butterworth sections, exact delay):

@@ -130,18 +130,21 @@ def design_loops(frequencies, damping, bandwidths, control_rate: float, phase_ma
     """
     f = np.asarray(frequencies, float)
     omega = 2 * np.pi * np.geomspace(0.1, control_rate / 2, DESIGN_POINTS)
-    shape = np.stack([_unit_loop(band, omega, latency / control_rate) for band in np.asarray(bandwidths, float)]) \
-        if f.size else np.zeros((0, omega.size), complex)  # (modes, points): the loop for kp = 1
-    phase = np.degrees(np.unwrap(np.angle(shape), axis=1))
+    bands = np.asarray(bandwidths, float)
+    loops = [_unit_loop(band, omega, latency / control_rate) for band in bands]
+    shape = np.stack([r for r, _ in loops]) if f.size else np.zeros((0, omega.size), complex)  # kp = 1
+    phase = np.stack([p for _, p in loops]) if f.size else np.zeros((0, omega.size))  # (modes, points), degrees
     w180 = np.minimum((phase > -180).sum(axis=1), omega.size - 1)  # the first point at or past -180 degrees
     rows = np.arange(f.size)
     at180 = np.abs(shape[rows, w180])
     margin_db = 20 * np.log10(np.abs(shape) / at180[:, None])  # the gain margin were the crossover here
     ok = (180 + phase >= phase_margin) & (margin_db >= gain_margin)
     if f.size and not ok[:, 0].all():
-        bad = f[~ok[:, 0]][0]
-        raise InputError(f"no PI loop for the mode at {bad:g} Hz keeps {phase_margin:g} deg and "
-                         f"{gain_margin:g} dB at {control_rate:g} Hz: raise the control rate")
+        bad = np.flatnonzero(~ok[:, 0])[0]
+        raise InputError(f"no PI loop for the mode at {f[bad]:g} Hz keeps {phase_margin:g} deg and "
+                         f"{gain_margin:g} dB at {control_rate:g} Hz through its lock-in's corner of "
+                         f"{bands[bad]:.3g} Hz (a share of the gap to the nearest mode): raise the control rate, "
+                         "or check the model for two modes on top of each other")
     first_bad = np.where((~ok).any(axis=1), np.argmax(~ok, axis=1), omega.size)
     c = first_bad - 1  # the last good frequency before the first bad one: the crossover
     kp = 1 / np.abs(shape[rows, c])
@@ -154,13 +157,18 @@ def design_loops(frequencies, damping, bandwidths, control_rate: float, phase_ma
 DESIGN_POINTS = 4000  # frequencies from 0.1 Hz to Nyquist, log-spaced: 0.3% apart, the crossover's resolution
 
 
-def _unit_loop(band: float, omega: np.ndarray, delay: float) -> np.ndarray:
+def _unit_loop(band: float, omega: np.ndarray, delay: float) -> tuple[np.ndarray, np.ndarray]:
     """``1 / (2 j w)`` times the lock-in's fourth-order low-pass of corner ``band`` (Hz) times the
     delay ``delay`` (s), at ``omega`` (rad/s): one mode's loop for ``kp = 1`` (its PI zero has
-    cancelled its pole)."""
-    num, den = butter(4, 2 * np.pi * band, analog=True)
+    cancelled its pole), and its phase (degrees), summed term by term: unwrapped from the grid's
+    first point instead, a corner below it lost the low-pass's whole turn and the loop looked
+    stable at any gain."""
+    _, poles, gain = butter(4, 2 * np.pi * band, analog=True, output="zpk")
     s = 1j * omega
-    return 0.5 / s * np.polyval(num, s) / np.polyval(den, s) * np.exp(-s * delay)
+    toward = s[:, None] - poles[None, :]  # each in the right half plane: its angle within +-90 degrees
+    response = 0.5 / s * gain / np.prod(toward, axis=1) * np.exp(-s * delay)
+    phase = -90 - np.degrees(np.angle(toward).sum(axis=1) + omega * delay)
+    return response, phase
 
 
 def _at_phase(shape: np.ndarray, phase: np.ndarray, omega: np.ndarray, w180: np.ndarray) -> np.ndarray:
