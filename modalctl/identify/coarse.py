@@ -148,6 +148,13 @@ def _chi(freqs: np.ndarray, h: np.ndarray, f, zeta, centre: float) -> np.ndarray
     ndarray, shape of ``f`` and ``zeta`` broadcast
         Residual energy, the unit of ``h`` squared.
     """
+    return _row_chi(freqs, h, f, zeta, centre).sum(axis=-1)
+
+
+def _row_chi(freqs: np.ndarray, h: np.ndarray, f, zeta, centre: float) -> np.ndarray:
+    """:func:`_chi` of each row alone, shape of ``f`` and ``zeta`` broadcast, then rows: the rows'
+    fits share the basis and nothing else, so any set of rows' residual is the sum of theirs
+    (the jackknife's leave-one-out fits are the total less one row's)."""
     f, zeta = np.broadcast_arrays(np.asarray(f, float), np.asarray(zeta, float))
     w, wk, z = 2 * np.pi * freqs, 2 * np.pi * f.reshape(-1, 1), zeta.reshape(-1, 1)
     den = wk**2 - w**2 + 2j * z * wk * w  # (poles, nb)
@@ -155,7 +162,8 @@ def _chi(freqs: np.ndarray, h: np.ndarray, f, zeta, centre: float) -> np.ndarray
     b = np.stack([1j * w / den, wk**2 / den, ones, ones * (freqs / centre - 1)], axis=-1)  # (poles, nb, 4)
     q, _ = np.linalg.qr(b)
     inside = np.einsum("pnk,nr->pkr", q.conj(), h)
-    return (np.sum(np.abs(h) ** 2) - np.sum(np.abs(inside) ** 2, axis=(1, 2))).reshape(f.shape)
+    row = np.sum(np.abs(h) ** 2, axis=0) - np.sum(np.abs(inside) ** 2, axis=1)  # (poles, rows)
+    return row.reshape(*f.shape, h.shape[1])
 
 
 def _fit(freqs: np.ndarray, h: np.ndarray, f0: float, z0: float, df: float, search: bool = True) -> tuple[float, float]:
@@ -178,24 +186,29 @@ def _fit(freqs: np.ndarray, h: np.ndarray, f0: float, z0: float, df: float, sear
     return float(f0 + sol.x[0] * df), float(z0 * np.exp(sol.x[1] * step))
 
 
-def _grid_best(freqs: np.ndarray, h: np.ndarray, f0: float, df: float) -> float:
-    """The frequency of the best pole on the search grid around ``f0`` (no polish), Hz."""
+def _grid_best(freqs: np.ndarray, h: np.ndarray, f0: float, df: float) -> np.ndarray:
+    """The frequency of the best pole on the search grid around ``f0`` (no polish) for each row of
+    ``h`` (nb, rows) alone, Hz, shape (rows,)."""
     grid = f0 + df * np.arange(-LINES_SEARCHED * GRID, LINES_SEARCHED * GRID + 1) / GRID
-    chi = _chi(freqs, h, grid[:, None], DAMPING_GRID[None, :], float(np.mean(freqs)))
-    return float(grid[np.argmin(np.min(chi, axis=1))])
+    chi = _row_chi(freqs, h, grid[:, None], DAMPING_GRID[None, :], float(np.mean(freqs)))  # (grid, damping, rows)
+    return grid[np.argmin(np.min(chi, axis=1), axis=0)]
 
 
-def _local_best(freqs: np.ndarray, h: np.ndarray, f0: float, z0: float, df: float) -> float:
+def _left_out_best(freqs: np.ndarray, h: np.ndarray, f0: float, z0: float, df: float) -> np.ndarray:
     """The best frequency near a known optimum ``(f0, z0)`` (a line either side, the damping
-    within a factor 1.6), a parabola through the profile's three lowest grid values, Hz."""
+    within a factor 1.6) of all rows of ``h`` (nb, rows) but one, for each row left out, Hz,
+    shape (rows,): a parabola through each profile's three lowest grid values."""
     offsets = np.linspace(-1.0, 1.0, 4 * GRID + 1)
-    chi = _chi(freqs, h, (f0 + df * offsets)[:, None], z0 * np.exp(np.linspace(-0.5, 0.5, 11))[None, :],
-               float(np.mean(freqs)))
-    profile = np.min(chi, axis=1)
-    i = int(np.clip(np.argmin(profile), 1, offsets.size - 2))
-    a, b, c = profile[i - 1:i + 2]
-    shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c > 0 else 0.0
-    return float(f0 + df * (offsets[i] + np.clip(shift, -1, 1) * (offsets[1] - offsets[0])))
+    rows = _row_chi(freqs, h, (f0 + df * offsets)[:, None], z0 * np.exp(np.linspace(-0.5, 0.5, 11))[None, :],
+                    float(np.mean(freqs)))  # (offsets, damping, rows)
+    profiles = np.min(rows.sum(axis=2, keepdims=True) - rows, axis=1)  # (offsets, rows): each row left out
+    best = np.empty(h.shape[1])
+    for r, profile in enumerate(profiles.T):
+        i = int(np.clip(np.argmin(profile), 1, offsets.size - 2))
+        a, b, c = profile[i - 1:i + 2]
+        shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c > 0 else 0.0
+        best[r] = f0 + df * (offsets[i] + np.clip(shift, -1, 1) * (offsets[1] - offsets[0]))
+    return best
 
 
 def joint_pole(frf: FRF, f: float, zeta: float) -> JointPole:
@@ -223,12 +236,12 @@ def joint_pole(frf: FRF, f: float, zeta: float) -> JointPole:
     base = np.sum(np.abs(scaled - rest @ np.linalg.lstsq(rest, scaled, rcond=None)[0]) ** 2)
     explained = base - float(_chi(freqs, scaled, f_fit, z_fit, float(np.mean(freqs))))
     significance = np.inf if noise is None else explained / (2 * rows)  # two coefficients a row
-    alone = np.array([_grid_best(freqs, h[:, [r]], f_fit, df) for r in range(rows)])
+    alone = _grid_best(freqs, h, f_fit, df)
     spread = (float(alone.min()), float(alone.max()))
     if rows < JACKKNIFE_ROWS:  # no jackknife: the noise alone, where it is known, judges the frequency
         by_noise = None if weight is None else frequency_fixed(freqs, h, weight, f_fit, z_fit, general=True)
         return JointPole(f_fit, z_fit, np.inf, spread, 2 * z_fit * f_fit / df, significance, rows, by_noise)
-    left = np.array([_local_best(freqs, np.delete(h, r, axis=1), f_fit, z_fit, df) for r in range(rows)])
+    left = _left_out_best(freqs, h, f_fit, z_fit, df)
     sigma = float(np.sqrt((rows - 1) / rows * np.sum((left - left.mean()) ** 2)))
     return JointPole(f_fit, z_fit, sigma, spread, 2 * z_fit * f_fit / df, significance, rows)
 
