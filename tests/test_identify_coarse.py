@@ -191,7 +191,8 @@ def test_the_jackknife_in_one_pass_is_each_row_left_out_refitted():
     freqs = np.arange(50.0, 57.0, DF)
     shape = rng.standard_normal(6)
     pole = pole_basis(freqs, [(53.31, 0.004)], 53.5, general=True)[:, :1]
-    h = pole * shape[None, :] + 0.02 * (rng.standard_normal((freqs.size, 6)) + 1j * rng.standard_normal((freqs.size, 6)))
+    noise = rng.standard_normal((freqs.size, 6)) + 1j * rng.standard_normal((freqs.size, 6))
+    h = pole * shape[None, :] + 0.02 * noise
     offsets = np.linspace(-1.0, 1.0, 81)
     grid_f, grid_z = (53.31 + DF * offsets)[:, None], 0.004 * np.exp(np.linspace(-0.5, 0.5, 11))[None, :]
     got = _left_out_best(freqs, h, 53.31, 0.004, DF)

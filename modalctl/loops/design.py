@@ -28,8 +28,8 @@ from .pi import PIControl
 # python-control loads matplotlib's pyplot when imported (~0.4 s): the controller plugins import
 # this module only when a controller is made, so commands that design no loop do not pay for it
 
-__all__ = ["design_loops", "loop_response", "lockin_filter", "CommandFilter", "settling_time", "loop_poles", "cluster_poles",
-           "cluster_model", "pi_controller"]
+__all__ = ["design_loops", "loop_response", "lockin_filter", "CommandFilter", "settling_time", "loop_poles",
+           "cluster_poles", "cluster_model", "pi_controller"]
 
 
 @functools.lru_cache(maxsize=4096)
@@ -107,8 +107,9 @@ def _loop(row: tuple, sigma: float, bandwidth: float) -> control.StateSpace:
 def loop_response(design_row: tuple, sigma: float, bandwidth: float, control_rate: float, latency: float,
                   omega: np.ndarray) -> np.ndarray:
     """Open-loop frequency response ``L(j omega)`` (complex, shape of ``omega`` in rad/s) of one
-    mode's loop, built from python-control's systems (the check of :func:`design_loops`' margins): PI ``(kp, ki)`` times the envelope ``0.5 / (s + sigma)`` times the lock-in's
-    low-pass times ``latency`` control periods of pure delay (exact, not a Pade approximant)."""
+    mode's loop, built from python-control's systems (the check of :func:`design_loops`' margins):
+    PI ``(kp, ki)`` times the envelope ``0.5 / (s + sigma)`` times the lock-in's low-pass times
+    ``latency`` control periods of pure delay (exact, not a Pade approximant)."""
     response = _loop(design_row, sigma, bandwidth)(1j * omega)
     return response * np.exp(-1j * omega * latency / control_rate)
 
