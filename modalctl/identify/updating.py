@@ -165,7 +165,8 @@ def update(model: ModalModel, voltages: np.ndarray, sensed: np.ndarray, sample_r
         Prior standard deviation of each damping ratio (relative, log scale).
     passes : int
         Fits, each weighting the samples by the noise the last one left (the first by the
-        misfit at the best common shift).
+        misfit at the best common shift); those after the first hold at zero the modes' own
+        changes it did not fix (``OWN``).
 
     Returns
     -------
