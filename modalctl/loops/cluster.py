@@ -385,8 +385,9 @@ class ClusterControl(Controller):
     clusters : Clusters
         The groups controlled together.
     refused : list of (tuple, str)
-        The groups asked for whose observer or LQ law has no solution, or whose law is not stable over
-        the drift band (:func:`drift_radius`), and why: their modes keep per-mode loops.
+        The groups asked for whose observer or LQ law has no solution, whose law is unstable on the
+        model, or grows more than ``GROWTH`` over the shot at the drift band's worst
+        (:func:`drift_radius`), and why: their modes keep per-mode loops.
     inner : Controller or None
         The per-mode loops of the modes in no cluster (``alone``; None when every mode is in one).
     spectral_radius : ndarray, shape (c,)
@@ -421,7 +422,7 @@ class ClusterControl(Controller):
         noise = np.maximum(level * NOISE_FLOOR, 0 if plant.noise is None else plant.noise)  # as lqg's
         self.laws, self.refused = [], []  # refused: (group, why) of the clusters left to per-mode loops
         drifted = drifted_plants(plant) if clusters.groups else []
-        periods = plant.schedule.reference.shape[1] if modelled else 0  # the shot's: how long a law must hold
+        periods = max(plant.schedule.reference.shape[1], 1) if modelled else 0  # how long a law must hold
         nominal = []  # the kept laws' nominal radii
         for group in clusters.groups:
             try:
@@ -431,7 +432,8 @@ class ClusterControl(Controller):
                 continue
             stable = closed_loop_radius(law)
             radius, drift = drift_radius(plant, law, drifted)
-            decades = periods * np.log10(max(radius, np.finfo(float).tiny))  # its growth over the shot, log10
+            # its growth over the shot, log10 (unbounded where the radius is not a number)
+            decades = periods * np.log10(max(radius, np.finfo(float).tiny)) if np.isfinite(radius) else np.inf
             if stable < 1 and decades <= np.log10(GROWTH):
                 self.laws.append(law)
                 nominal.append(stable)
