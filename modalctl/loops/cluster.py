@@ -431,14 +431,15 @@ class ClusterControl(Controller):
                 self.refused.append((group, f"no law ({error})"))
                 continue
             stable = closed_loop_radius(law)
+            if stable >= 1:  # unstable on the model: no drift to check
+                self.refused.append((group, f"its law unstable on the model (spectral radius {stable:.5f})"))
+                continue
             radius, drift = drift_radius(plant, law, drifted)
             # its growth over the shot, log10 (unbounded where the radius is not a number)
             decades = periods * np.log10(max(radius, np.finfo(float).tiny)) if np.isfinite(radius) else np.inf
-            if stable < 1 and decades <= np.log10(GROWTH):
+            if decades <= np.log10(GROWTH):
                 self.laws.append(law)
                 nominal.append(stable)
-            elif stable >= 1:
-                self.refused.append((group, f"its law unstable on the model (spectral radius {stable:.5f})"))
             else:
                 grows = f"x{10 ** decades:.3g}" if decades < 300 else f"x1e{decades:.0f}"
                 self.refused.append((group, f"its law unstable at {100 * drift:+g}% drift (spectral radius "
