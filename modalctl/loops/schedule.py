@@ -21,7 +21,7 @@ from modalctl.options import decimation as samples_per_period
 
 from .lockin import LockIn, Oscillators
 
-__all__ = ["Schedule", "schedule", "envelope_noise", "HOLD", "ramp_in"]
+__all__ = ["Schedule", "schedule", "envelope_noise", "noise_bandwidth", "HOLD", "ramp_in"]
 
 HOLD = "zoh"  # the board's DAC holds each sample, as the planner assumes
 
@@ -133,5 +133,10 @@ def envelope_noise(sigma: float, sensors: np.ndarray, bandwidths: np.ndarray, sa
     """Standard deviation of each demodulated envelope (k,) for white sensor noise ``sigma`` (m/s)
     at ``sample_rate`` (Hz): ``2 sigma |w| sqrt(2 B_n / fs)`` with the Butterworth's noise
     bandwidth ``B_n`` (``1.026 B`` at order 4)."""
-    noise_bandwidth = {2: 1.111, 4: 1.026}.get(order, 1.0) * np.asarray(bandwidths, float)
-    return 2 * sigma * np.linalg.norm(sensors, axis=1) * np.sqrt(2 * noise_bandwidth / sample_rate)
+    return 2 * sigma * np.linalg.norm(sensors, axis=1) * np.sqrt(2 * noise_bandwidth(bandwidths, order) / sample_rate)
+
+
+def noise_bandwidth(bandwidths, order: int = 4) -> np.ndarray:
+    """The lock-ins' equivalent noise bandwidths (Hz), shape (k,): the Butterworth's of corner
+    ``bandwidths`` (Hz) and ``order`` (``1.026 B`` at order 4)."""
+    return {2: 1.111, 4: 1.026}.get(order, 1.0) * np.asarray(bandwidths, float)

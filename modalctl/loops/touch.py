@@ -34,6 +34,7 @@ from modalctl.model.touch import velocity_residues
 from .catch_up import CatchUp
 from .controller import Controller, LoopPlant
 from .design import CommandFilter
+from .envelope_noise import EnvelopeNoise
 from .lockin import hold_gain
 from .schedule import HOLD
 from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
@@ -60,6 +61,13 @@ def learned_from(plant: LoopPlant) -> np.ndarray | None:
         clean = np.asarray(plant.leaks) <= LEAK_MAX
         learned = clean if learned is None else learned & clean
     return learned
+
+
+def _known(plant: LoopPlant, use) -> EnvelopeNoise | None:
+    """The learned modes' envelope noise where the board says it has any, else None (unknown)."""
+    if plant.noise is None or not np.any(np.asarray(plant.noise) > 0):
+        return None
+    return EnvelopeNoise(np.asarray(plant.noise, float)[use], np.asarray(plant.bandwidths, float)[use])
 
 
 class TouchControl(Controller):
@@ -108,7 +116,7 @@ class TouchControl(Controller):
         self.shapes = np.asarray(plant.shapes, float)
         self.estimator = None if not self.learned.size else TouchEstimator(
             np.asarray(plant.frequencies)[use], np.asarray(plant.damping)[use], self.shapes[use],
-            plant.control_rate, memories, plant.touch_at)
+            plant.control_rate, memories, plant.touch_at, noise=_known(plant, use))
         self.filter = None if self.estimator is None else CommandFilter(np.asarray(plant.bandwidths)[use],
                                                                         plant.control_rate)
         decay = np.exp(-2 * np.pi * np.asarray(plant.frequencies, float) * np.asarray(plant.damping, float)

@@ -25,7 +25,8 @@ best candidate's place is refined; and a period skips the search when no pattern
 the place (a bound from the residuals alone). A period costs ``O(modes x candidates)``, the modes being
 those it learns from (16 of panel-rounded's 53, 256 candidates for its 8591 points); the period's
 whole loop update is measured by ``benchmarks/plate_speed.py`` (the touch controller's case).
-The estimate's standard error comes from the residuals left; :attr:`TouchEstimate.sure` is the
+The estimate's standard error comes from the residuals left and, when the envelopes' noise is known,
+from that noise as the lock-ins colour it (:mod:`modalctl.loops.envelope_noise`); :attr:`TouchEstimate.sure` is the
 damping the estimate is confident of (``c - SURE * stderr`` on the memory Lepski's rule chose: a lift
 is read by the rule's switch to a short memory; zero below ``TOUCH_MIN``, before
 ``SETTLE`` shortest memories of data, or when one touch explains less than ``FIT_MIN`` of what the modes
@@ -43,6 +44,8 @@ import numpy as np
 
 from modalctl.model.propagate import hold_coefficients
 from modalctl.model.touch import velocity_residues
+
+from .envelope_noise import EnvelopeNoise, NoiseSums
 
 __all__ = ["TouchEstimate", "TouchEstimator", "candidate_places", "planned_residuals", "CANDIDATES", "SURE",
            "TOUCH_MAX", "TOUCH_MIN",
@@ -142,10 +145,13 @@ class TouchEstimator:
     readable : ndarray of bool, shape (k,), optional
         The modes whose envelopes it learns from (default all): a mode read mostly through the
         others' answer says nothing reliable of its own damping.
+    noise : EnvelopeNoise, optional
+        Each envelope's noise and the lock-in corners that colour it, bounding the estimate with the
+        residuals' spread (:class:`~modalctl.loops.envelope_noise.NoiseSums`); None: that spread alone.
     """
 
     def __init__(self, frequencies, damping, shapes: np.ndarray, control_rate: float, memories=MEMORIES,
-                 at: int | None = None, readable=None):
+                 at: int | None = None, readable=None, noise: EnvelopeNoise | None = None):
         f, z = np.asarray(frequencies, float), np.asarray(damping, float)
         self.period = 1 / float(control_rate)
         p = -2 * np.pi * f * z + 0j  # the untouched pole in the carrier's frame (1/s)
@@ -176,6 +182,8 @@ class TouchEstimator:
         self.forget = np.exp(-self.period / self.memories)  # (m,)
         self.placed_by = min(int(np.searchsorted(self.memories, PLACE_MEMORY)), self.memories.size - 1)
         self.settle = SETTLE * self.memories[0] / self.period  # periods
+        self._noise = None if noise is None else NoiseSums(noise, self.a, self.forget, float(control_rate),
+                                                           self.readable)
         # e = z - a z0 - r (g0 u0 + g1 u) and h = T (a z0 + z) / 2 on the readable modes, as one
         # weighted sum of the inputs' two slots (z, u), the last period's and this one's: the slots
         # take turns (weights for this period in slot 1, then in slot 0), so nothing is copied. A
@@ -221,11 +229,15 @@ class TouchEstimator:
         self._row = None  # the place's pattern q over the modes (k,)
         self._chosen = 0  # the memory the last estimate was read with
         self._place = None  # (grid index, q, the weights of the per-memory sums at it (k + 1, 4))
+        if self._noise is not None:
+            self._noise.reset()
 
     def restart(self) -> None:
         """Readings were lost: the next one starts a new pair (its residual needs the period before);
         the sums so far are kept."""
         self._started = False
+        if self._noise is not None:
+            self._noise.restart()
 
     def update(self, envelope: np.ndarray, drive: np.ndarray, expected: np.ndarray | None = None) -> None:
         """Learn from one period: each mode's own envelope (k,) and the lock-in envelope of the
@@ -238,6 +250,8 @@ class TouchEstimator:
         if self._started:
             self._inputs[4, :-1] = 0.0 if expected is None else expected
             np.einsum("rjk,jk->rk", self._weights[slot], self._inputs, out=self._eh)  # (e, h, -j e), (3, k + 1)
+            if self._noise is not None:
+                self._noise.carry(self._eh[1, :-1])
             parts = self._parts
             np.einsum("ikc,jkc->ijk", parts[:2], parts, out=self._products)
             self._sums *= self._keep
@@ -279,7 +293,9 @@ class TouchEstimator:
         index, q = place[0], place[1]
         self._row = q
         nums, dens, energies, counts = per
-        j, errors = _agreeing(nums, dens, energies, counts)
+        noise = None if self._noise is None else self._noise.variance()
+        j, errors = _agreeing(nums, dens, energies, counts,
+                              None if noise is None else (noise @ self._row ** 2).tolist())
         self._chosen = j
         num, den, memory = nums[j], dens[j], self._memory[j]
         if not (den > 0 and num < 0):  # nothing damps the modes there now
@@ -431,12 +447,13 @@ def planned_residuals(estimator: TouchEstimator, own: np.ndarray, drive: np.ndar
     return np.ascontiguousarray(e.T * estimator._read)
 
 
-def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int, list]:
+def _agreeing(nums: list, dens: list, energies: list, counts: list, noises: list | None = None) -> tuple[int, list]:
     """The longest memory whose damping at the place (``-nums / dens``, one per memory) lies
     within ``AGREE`` standard errors of every shorter memory's (Lepski's rule): a touch that
     changed shows in the short memories first, and the long ones that still remember the old
-    touch fall outside them. Returns its index and every memory's standard error. A few
-    memories: plain floats, no arrays.
+    touch fall outside them. Returns its index and every memory's standard error: the residuals'
+    spread and, given (``noises``: the variance the envelopes' noise makes in each ``nums``), that
+    noise's, in quadrature. A few memories: plain floats, no arrays.
 
     Only the chosen memory's interval bounds what is given back (``c - SURE * stderr`` in
     :meth:`TouchEstimator._solve`): the shorter ones agree with it within theirs, and their lower
@@ -451,11 +468,11 @@ def _agreeing(nums: list, dens: list, energies: list, counts: list) -> tuple[int
     (the lift is read by the rule's switch to a short memory either way, 2-3 ms after it)."""
     inf, sqrt = math.inf, math.sqrt
     damping, half, errors = [], [], []
-    for num, den, energy, count in zip(nums, dens, energies, counts):
+    for num, den, energy, count, noise in zip(nums, dens, energies, counts, noises or [0.0] * len(nums)):
         if den > 0:  # _stderr, written out: this runs every period for every memory
             left = energy - num * num / den
-            error = sqrt((left if left > 0 else 0.0) / (count - 1 if count > 2 else 1) / (2 * den)) \
-                if count > 1 else inf
+            error = sqrt((left if left > 0 else 0.0) / (count - 1 if count > 2 else 1) / (2 * den)
+                         + noise / (den * den)) if count > 1 else inf
             damping.append(-num / den)
             half.append(AGREE * error)
         else:
