@@ -395,7 +395,7 @@ class TouchEstimator:
         the per-mode least squares ``theta_k = sum h* e / sum |h|^2`` on the longest memory (a drift
         stays through a shot), whose imaginary part is the offset (``e ~ (j dw - c q) h``: a touch
         moves the real part only), shrunk towards zero by ``SURE`` standard errors (residual variance
-        per complex sample over twice ``|h|^2``, and the envelopes' noise when told); zero on the modes it does not read, and until the
+        per complex sample over twice ``|h|^2``); zero on the modes it does not read, and until the
         longest memory's worth of data (8 ms): from 2 ms on instead, the first envelopes' transients
         read as detunings, and plate-glass's 30 mm gaussian at 3% drift diverged (the touch
         controller's shift given back to every mode) where from 8 ms it holds tau 1.02."""
@@ -411,12 +411,9 @@ class TouchEstimator:
         left += im * im
         left /= hh
         np.subtract(ee, left, out=left)  # the residual energy the mode's own fit leaves
-        np.maximum(left, 0.0, out=left)
-        if self._noise is not None:  # and the envelopes' noise, as the damping's (_solve)
-            left += 2 * (count - 1) * self._noise.variance()[-1] / hh  # over 2 (count - 1) |h|^2 below
         hh *= 2 * (count - 1)
         left /= hh
-        error = np.sqrt(left, out=left)
+        error = np.sqrt(np.maximum(left, 0.0, out=left), out=left)
         error *= -SURE
         error += np.abs(offset)
         return np.copysign(np.maximum(error, 0.0, out=error), offset, out=error)
