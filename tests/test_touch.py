@@ -568,6 +568,14 @@ def test_the_noise_told_is_one_finite_size_and_corner_per_mode(std, corners, wor
         EnvelopeNoise(std, corners)
 
 
+def test_the_estimator_refuses_noise_for_other_modes_than_its_own():
+    from modalctl.loops.envelope_noise import EnvelopeNoise
+    from modalctl.loops.touch_estimator import TouchEstimator
+
+    with pytest.raises(ValueError, match="3 envelopes' noise for 4 modes"):
+        TouchEstimator(FREQUENCIES, [0.01] * 4, np.ones((4, 8)), 20e3, noise=EnvelopeNoise(np.ones(3), np.ones(3)))
+
+
 def test_the_noise_sums_are_the_variance_of_the_noise_in_a_forgotten_regression():
     """:class:`NoiseSums`' closed form against the sum written out, ``var(sum_n w_n Re(h_n* (nu_n - a
     nu_(n-1))))`` with ``nu`` AR(1), computed directly from its covariance (a (N, N) matrix), for a

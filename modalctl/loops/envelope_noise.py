@@ -82,6 +82,8 @@ class NoiseSums:
     """
 
     def __init__(self, noise: EnvelopeNoise, a, forget, control_rate: float, readable):
+        if noise.std.size != np.size(a):
+            raise ValueError(f"envelope noise: {noise.std.size} envelopes' noise for {np.size(a)} modes")
         self.rho = noise.correlation(control_rate)
         self._stationary = 1 / (1 - self.rho ** 2)  # var(nu) / var(eps)
         self._half = 0.5 * noise.std ** 2 * np.asarray(readable, bool)  # the in-phase half of E|nu|^2
