@@ -85,22 +85,22 @@ class NoiseSums:
         if noise.std.size != np.size(a):
             raise ValueError(f"envelope noise: {noise.std.size} envelopes' noise for {np.size(a)} modes")
         self.rho = noise.correlation(control_rate)
-        self._stationary = 1 / (1 - self.rho ** 2)  # var(nu) / var(eps)
+        self._innovation = 1 - self.rho ** 2  # var(eps) / var(nu)
+        self._stationary = 1 / self._innovation  # C
         self._half = 0.5 * noise.std ** 2 * np.asarray(readable, bool)  # the in-phase half of E|nu|^2
         lam = np.asarray(forget, float)[:, None]
         self._turn = np.conj(np.asarray(a, complex)) / lam  # (m, k)
         self._lam2, self._rho_lam = lam ** 2, self.rho * lam
         m, k = self._turn.shape
-        self._w, self._products = np.empty((m, k), complex), np.empty((m, k, 2))
-        self.reset()
-
-    def reset(self) -> None:
-        m, k = self._turn.shape
-        self._carried = np.zeros((m, k))  # A
-        self._crossed = np.zeros((m, k), complex)  # B
-        self._d = np.empty((m, k), complex)
+        self._carried, self._crossed = np.zeros((m, k)), np.zeros((m, k), complex)  # A and B
+        self._d, self._w, self._products = np.empty((m, k), complex), np.empty((m, k), complex), np.empty((m, k, 2))
         self._pairs = self._d.view(float).reshape(m, k, 2), self._crossed.view(float).reshape(m, k, 2)
         self._last, self._spare = None, np.empty(k, complex)
+
+    def reset(self) -> None:
+        self._carried.fill(0.0)
+        self._crossed.fill(0.0)
+        self.restart()
 
     def restart(self) -> None:
         """A period was lost: the next ``h`` starts the pairs anew (the sums are kept)."""
@@ -131,7 +131,7 @@ class NoiseSums:
         h = self._last if self._last is not None else np.zeros(self._turn.shape[1], complex)
         spread = 2 * (np.conj(h) * self._crossed).real
         spread += self._carried
-        spread *= 1 - self.rho ** 2
+        spread *= self._innovation
         spread += h.real ** 2 + h.imag ** 2
         spread *= self._half
         return spread
