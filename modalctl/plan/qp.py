@@ -25,10 +25,14 @@ __all__ = ["QP", "solve_qp", "SOLVERS", "OUT_OF_TIME"]
 SOLVERS = ("daqp", "clarabel", "osqp")  # HiGHS's QP: "Non-convex" on free columns, >10 min when boxed
 OUT_OF_TIME = "out of time"  # a solve stopped at its deadline
 PRIMAL_TOL = 1e-6  # DAQP's primal tolerance (its default), on the rows outside its working set too
-WORKING_SET = 400  # rows active at the warm start (equalities included) up to which DAQP gets a working set: each
-# call factors its warm start again, about (rows active)^2 x columns, and past this the calls a working set adds
-# cost more than the rows it leaves out save (the panel's closed loop, 210-350 active: solves 1.8-1.9 -> 1.2-1.3 s;
-# a tablet's 30 mm bump, 480-725 active on 3,776 columns: 40 -> 63 s with one, 57 s with its second call on all)
+# DAQP is given a working set of the rows (see _daqp) whenever a warm start says which rows were active. It had
+# one only up to 400 rows active at the warm start (each call factors its warm start again, and a tablet's 30 mm
+# bump then took 40 -> 63 s with one); since the plans' rounds changed, the tablet's closed loops hold 370-530 rows
+# active in 2-3 calls (its 20 mm bump's solves: 4.0 s with one, 4.5 s without), and plate-glass's
+# closed loop (30 mm bump at (-20, 5) mm), 600-800 active among 3,500-6,000 rows, took 48 s of solves on every row
+# against 25 s on its working set (DAQP's iterations price a working set of ~1,100-2,500 rows, not ~6,000; 1,334
+# iterations of a warm start from round 10's 631 active rows to its 656, half of them new: the margin's peaks move
+# between neighbouring samples as the drive changes)
 NEAR = 0.02  # once a row outside the working set breaks, those within this of their bound join it too (the rows
 # are scaled to a bound of one): each DAQP call starts by factoring the active set again, and the panel's closed-loop
 # rounds took 3-4 calls where they take 2 (its solves 1.5 -> 1.1 s)
@@ -96,8 +100,7 @@ def solve_qp(solver: str, qp: QP, energy_bound: float = np.inf, duals=None,
 
 
 def _daqp(qp: QP, a, lower, upper, energy_bound, duals, deadline=None):
-    """DAQP on a working set of the rows (while the warm start holds at most :data:`WORKING_SET` rows
-    active; else on every row): the equalities, the rows the warm start holds active and
+    """DAQP on a working set of the rows (every row when there is no warm start): the equalities, the rows the warm start holds active and
     the rows it does not know (the round's new ones); every other row is checked at the solution,
     and those it breaks join the set until none does. The optimum is the whole program's (its
     other rows hold with zero multipliers; a working set's infeasibility or dual bound proves the
@@ -108,7 +111,7 @@ def _daqp(qp: QP, a, lower, upper, energy_bound, duals, deadline=None):
     upper, lower = np.where(np.isfinite(upper), upper, 1e30), np.where(np.isfinite(lower), lower, -1e30)
     known = 0 if duals is None else duals.size
     work = np.ones(m, bool)
-    if duals is not None and neq + np.count_nonzero(duals[neq:]) <= WORKING_SET:
+    if duals is not None:
         work[neq:known] = duals[neq:] != 0
     start = None if duals is None else np.r_[duals, np.zeros(m - known)]
     while True:
