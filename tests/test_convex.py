@@ -327,3 +327,36 @@ def test_the_drive_stays_within_the_model_s_band():
     frequency = np.fft.rfftfreq(volts.shape[1], 1 / made.sample_rate)
     assert energy[:, frequency > 1.5 * top].sum() / energy.sum() < 1e-3
     assert made.report.whole_model_margin_ratio <= options.margin * (1 + 1e-6)
+
+
+def test_daqp_on_a_working_set_finds_the_whole_program_s_optimum():
+    """A round's solve, warm-started from the last round's multipliers, runs DAQP on the rows they hold
+    active and the round's new rows, then adds the rows its solution breaks until none does: its
+    answer is the whole program's optimum, by the optimality conditions checked on every row
+    (feasible, multipliers of the right sign only on rows at their bounds, the gradient balanced),
+    with more rows active at the warm start than the 400 up to which it once had a working set."""
+    from modalctl.plan.convex_program import _Rows
+    from modalctl.plan.qp import QP, solve_qp
+
+    rng = np.random.default_rng(1)
+    columns, first, more = 450, 900, 300
+    a = rng.normal(size=(first + more, columns))
+    equality, linear = np.ones((1, columns)), 40 * rng.normal(size=columns)
+
+    def program(n):
+        rows = _Rows()
+        for key, row in enumerate(a[:n]):
+            rows.add(key, row, -1.0, 1.0)
+        return QP(np.ones(columns), linear, equality, np.array([3.0]), rows)
+
+    _, status, duals = solve_qp("daqp", program(first))
+    assert status == "optimal" and np.count_nonzero(duals) > 400  # the warm start: hundreds of rows active
+    x, status, multipliers = solve_qp("daqp", program(first + more), duals=duals)
+    assert status == "optimal" and np.count_nonzero(multipliers[1 + first:]) > 0  # the new rows took part
+    value, inequality = a @ x, multipliers[1:]
+    assert abs(x.sum() - 3.0) < 1e-8 and np.all(np.abs(value) <= 1.0 + 1e-6)  # every row held, not only the set's
+    assert np.all(np.abs(value[inequality > 0] - 1.0) < 1e-6) and np.all(np.abs(value[inequality < 0] + 1.0) < 1e-6)
+    gradient = x + linear + equality.T @ multipliers[:1] + a.T @ inequality  # H x + f + A' lambda
+    assert np.max(np.abs(gradient)) < 1e-6 * np.max(np.abs(linear))
+    cold, _, _ = solve_qp("daqp", program(first + more))  # and every row from the start: the same drive
+    assert np.max(np.abs(x - cold)) < 1e-6
