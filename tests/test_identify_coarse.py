@@ -129,7 +129,7 @@ def test_every_row_coarse_rows_drops_is_said_and_none_contradicts_a_mode():
     rows = [(120.0, 0.002, np.ones(n), 0.01, True, ""),  # a sure pole
             (120.5, 0.002, np.ones(n), 0.5, False, "one pole explains its band poorly"),  # a candidate on its peak
             (53.0, 0.006, np.ones(n), 0.4, False, "one pole explains its band poorly"),  # the peak picker's line
-            (53.2, -0.03, np.zeros(n), np.inf, False, NO_HALF_POWER)]  # no candidate: its damping is not physical
+            (53.2, np.nan, np.zeros(n), np.inf, False, NO_HALF_POWER)]  # no candidate: no half-power points
     out = coarse_rows(frf, rows)
     kept = [r for r in out if r[4]]
     assert len(kept) == 2 and abs(min(r[0] for r in kept) - 53.23) < 0.05 * DF
@@ -206,3 +206,21 @@ def test_the_jackknife_in_one_pass_is_each_row_left_out_refitted():
         own = _grid_best(freqs, h[:, [r]], 53.31, DF)
         assert alone[r] == own[0]
     assert np.all(np.abs(got - 53.31) < 0.1 * DF)  # the noise is small: every fit near the pole
+
+
+def test_a_peak_between_the_lines_that_only_the_peak_picker_saw_is_fitted_jointly():
+    """A mode whose half-power band spans 0.4 lines, its peak between two: the peak picker's parabola
+    puts the peak above the lines beside it, so its half-power points come out the wrong way round
+    (a damping below zero, NO_HALF_POWER). Where LSCF put no pole on it (the strip's 184.3 Hz), that
+    row alone must be fitted jointly and returned, not left out; the picker's peaks of the noise stay out."""
+    from modalctl.identify.estimators import peak_picking
+
+    frf = with_noise_estimate(coarse_frf([53.23] * 20, noise=0.003, seed=2))
+    picked = peak_picking(frf)
+    rows = [picked.row(i) for i in range(picked.n_modes)]
+    sharp = [r for r in rows if abs(r[0] - 53.23) < DF]
+    assert len(sharp) == 1 and sharp[0][5] == NO_HALF_POWER and sharp[0][1] <= 0  # the case, as the picker gives it
+    kept = [r for r in coarse_rows(frf, rows) if r[4]]
+    assert sorted(round(r[0]) for r in kept) == [53, 120], [r[0] for r in kept]  # no peak of the noise returned
+    mode = min(kept, key=lambda r: abs(r[0] - 53.23))
+    assert abs(mode[0] - 53.23) < 0.05 * DF and abs(mode[1] / 0.002 - 1) < 0.2

@@ -25,7 +25,8 @@ import numpy as np
 
 from modalctl.model.modes import ModelError
 
-from .estimators import (FREQUENCY_TOLERANCE, RESOLVED_LINES, UNRESOLVED_ERROR, constants_of, frequency_fixed,
+from .estimators import (FREQUENCY_TOLERANCE, NO_HALF_POWER, RESOLVED_LINES, UNRESOLVED_ERROR, constants_of,
+                         frequency_fixed,
                          modal_constants)
 from .frf import FRF
 from .noise import SIGNIFICANCE, noise_weights
@@ -277,7 +278,12 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
     the lines either side of it, a peak-picked pole and a doubtful one): fitted once, from the
     one of lowest misfit, as one row; one near a pole the band fit explained is that pole's; a
     group of poles no band fit was made of (LSCF's doubtful ones, misfit infinite) is left as it
-    is. Poles whose reason is in ``skip`` (peaks of the noise) are not fitted. A pole
+    is. A peak whose half-power points came out the wrong way round (:data:`~.estimators.NO_HALF_POWER`,
+    a damping of zero or less: the level half a power below the peak its parabola reaches lies above
+    the lines beside it, the peak falling between them) is such a pole too, started at the damping
+    whose half-power band is one line (the strip's 184.3 Hz, 0.1% damping on lines every 0.5 Hz, was
+    left out so where LSCF put no pole on it). Poles whose reason is in ``skip`` (peaks of the noise)
+    are not fitted. A pole
     :attr:`JointPole.fixed` is returned at the joint fit with its constants by
     :func:`modal_constants` (a :class:`CoarseRow`, carrying its pole); a pole not fixed is left
     out with :meth:`JointPole.reason`. Every row left out within those lines of a mode returned
@@ -287,8 +293,15 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
     df = float(frf.frequencies[1] - frf.frequencies[0])
     near = (LINES_SEARCHED + 1) * df
 
+    def sharp(r) -> bool:  # a peak between the lines: its half-power points the wrong way round
+        return r[5] == NO_HALF_POWER and bool(np.isfinite(r[1]) and r[1] <= 0)
+
     def candidate(r) -> bool:
-        return under_resolved(r[0], r[1], df) and r[5] not in skip and (not r[4] or r[3] > UNRESOLVED_ERROR)
+        unexplained = under_resolved(r[0], r[1], df) and (not r[4] or r[3] > UNRESOLVED_ERROR)
+        return r[5] not in skip and (sharp(r) or unexplained)
+
+    def start(r) -> tuple:  # where its joint fit starts: a sharp peak at a half-power band of one line
+        return (r[0], df / (2 * r[0])) if sharp(r) else r[:2]
 
     sure = np.array([r[0] for r in rows if r[4] and not candidate(r)])
     out = [r for r in rows if not candidate(r)]
@@ -302,10 +315,10 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
             groups.append([r])
     joint = []
     for group in groups:
-        if not any(np.isfinite(r[3]) for r in group):  # LSCF's doubtful poles only: no peak was fitted there
+        if not any(np.isfinite(r[3]) or sharp(r) for r in group):  # LSCF's doubtful poles only: no peak there
             out.extend(group)
             continue
-        f, zeta = min(group, key=lambda r: r[3])[:2]
+        f, zeta = start(min(group, key=lambda r: (r[3], not sharp(r))))
         pole = joint_pole(frf, f, zeta)
         try:
             fit = modal_constants(frf, pole.f_hz, pole.zeta, max(3 * pole.zeta * pole.f_hz, HALF_LINES * df),
