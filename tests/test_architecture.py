@@ -117,3 +117,18 @@ def test_no_module_over_600_lines_and_no_function_over_80():
                  for node in ast.walk(ast.parse(text))
                  if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.end_lineno - node.lineno >= 80]
     assert not long, "\n".join(long)
+
+
+def test_no_fft_spins_a_thread_pool_in_a_process_that_forks():
+    """scipy.fft with ``workers`` other than 1 starts pocketfft's thread pool, which shuts itself down at
+    every fork: a run forks its picture children back to back, and a CI worker that had measured FRFs
+    with ``workers=-1`` earlier hung for good in that shutdown (gdb: fork -> pocketfft's prefork handler
+    joining a pool thread that waits). No call in the package may ask for more than one worker."""
+    calls = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Call) and any(k.arg == "workers" for k in node.keywords):
+                name = ast.unparse(node.func)
+                if "fft" in name:
+                    calls.append(f"{path.relative_to(ROOT)}:{node.lineno} {name}")
+    assert not calls, calls

@@ -235,7 +235,7 @@ class SimDevice(Device):
         band = (int(index[0]), int(index[-1]) + 1) if index.size else (0, 0)
         if band not in self._spectra:  # one band a shot kept (in place: a replayed drive keeps it too)
             self._spectra.clear()
-            self._spectra[band] = scipy.fft.rfft(self._modal, axis=-1, workers=-1)[:, bins]
+            self._spectra[band] = scipy.fft.rfft(self._modal, axis=-1)[:, bins]  # one thread: see identify.frf.H1.add
         return scan_spectrum(self.truth.shapes[self._kept], self._spectra[band], index, n, points,
                              self._noise_sigma or 0.0, (self.perturbation.seed, self._shots, SPECTRUM_KEY))
 

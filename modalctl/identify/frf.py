@@ -255,7 +255,10 @@ class H1:
         freqs, keep = self.bins(n)
         # single precision: 7 digits, more than any ADC gives (16 bits), at half the cost
         uf = scipy.fft.rfft(u.astype(np.float32))[keep].astype(complex)
-        yf = scipy.fft.rfft(np.atleast_2d(y).astype(np.float32), axis=-1, workers=-1)[:, keep].astype(complex)
+        # one thread: scipy.fft's thread pool (workers > 1) shuts itself down at every fork, and a run forks
+        # its two picture children back to back; in CI a pytest worker that had identified earlier hung for
+        # good in that shutdown (gdb: fork -> pocketfft's prefork handler joining a pool thread that waits)
+        yf = scipy.fft.rfft(np.atleast_2d(y).astype(np.float32), axis=-1)[:, keep].astype(complex)
         self.seconds += time.perf_counter() - start
         self.add_spectra(freqs, uf, yf, rows)
 
