@@ -26,16 +26,14 @@ import time
 
 import numpy as np
 from common import main_or_report, write_json, write_markdown
-from finger import CASES, FOCUS, SCENARIOS, SNR, _field_margin, _options, _setup
+from finger import CASES, SCENARIOS, SNR, _setup
+from finger import _shot as finger_shot
 from tqdm import tqdm
 
 from modalctl.hil.scenario import Perturbation
-from modalctl.hil.sim_device import SimDevice
 from modalctl.loops import touch as touch_module
 from modalctl.loops.touch_estimator import TouchEstimate
 from modalctl.model import touch as model_touch
-from modalctl.plan.planner import plan_shot
-from modalctl.run import run
 
 CHOSEN_CASES = ("al-cc bump 25 mm @ 0", "plate gaussian 30 mm @ (20, 10) mm", "panel bump 30 mm @ (-20, 5) mm")
 CHOSEN_SCENARIOS = ("rests", "presses 0.5 + 40/s")
@@ -83,20 +81,15 @@ def _oracle(damping, index: int):
         touch_module.TouchControl.observe = original
 
 
-def _shot(model, target, method: str, perturbation: Perturbation, plans: dict):
-    options = _options(method, perturbation.finger_at)
-    key = options.loop is None
-    if key not in plans:
-        plans[key] = plan_shot(model, target, FOCUS, options.planned)
-    device = SimDevice(model, perturbation)
-    shot = run(model, target, device, options, planned=plans[key])
-    return {"peak": float(np.max(np.abs(shot.focus_field))), "tau": shot.metrics.tau,
-            "margin_ratio": shot.metrics.margin_ratio, "field_margin_ratio": _field_margin(shot, device)}
+def _shot(model, target, method: str, perturbation: Perturbation, plans: dict) -> dict:
+    """finger.py's shot, the figures kept here."""
+    row = finger_shot(model, target, method, perturbation, plans)
+    return {k: row[k] for k in ("peak", "tau", "margin_ratio", "field_margin_ratio")}
 
 
 def _case_rows(case: str, bar) -> list[dict]:
     model, target, peak = _setup(*CASES[case])
-    index = int(np.argmin(np.linalg.norm(model.grid.points.reshape(model.grid.n, -1) - np.asarray(peak), axis=1)))
+    index = model_touch.touch_at(model, peak).index  # the grid point the truth's finger rests on
     plans, rows = {}, []
     untouched = Perturbation(finger_at=peak, snr_db=SNR, seed=0, finger=0.0)
     base = _shot(model, target, "open", untouched, plans)["peak"]

@@ -26,8 +26,7 @@ import numpy as np
 from modalctl.model.modes import ModelError
 
 from .estimators import (FREQUENCY_TOLERANCE, NO_HALF_POWER, RESOLVED_LINES, UNRESOLVED_ERROR, constants_of,
-                         frequency_fixed,
-                         modal_constants)
+                         frequency_fixed, modal_constants)
 from .frf import FRF
 from .noise import SIGNIFICANCE, noise_weights
 

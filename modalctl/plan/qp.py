@@ -100,13 +100,13 @@ def solve_qp(solver: str, qp: QP, energy_bound: float = np.inf, duals=None,
 
 
 def _daqp(qp: QP, a, lower, upper, energy_bound, duals, deadline=None):
-    """DAQP on a working set of the rows (every row when there is no warm start): the equalities, the rows the warm start holds active and
-    the rows it does not know (the round's new ones); every other row is checked at the solution,
-    and those it breaks join the set until none does. The optimum is the whole program's (its
-    other rows hold with zero multipliers; a working set's infeasibility or dual bound proves the
-    whole program's), and each DAQP iteration, which prices every row it is given, prices a few
-    hundred, not every row found so far (the panel's closed-loop plan: 240 of 1,650 rows active;
-    its solves 1.8-1.9 -> 1.2-1.3 s)."""
+    """DAQP on a working set of the rows (every row when there is no warm start): the equalities, the
+    rows the warm start holds active and the rows it does not know (the round's new ones); every
+    other row is checked at the solution, and those it breaks join the set until none does. The
+    optimum is the whole program's (its other rows hold with zero multipliers; a working set's
+    infeasibility or dual bound proves the whole program's), and each DAQP iteration, which prices
+    every row it is given, prices a few hundred, not every row found so far (the panel's closed-loop
+    plan: 240 of 1,650 rows active; its solves 1.8-1.9 -> 1.2-1.3 s)."""
     neq, m = qp.a_eq.shape[0], a.shape[0]
     upper, lower = np.where(np.isfinite(upper), upper, 1e30), np.where(np.isfinite(lower), lower, -1e30)
     known = 0 if duals is None else duals.size
