@@ -376,17 +376,22 @@ def _chart(data: dict) -> None:
         ax.legend(fontsize=7, loc="upper left")
         ax.set_title(f"cost against {name}")
     ax = axes[3]
-    labels, now, then = [], [], []
+    labels, now, then, missing = [], [], [], []
     for key, row in commands.items():
         if row["now"]["exit"] == 0:
             labels.append(key.replace("/", "\n"))
             now.append(row["now"]["wall_s"])
             b = row.get("baseline")
             then.append(b["wall_s"] if b and b["exit"] == 0 else np.nan)
+            missing.append(None if b and b["exit"] == 0 else f"exit {b['exit']}" if b else "not run")
     pos = np.arange(len(labels))
     ax.bar(pos - 0.2, then, 0.4, color="0.6", label="baseline (before issues 35-36)")
     ax.bar(pos + 0.2, now, 0.4, color="C0", label="now")
     ax.set_yscale("log")
+    for x, said in zip(pos, missing):  # a baseline that failed or was not run is said, not left a gap
+        if said:
+            ax.text(x - 0.2, 0.02, said, rotation=90, fontsize=7, ha="center", va="bottom", color="0.3",
+                    transform=ax.get_xaxis_transform())
     ax.set_xticks(pos, labels, fontsize=7, rotation=60, ha="right")
     ax.set_ylabel("command wall time (s)")
     ax.set_title("each command, now and before")
