@@ -34,6 +34,7 @@ from .coarse import file_notes
 from .estimators import Modes, constants_of, lines_read
 from .frf import FRF, H1, Sweep, bending_wavelength, check_spatial_step
 from .noise import with_noise_estimate
+from .multiref import split_by_inputs
 
 __all__ = ["Survey", "identify_device", "identify_frf", "scan_subset", "orthogonalize_if_integrated", "mac",
            "to_model", "actuator_gains"]
@@ -150,6 +151,7 @@ def _identify(device: Device, sweep: Sweep, points: np.ndarray, density: float, 
               f"{stacked.frequencies.size} lines ({options.method})")
     with _balanced(stacked, sparse_frf):
         poles = identifier.identify(stacked, threshold_db=options.threshold_db)
+    poles, split = split_by_inputs([sparse_frf[a] for a in sorted(sparse_frf)], poles)  # two shapes: two modes
     good = poles.only_resolved()
     drive = _drives(good, sparse_frf, caps.channels)
     weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
@@ -168,7 +170,7 @@ def _identify(device: Device, sweep: Sweep, points: np.ndarray, density: float, 
     steps.say(f"shapes of {good.n_modes} modes on {points.size} points, every actuator's gains")
     constants, misfit, resolved = _shape_constants(good, full_frf, chooser, points.size)
     grid = Grid.measured(positions, density)
-    notes = _notes(poles, good, drive, weak, primary, sweep)
+    notes = [*split, *_notes(poles, good, drive, weak, primary, sweep)]
     shapes_modes = Modes(good.frequencies, good.damping, constants, misfit, resolved, good.method)
     model = to_model(shapes_modes, grid, caps.channels, source=f"identified through {device.url}",
                      sweep={"f_low": sweep.f_low, "f_high": sweep.f_high, "duration": sweep.duration,
@@ -378,6 +380,7 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
             for a, f in enumerate(frf if isinstance(frf, (list, tuple)) else [frf])]
     identifier = pick("identifier", method)
     poles = identifier.identify(frfs[0] if len(frfs) == 1 else FRF.stack(frfs), threshold_db=threshold_db)
+    poles, split = split_by_inputs(frfs, poles)  # close modes the inputs see with two shapes
     grid = Grid.measured(frfs[0].points, density)
     meta = {"source": "identified from measured FRFs", "input_unit": frfs[0].input_unit}
     if len(frfs) == 1:
@@ -400,7 +403,7 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
              f"{np.median(frfs[0].noise_std) / np.max(np.abs(frfs[0].values)):.1e} of the largest |H|"] \
         if frfs[0].noise_source else []
     notes = [*frfs[0].notes, *noise, *([note] if note else []),
-             *file_notes(frfs, model.frequencies, model.damping, _in_model_order(poles)), *poles.left_out()]
+             *file_notes(frfs, model.frequencies, model.damping, _in_model_order(poles)), *split, *poles.left_out()]
     table = dict(enumerate(frfs))
     return Survey(model, poles, drive, np.zeros(model.n_modes, int), before, crosstalk(model.shapes, model.grid.mass),
                   notes, {"acquisition": 0.0, "frf": 0.0, "modal": time.perf_counter() - start},

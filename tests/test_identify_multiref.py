@@ -1,0 +1,94 @@
+"""Close modes told apart by several inputs (issue 38: the aircraft's 125.21 / 125.58 Hz pair)."""
+
+import numpy as np
+
+from modalctl.identify.estimators import modes_from_rows, constants_of
+from modalctl.identify.frf import FRF, mobility
+from modalctl.identify.multiref import SECOND_SHAPE, second_shape, split_by_inputs
+from modalctl.identify.survey import identify_frf
+
+DF = 0.125  # Hz per line, as the aircraft's analyzer exported
+PAIR = ((125.21, 0.004), (125.58, 0.004))  # 0.37 Hz apart, half-power half-widths 0.5 Hz
+ALONE = (110.0, 0.004)  # a mode of its own, 15 Hz below
+
+
+def inputs_frfs(participations, noise=1e-3, seed=0, modes=(*PAIR, ALONE)):
+    """Three inputs' FRFs on 24 points of ``modes``: mode k's shape ``sin((k + 1) pi x)`` (x in
+    (0, 1)), seen from input q with the participation ``participations[k][q]``; complex noise of
+    ``noise`` times each input's peak."""
+    rng = np.random.default_rng(seed)
+    freqs = np.arange(90.0, 150.0 + DF / 2, DF)
+    x = (np.arange(24) + 0.5) / 24
+    f, zeta = np.array(modes).T
+    shapes = np.array([np.sin((k + 1) * np.pi * x) + 0.1 * k for k in range(len(modes))])  # (modes, points)
+    frfs = []
+    for q in range(3):
+        constants = shapes * np.array([p[q] for p in participations])[:, None]
+        values = mobility(freqs, f, zeta, constants)  # (points, lines)
+        values = values + noise * np.abs(values).max() * (rng.standard_normal(values.shape)
+                                                           + 1j * rng.standard_normal(values.shape))
+        frfs.append(FRF(freqs, values, np.ones(values.shape), np.column_stack([x]), actuator=q, input_unit="N"))
+    return frfs
+
+
+def one_pole_between(frfs):
+    """What an identifier that returned the pair as one pole gives: a pole at the pair's middle, as
+    resolved, with the mode alone beside it."""
+    stacked = FRF.stack(frfs)
+    f = np.array([ALONE[0], 125.4])
+    zeta = np.array([ALONE[1], 0.0045])
+    rows = [(f[k], zeta[k], constants_of(stacked, f, zeta, k, frequency_check=False).constants, 0.05, True, "")
+            for k in range(2)]
+    return modes_from_rows(rows, stacked.values.shape[0], "auto")
+
+
+def scaled(frfs):
+    return [FRF(f.frequencies, f.values * f.unit_scale(), f.coherence, f.points) for f in frfs]
+
+
+DIFFERENT = ((1.0, 0.2, 0.6), (0.2, 1.0, -0.5), (0.7, 0.7, 0.3))  # the pair's inputs see each in its own mix
+PARALLEL = ((1.0, 0.2, 0.6), (0.5, 0.1, 0.3), (0.7, 0.7, 0.3))  # the pair's participations parallel
+
+
+def test_one_mode_has_one_shape_over_the_inputs():
+    # a mode alone: the residues points x inputs are phi L^T, rank one, to the noise
+    frfs = scaled(inputs_frfs(DIFFERENT, noise=1e-4))
+    assert second_shape(frfs, np.array([ALONE[0], 125.21, 125.58]), np.array([ALONE[1], 0.004, 0.004]), 0) < 0.01
+
+
+def test_a_pair_fitted_as_one_pole_shows_a_second_shape_only_when_the_inputs_see_it():
+    f, zeta = np.array([ALONE[0], 125.4]), np.array([ALONE[1], 0.0045])
+    seen = second_shape(scaled(inputs_frfs(DIFFERENT)), f, zeta, 1)
+    assert seen > 2 * SECOND_SHAPE
+    # parallel participations: every input sees the same blend of the two, one shape at every
+    # line; no multi-reference test can tell them apart, and this one does not claim to
+    assert second_shape(scaled(inputs_frfs(PARALLEL)), f, zeta, 1) < 0.01
+
+
+def test_the_pair_is_split_into_its_two_modes():
+    frfs = inputs_frfs(DIFFERENT)
+    poles, notes = split_by_inputs(frfs, one_pole_between(frfs))
+    assert poles.n_modes == 3 and poles.resolved.all()
+    assert abs(poles.frequencies[0] - ALONE[0]) < 1e-9  # the other mode untouched
+    for (f, zeta), found, damping in zip(PAIR, poles.frequencies[1:], poles.damping[1:]):
+        assert abs(found / f - 1) < 1e-3  # the issue's 0.1%
+        assert abs(damping / zeta - 1) < 0.1
+    assert len(notes) == 1 and "split into" in notes[0]
+
+
+def test_parallel_participations_and_one_input_are_left_as_found():
+    frfs = inputs_frfs(PARALLEL)
+    found = one_pole_between(frfs)
+    poles, notes = split_by_inputs(frfs, found)
+    assert poles is found and notes == []
+    poles, notes = split_by_inputs(frfs[:1], found)
+    assert poles is found and notes == []
+
+
+def test_identify_frf_returns_the_pair_from_three_inputs():
+    # the default identifier returns one pole between the two (125.38 Hz), as on the aircraft
+    survey = identify_frf(inputs_frfs(DIFFERENT), 1.0)
+    f = np.sort(survey.model.frequencies)
+    assert f.size == 3 and any("split into" in note for note in survey.notes)
+    for true, _ in (*PAIR, ALONE):
+        assert np.min(np.abs(f / true - 1)) < 1e-3
