@@ -196,8 +196,10 @@ SETS = {
                    "0.125 Hz: modalctl fits those poles on all 204 FRFs jointly ('+-'). 125.21 and 125.58 Hz: the "
                    "FRFs of H1_3 and H1_4 peak at 125.25-125.375 Hz, H1_2's at 125.625 Hz, and the second singular "
                    "value of the three accelerometers' FRFs rises there (2.35 against 1.3 around): two modes 0.37 Hz "
-                   "apart, a third of their half-power width (1.0 Hz); the author separated them, modalctl returns "
-                   "one pole between them (125.43 Hz) and does not say a second is there. 135.28 Hz: left out as "
+                   "apart, a third of their half-power width (1.0 Hz); the author separated them, and so does "
+                   "modalctl: the one pole its LSCF finds between them (125.43 Hz) leaves residues whose second "
+                   "singular value over the three accelerometers is 0.22 of the first (at most 0.07 at the other "
+                   "modes the lines resolve), so it is fitted as two (modalctl.identify.multiref). 135.28 Hz: left out as "
                    "doubtful (too few stable LSCF orders) with the three accelerometers; read with the two along z "
                    "alone (H1_2, H1_3) it is found at 135.27 Hz and 12 of 13 (measured once, the same default "
                    "options): the fin's accelerometer, which sees it weakly, moves the stabilisation. 39.625 "
@@ -207,8 +209,10 @@ SETS = {
                    "(doubtful). Layout: the fin's six points, hit along x, are left out (a shape is one component); "
                    "the others are laid on the wing's plane, the shapes read on them. The peer (LSCF order 60 on the "
                    "204 FRFs) has no pole within 1% of 18.8, 87.9, 105.2, 118.0, 130.0 and 166.3 Hz (its closest "
-                   "picks are other modes'), so the MAC to it is given where it has one; the accelerometers' shapes "
-                   "of 125.4 Hz agree to MAC 0.67 only (last column: the pair seen differently by each).",
+                   "picks are other modes'), so the MAC to it is given where it has one; its one pole at 125.58 Hz "
+                   "stands for both of the pair, its shape their blend, so the MAC of the two to it is no test of "
+                   "either. Last column: each mode's shapes as each accelerometer reads them (the pair's 0.84 and "
+                   "0.83, its one pole's 0.67 before the split).",
         "also_seen_hz": [39.625],  # QUICKguils/vibtest, preliminary_ema.py SPOTTED_PEAKS_RANGE: (39, 39.6), 'freq 2'
         "band_hz": (10.0, 180.0),  # suspension at 0.75 and 1.4 Hz, the analyzer's edge at 200 Hz
         "density": 1.0,
