@@ -92,3 +92,24 @@ def test_identify_frf_returns_the_pair_from_three_inputs():
     assert f.size == 3 and any("split into" in note for note in survey.notes)
     for true, _ in (*PAIR, ALONE):
         assert np.min(np.abs(f / true - 1)) < 1e-3
+
+
+def test_a_doubtful_pole_one_input_holds_is_kept_and_one_of_the_noise_is_not():
+    from modalctl.identify.mdof import DOUBTFUL
+    from modalctl.identify.multiref import rescue_by_inputs
+
+    # the pair's first mode seen by input 0 only, the second by input 1 only; the mode alone by all
+    frfs = inputs_frfs(((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.7, 0.7, 0.3)), noise=3e-3,
+                       modes=(*PAIR[:1], (140.0, 0.004), ALONE))
+    stacked = FRF.stack(frfs)
+    f, zeta = np.array([ALONE[0], 125.23, 140.0, 101.0]), np.array([ALONE[1], 0.0041, 0.004, 0.004])
+    alone = constants_of(stacked, f[:1], zeta[:1], 0, frequency_check=False).constants
+    rows = [(ALONE[0], ALONE[1], alone, 0.01, True, "")]
+    rows += [(f[k], zeta[k], np.zeros(stacked.values.shape[0]), np.inf, False, DOUBTFUL) for k in (1, 2, 3)]
+    found = modes_from_rows(rows, stacked.values.shape[0], "auto")
+    poles, notes = rescue_by_inputs(frfs, found)
+    kept = poles.frequencies[poles.resolved]
+    assert kept.size == 3 and abs(kept[1] / PAIR[0][0] - 1) < 1e-3 and abs(kept[2] / 140.0 - 1) < 1e-3
+    assert poles.reasons[list(poles.frequencies).index(101.0)] == DOUBTFUL  # 101 Hz: the noise alone
+    assert len(notes) == 2 and all("doubtful on the inputs together" in n for n in notes)
+    assert rescue_by_inputs(frfs[:1], found)[0] is found  # one input: nothing to read apart

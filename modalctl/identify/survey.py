@@ -34,7 +34,7 @@ from .coarse import file_notes
 from .estimators import Modes, constants_of, lines_read
 from .frf import FRF, H1, Sweep, bending_wavelength, check_spatial_step
 from .noise import with_noise_estimate
-from .multiref import split_by_inputs
+from .multiref import by_inputs
 
 __all__ = ["Survey", "identify_device", "identify_frf", "scan_subset", "orthogonalize_if_integrated", "mac",
            "to_model", "actuator_gains"]
@@ -151,7 +151,7 @@ def _identify(device: Device, sweep: Sweep, points: np.ndarray, density: float, 
               f"{stacked.frequencies.size} lines ({options.method})")
     with _balanced(stacked, sparse_frf):
         poles = identifier.identify(stacked, threshold_db=options.threshold_db)
-    poles, split = split_by_inputs([sparse_frf[a] for a in sorted(sparse_frf)], poles)  # two shapes: two modes
+    poles, split = by_inputs([sparse_frf[a] for a in sorted(sparse_frf)], poles)  # read input by input
     good = poles.only_resolved()
     drive = _drives(good, sparse_frf, caps.channels)
     weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
@@ -380,7 +380,7 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
             for a, f in enumerate(frf if isinstance(frf, (list, tuple)) else [frf])]
     identifier = pick("identifier", method)
     poles = identifier.identify(frfs[0] if len(frfs) == 1 else FRF.stack(frfs), threshold_db=threshold_db)
-    poles, split = split_by_inputs(frfs, poles)  # close modes the inputs see with two shapes
+    poles, split = by_inputs(frfs, poles)  # what the inputs tell apart: close modes, a mode one sees
     grid = Grid.measured(frfs[0].points, density)
     meta = {"source": "identified from measured FRFs", "input_unit": frfs[0].input_unit}
     if len(frfs) == 1:
