@@ -115,7 +115,8 @@ def test_an_fe_plate_draws_each_mode_on_a_tile_of_its_own_pixels_with_its_patche
     model = ModalModel(grid, [300.0, 700.0], [0.01, 0.01], shapes, meta=meta)
     levels = [Level(0.004, 900, np.array([301.0, 703.0]), 1.0), Level(0.002, 3500, np.array([300.0, 700.0]), 3.0)]
     convergence = Convergence(levels, np.array([1e-4, 2e-4]), np.ones(2), 5e-3, True)
-    paths = report.plot_fe_plate(model, convergence, tmp_path / "plate")
+    stem = tmp_path / "plate"
+    paths = [report.plot_fe_shapes(model, stem), report.plot_fe_convergence(model, convergence, stem)]
     assert paths == [str(tmp_path / "plate_shapes.png"), str(tmp_path / "plate_convergence.png")]
     image = np.asarray(Image.open(paths[0]).convert("RGB")).astype(int)
     assert image.shape == (30 + 41 + 16, 2 * (81 + 6), 3)  # title, then a row of two tiles of 81 x 41 pixels

@@ -72,12 +72,12 @@ def draw(path: Path) -> Path:
     for row in rows:
         for i, part in enumerate(row):
             x[part] = i * 2.3 - (len(row) - 1) * 1.15
-    fig, ax = plt.subplots(figsize=(10, 0.62 * len(rows) + 1.6))
+    fig, ax = plt.subplots(figsize=(12, 0.62 * len(rows) + 1.6))
     colours = plt.get_cmap("tab10")
     side = {part: -1.0 if x[part] < 0 else 1.0 for part in order}  # a left sibling's arrows leave on the left
     upward = []
     for (a, b), n in sorted(edges.items(), key=lambda item: item[1]):
-        if b in FOUNDATIONS:
+        if b in FOUNDATIONS or a not in y or b not in y:  # __main__ (python -m modalctl) is in no layer
             continue
         if y[a] < y[b]:
             upward.append((a, b))
@@ -102,7 +102,7 @@ def draw(path: Path) -> Path:
             ax.text(0, -level + 0.42, "siblings: neither imports the other", fontsize=7, color="#777",
                     ha="center")
     into = sum(n for (a, b), n in edges.items() if b in FOUNDATIONS)
-    ax.set_xlim(-4.6, 5.6)
+    ax.set_xlim(min(x.values()) - 1.3, max(x.values()) + 2.6)  # the widest row's boxes, and the arcs on the right
     ax.set_ylim(-len(rows) + 0.4, 0.8)
     ax.axis("off")
     ax.set_title("modalctl's layers, top to bottom: each arrow is a package importing another (coloured by the "
