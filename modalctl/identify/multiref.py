@@ -20,7 +20,7 @@ another hardly (the aircraft's 135.28 Hz, weak at the fin's accelerometer) may b
 orders to be kept (doubtful). :func:`rescue_by_inputs` gives such a pole a second reading: the band's
 diagram of each input alone (the classical single-reference one); a pole it holds stable there, and
 that one pole explains on every input to a fair misfit, is kept. On the aircraft it keeps 135.29 Hz
-(misfit 0.16) and none of the sixteen doubtful poles of the noise below 32 Hz (misfits 0.85-2.1).
+(misfit 0.16) and none of the sixteen doubtful poles below 32 Hz an input also holds (misfits 0.85-2.1).
 """
 
 from __future__ import annotations
