@@ -188,10 +188,11 @@ class FRF:
                        noise_std=None if self.noise_std is None else self.noise_std[rows])
 
     @classmethod
-    def stack(cls, frfs: list["FRF"]) -> "FRF":
+    def stack(cls, frfs: list["FRF"], scales: list[float] | None = None) -> "FRF":
         """Rows of several actuators' FRFs in one (for poles, which all share), each actuator
-        scaled to unit RMS so that none drowns the others; ``actuator`` is -1."""
-        scales = [f.unit_scale() for f in frfs]
+        scaled to unit RMS so that none drowns the others (or by ``scales``, one per FRF: their unit
+        scales over more lines than given); ``actuator`` is -1."""
+        scales = [f.unit_scale() for f in frfs] if scales is None else scales
         rows = np.cumsum([0, *(f.values.shape[0] for f in frfs)])
 
         def joined(arrays, factors):  # written into one array in place: no scaled copy to copy again

@@ -34,28 +34,33 @@ from .mdof import DOUBTFUL, band_poles, bands
 
 __all__ = ["SECOND_SHAPE", "second_shape", "split_by_inputs", "rescue_by_inputs", "by_inputs"]
 
+NEAR_HALF_WIDTHS, NEAR_LINES = 10.0, 60  # the lines around a pole its fits here read (see _stacked_near)
 SECOND_SHAPE = 0.15  # a pole whose residues' second singular value reaches this share of the first is two modes
 # (single modes of a real multi-input file: up to 0.07, from the noise, leakage and the window; see the module's doc)
 
 
-def second_shape(frfs: list[FRF], frequencies: np.ndarray, damping: np.ndarray, k: int) -> float:
+def second_shape(frfs: list[FRF], frequencies: np.ndarray, damping: np.ndarray, k: int,
+                 scales: list[float] | None = None) -> float:
     """The second singular value of mode ``k``'s residues over the inputs, as a share of the first.
 
     Parameters
     ----------
     frfs : list of FRF
-        Each input's FRFs on the same points and lines, each scaled to unit RMS (as
-        :meth:`FRF.stack` scales them), at least two.
+        Each input's FRFs on the same points and lines, at least two.
     frequencies, damping : ndarray, shape (m,)
         Every pole found (Hz, ratio); its neighbours in the band are fitted with mode ``k``.
+    scales : list of float, optional
+        Each input's weight: its unit scale (:meth:`FRF.unit_scale`, as :meth:`FRF.stack` weighs
+        them) by default.
     """
+    scales = [f.unit_scale() for f in frfs] if scales is None else scales
     df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
     half = half_width(frequencies, damping, k, df)
     near = neighbours(frequencies, damping, k, half)
     keep = np.abs(frfs[0].frequencies - frequencies[k]) <= half
     basis = pole_basis(frfs[0].frequencies[keep], [(frequencies[k], damping[k]),
                                                    *zip(frequencies[near], damping[near])], frequencies[k])
-    residues = np.column_stack([_lstsq(basis, f.values[:, keep].T)[0] for f in frfs])  # (points, inputs)
+    residues = np.column_stack([_lstsq(basis, c * f.values[:, keep].T)[0] for f, c in zip(frfs, scales)])
     s = np.linalg.svd(residues, compute_uv=False)
     return float(s[1] / s[0]) if s[0] > 0 else 0.0
 
@@ -69,19 +74,18 @@ def split_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
     """
     if len(frfs) < 2 or not poles.n_modes:
         return poles, []
-    scaled = [FRF(f.frequencies, f.values * f.unit_scale(), f.coherence, f.points) for f in frfs]
-    stacked = FRF.stack(frfs)
-    df = stacked.frequencies[1] - stacked.frequencies[0]
+    scales = [f.unit_scale() for f in frfs]
+    df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
     f_all, z_all = poles.frequencies, poles.damping
     split, added, notes = [], [], []
     for k in range(poles.n_modes):
         f, zeta = f_all[k], z_all[k]
         if not poles.resolved[k] or 2 * zeta * f / df < RESOLVED_LINES:
             continue
-        share = second_shape(scaled, f_all, z_all, k)
+        share = second_shape(frfs, f_all, z_all, k, scales)
         if share < SECOND_SHAPE:
             continue
-        pair = _two_poles(stacked, f_all, z_all, k)
+        pair = _two_poles(_stacked_near(frfs, scales, f, half_width(f_all, z_all, k, df)), f_all, z_all, k)
         if pair is None:
             notes.append(f"mode at {f:.2f} Hz: the inputs see it with two shapes (second singular value of its "
                          f"residues {share:.2f} of the first) but two poles do not fit its band: kept as one")
@@ -93,7 +97,7 @@ def split_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
                      f"{SECOND_SHAPE:g})")
     if not added:
         return poles, notes
-    return _replaced(poles, split, modes_from_rows(added, stacked.values.shape[0], poles.method)), notes
+    return _replaced(poles, split, modes_from_rows(added, poles.constants.shape[1], poles.method)), notes
 
 
 def _replaced(poles: Modes, split: list, added: Modes) -> Modes:
@@ -147,14 +151,14 @@ def rescue_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
     doubtful = [i for i in range(poles.n_modes) if poles.reasons[i] == DOUBTFUL]
     if len(frfs) < 2 or not doubtful:
         return poles, []
-    stacked = FRF.stack(frfs)
+    scales, lines = [f.unit_scale() for f in frfs], frfs[0].frequencies
     sure_f, sure_z = poles.frequencies[poles.resolved], poles.damping[poles.resolved]
     diagrams, kept, notes = {}, {}, []
     for i in doubtful:
         f, zeta = poles.frequencies[i], poles.damping[i]
-        if not _fair(stacked, sure_f, sure_z, f, zeta):
+        if not _fair(frfs, scales, sure_f, sure_z, f, zeta):
             continue  # one pole does not explain it where the stack put it: no input's diagram is read
-        band = _band_of(f, stacked.frequencies[0], stacked.frequencies[-1])
+        band = _band_of(f, lines[0], lines[-1])
         hits = [(abs(p[0] - f), q, tuple(p)) for q in range(len(frfs))
                 for p in diagrams.setdefault((q, band), band_poles(frfs[q], *band)[0])
                 if abs(p[0] - f) <= max(zeta, p[1]) * f]
@@ -164,14 +168,14 @@ def rescue_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
         taken = np.r_[sure_f, [r[0] for r in kept.values()]]
         if taken.size and np.min(np.abs(taken - f_q)) <= z_q * f_q:
             continue  # a mode already returned, or this input's pole kept for another doubtful one
-        fit = _fair(stacked, sure_f, sure_z, f_q, z_q)
+        fit = _fair(frfs, scales, sure_f, sure_z, f_q, z_q)
         if fit:
             kept[i] = (float(f_q), float(z_q), fit.constants, fit.misfit, True, "")
             notes.append(f"{f:.2f} Hz, doubtful on the inputs together, kept at {f_q:.2f} Hz: input {q}'s own "
                          f"diagram holds it stable and one pole explains it on every input (misfit {fit.misfit:.2f})")
     if not kept:
         return poles, []
-    return _replaced(poles, list(kept), modes_from_rows(list(kept.values()), stacked.values.shape[0],
+    return _replaced(poles, list(kept), modes_from_rows(list(kept.values()), poles.constants.shape[1],
                                                         poles.method)), notes
 
 
@@ -182,11 +186,23 @@ def _band_of(f: float, f_low: float, f_high: float) -> tuple:
     return next((b for b in every if b[0] <= f < b[1]), every[-1])
 
 
-def _fair(stacked: FRF, sure_f: np.ndarray, sure_z: np.ndarray, f: float, zeta: float):
+def _fair(frfs: list[FRF], scales: list[float], sure_f: np.ndarray, sure_z: np.ndarray, f: float, zeta: float):
     """The band fit of a pole ``(f, zeta)`` beside the modes returned (``sure_f``, ``sure_z``) on every
-    row of ``stacked`` when it resolves the pole to a misfit of at most ``FAIR_ERROR``, else None."""
+    input's rows when it resolves the pole to a misfit of at most ``FAIR_ERROR``, else None."""
     if not 0 < zeta < 0.5:
         return None
     trial_f, trial_z = np.r_[sure_f, f], np.r_[sure_z, zeta]
-    fit = constants_of(stacked, trial_f, trial_z, trial_f.size - 1)
+    df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
+    near = _stacked_near(frfs, scales, f, half_width(trial_f, trial_z, trial_f.size - 1, df))
+    fit = constants_of(near, trial_f, trial_z, trial_f.size - 1)
     return fit if fit.resolved and fit.misfit <= FAIR_ERROR else None
+
+
+def _stacked_near(frfs: list[FRF], scales: list[float], f: float, half: float) -> FRF:
+    """Every input's rows stacked, each times its scale (:meth:`FRF.stack`'s layout and weights), on the lines
+    a band fit about ``f`` of half width ``half`` (Hz) and its two poles' own fits may read
+    (``NEAR_HALF_WIDTHS`` of it, and ``NEAR_LINES`` lines besides): a survey's sparse FRFs stacked whole
+    were as large again as themselves (plate-glass's 3.6 GB)."""
+    lines = frfs[0].frequencies
+    keep = np.abs(lines - f) <= NEAR_HALF_WIDTHS * half + NEAR_LINES * (lines[1] - lines[0])
+    return FRF.stack([g.lines(keep) for g in frfs], scales)
