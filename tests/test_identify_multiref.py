@@ -113,3 +113,20 @@ def test_a_doubtful_pole_one_input_holds_is_kept_and_one_of_the_noise_is_not():
     assert poles.reasons[list(poles.frequencies).index(101.0)] == DOUBTFUL  # 101 Hz: the noise alone
     assert len(notes) == 2 and all("doubtful on the inputs together" in n for n in notes)
     assert rescue_by_inputs(frfs[:1], found)[0] is found  # one input: nothing to read apart
+
+
+def test_only_the_lines_around_a_pole_are_stacked(monkeypatch):
+    # a survey's sparse FRFs are gigabytes: stacking every input whole doubled them (plate-glass's 3.6 GB)
+    frfs = inputs_frfs(DIFFERENT)
+    found = one_pole_between(frfs)
+    stacked_lines = []
+    stack = FRF.stack.__func__
+
+    def counted(cls, parts, scales=None):
+        stacked_lines.append(parts[0].frequencies.size)
+        return stack(cls, parts, scales)
+
+    monkeypatch.setattr(FRF, "stack", classmethod(counted))
+    poles, _ = split_by_inputs(frfs, found)
+    assert poles.n_modes == 3 and stacked_lines
+    assert max(stacked_lines) < frfs[0].frequencies.size  # the whole of each: 481 lines
