@@ -42,27 +42,23 @@ def one_pole_between(frfs):
     return modes_from_rows(rows, stacked.values.shape[0], "auto")
 
 
-def scaled(frfs):
-    return [FRF(f.frequencies, f.values * f.unit_scale(), f.coherence, f.points) for f in frfs]
-
-
 DIFFERENT = ((1.0, 0.2, 0.6), (0.2, 1.0, -0.5), (0.7, 0.7, 0.3))  # the pair's inputs see each in its own mix
 PARALLEL = ((1.0, 0.2, 0.6), (0.5, 0.1, 0.3), (0.7, 0.7, 0.3))  # the pair's participations parallel
 
 
 def test_one_mode_has_one_shape_over_the_inputs():
     # a mode alone: the residues points x inputs are phi L^T, rank one, to the noise
-    frfs = scaled(inputs_frfs(DIFFERENT, noise=1e-4))
+    frfs = inputs_frfs(DIFFERENT, noise=1e-4)
     assert second_shape(frfs, np.array([ALONE[0], 125.21, 125.58]), np.array([ALONE[1], 0.004, 0.004]), 0) < 0.01
 
 
 def test_a_pair_fitted_as_one_pole_shows_a_second_shape_only_when_the_inputs_see_it():
     f, zeta = np.array([ALONE[0], 125.4]), np.array([ALONE[1], 0.0045])
-    seen = second_shape(scaled(inputs_frfs(DIFFERENT)), f, zeta, 1)
+    seen = second_shape(inputs_frfs(DIFFERENT), f, zeta, 1)
     assert seen > 2 * SECOND_SHAPE
     # parallel participations: every input sees the same blend of the two, one shape at every
     # line; no multi-reference test can tell them apart, and this one does not claim to
-    assert second_shape(scaled(inputs_frfs(PARALLEL)), f, zeta, 1) < 0.01
+    assert second_shape(inputs_frfs(PARALLEL), f, zeta, 1) < 0.01
 
 
 def test_the_pair_is_split_into_its_two_modes():

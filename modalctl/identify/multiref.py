@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .estimators import (FAIR_ERROR, RESOLVED_LINES, Modes, _lstsq, constants_of, fit_band, half_width,
-                         modes_from_rows, neighbours, pole_basis)
+from .coarse import CoarseRow, under_resolved
+from .estimators import (FAIR_ERROR, Modes, _lstsq, constants_of, fit_band, half_width, modes_from_rows, neighbours,
+                         pole_basis)
 from .frf import FRF
 from .mdof import DOUBTFUL, band_poles, bands
 
@@ -68,22 +69,22 @@ def second_shape(frfs: list[FRF], frequencies: np.ndarray, damping: np.ndarray, 
     return float(s[1] / s[0]) if s[0] > 0 else 0.0
 
 
-def split_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
+def split_by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None = None) -> tuple[Modes, list[str]]:
     """``poles`` (found on :meth:`FRF.stack` of ``frfs``) with every resolved pole whose residues
     show a second shape (:func:`second_shape` at least :data:`SECOND_SHAPE`) fitted as two, and a
-    note on each. A pole the file's lines under-resolve (its half-power band over fewer than
-    ``RESOLVED_LINES`` lines, fitted as a joint pole) is left as it is, and so is a pole whose split
-    runs out of its band, loses a physical damping or leaves either half unresolved.
+    note on each. A pole the file's lines under-resolve (:func:`~.coarse.under_resolved`, fitted as a
+    joint pole) is left as it is, and so is a pole whose split runs out of its band, loses a physical
+    damping or leaves either half unresolved. ``scales``: each input's weight (default: its unit scale).
     """
     if len(frfs) < 2 or not poles.n_modes:
         return poles, []
-    scales = [f.unit_scale() for f in frfs]
+    scales = [f.unit_scale() for f in frfs] if scales is None else scales
     df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
     f_all, z_all = poles.frequencies, poles.damping
     split, added, notes = [], [], []
     for k in range(poles.n_modes):
         f, zeta = f_all[k], z_all[k]
-        if not poles.resolved[k] or 2 * zeta * f / df < RESOLVED_LINES:
+        if not poles.resolved[k] or under_resolved(f, zeta, df):
             continue
         share = second_shape(frfs, f_all, z_all, k, scales)
         if share < SECOND_SHAPE:
@@ -98,20 +99,16 @@ def split_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
         notes.append(f"mode at {f:.2f} Hz split into {pair[0][0]:.2f} and {pair[1][0]:.2f} Hz: the inputs see it "
                      f"with two shapes (second singular value of its residues {share:.2f} of the first, at least "
                      f"{SECOND_SHAPE:g})")
-    if not added:
-        return poles, notes
-    return _replaced(poles, split, modes_from_rows(added, poles.constants.shape[1], poles.method)), notes
+    return (_replaced(poles, split, added) if added else poles), notes
 
 
-def _replaced(poles: Modes, split: list, added: Modes) -> Modes:
-    """``poles`` without the modes ``split``, with those ``added``, by frequency (each kept mode's
-    joint pole carried along)."""
-    kept = poles.select(np.setdiff1d(np.arange(poles.n_modes), split))
-    order = np.argsort(np.r_[kept.frequencies, added.frequencies], kind="stable")
-    joined = [np.concatenate([getattr(kept, name), getattr(added, name)])[order]
-              for name in ("frequencies", "damping", "constants", "misfit", "resolved")]
-    reasons, joint = [*kept.reasons, *added.reasons], [*kept.poles, *added.poles]
-    return Modes(*joined, poles.method, tuple(reasons[i] for i in order), tuple(joint[i] for i in order))
+def _replaced(poles: Modes, dropped, added: list) -> Modes:
+    """``poles`` without the modes ``dropped`` (indices), with the rows ``added``, by frequency
+    (:func:`~.estimators.modes_from_rows`; each kept mode's joint pole carried along as a
+    :class:`~.coarse.CoarseRow`)."""
+    kept = [poles.row(i) if poles.poles[i] is None else CoarseRow(poles.row(i), poles.poles[i])
+            for i in range(poles.n_modes) if i not in dropped]
+    return modes_from_rows(kept + list(added), poles.constants.shape[1], poles.method)
 
 
 def _two_poles(stacked: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int) -> list | None:
@@ -137,24 +134,29 @@ def _two_poles(stacked: FRF, frequencies: np.ndarray, damping: np.ndarray, k: in
     return sorted(rows, key=lambda r: r[0])
 
 
-def by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
+def by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None = None) -> tuple[Modes, list[str]]:
     """``poles`` found on the stacked ``frfs`` read again input by input: doubtful poles one input
     holds (:func:`rescue_by_inputs`), then poles two modes share (:func:`split_by_inputs`); with a
-    note on each change. One input: ``poles`` as they are."""
-    rescued, kept = rescue_by_inputs(frfs, poles)
-    split, parted = split_by_inputs(frfs, rescued)
+    note on each change. ``scales``: each input's weight in the stack the poles were found on
+    (default: its unit scale, as :meth:`FRF.stack`'s). One input: ``poles`` as they are."""
+    if len(frfs) < 2:
+        return poles, []
+    scales = [f.unit_scale() for f in frfs] if scales is None else scales
+    rescued, kept = rescue_by_inputs(frfs, poles, scales)
+    split, parted = split_by_inputs(frfs, rescued, scales)
     return split, kept + parted
 
 
-def rescue_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
+def rescue_by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None = None) -> tuple[Modes, list[str]]:
     """``poles`` with each doubtful pole (stable in too few orders of the stacked diagram) that the
     band's diagram of one input alone holds stable, within the larger half-power half-width of the
     two, and that one pole explains on every input to a misfit of at most ``FAIR_ERROR``, kept as a
-    mode at that input's pole; a note on each."""
+    mode at that input's pole; a note on each. ``scales``: each input's weight (default: its unit scale)."""
     doubtful = [i for i in range(poles.n_modes) if poles.reasons[i] == DOUBTFUL]
     if len(frfs) < 2 or not doubtful:
         return poles, []
-    scales, lines = [f.unit_scale() for f in frfs], frfs[0].frequencies
+    scales = [f.unit_scale() for f in frfs] if scales is None else scales
+    lines = frfs[0].frequencies
     sure_f, sure_z = poles.frequencies[poles.resolved], poles.damping[poles.resolved]
     diagrams, kept, notes = {}, {}, []
     for i in doubtful:
@@ -176,10 +178,7 @@ def rescue_by_inputs(frfs: list[FRF], poles: Modes) -> tuple[Modes, list[str]]:
             kept[i] = (float(f_q), float(z_q), fit.constants, fit.misfit, True, "")
             notes.append(f"{f:.2f} Hz, doubtful on the inputs together, kept at {f_q:.2f} Hz: input {q}'s own "
                          f"diagram holds it stable and one pole explains it on every input (misfit {fit.misfit:.2f})")
-    if not kept:
-        return poles, []
-    return _replaced(poles, list(kept), modes_from_rows(list(kept.values()), poles.constants.shape[1],
-                                                        poles.method)), notes
+    return (_replaced(poles, kept, kept.values()) if kept else poles), notes
 
 
 def _band_of(f: float, f_low: float, f_high: float) -> tuple:

@@ -149,9 +149,9 @@ def _identify(device: Device, sweep: Sweep, points: np.ndarray, density: float, 
     t0 = time.perf_counter()
     steps.say(f"poles on {few.size * caps.channels} FRFs ({few.size} points x {caps.channels} actuators) x "
               f"{stacked.frequencies.size} lines ({options.method})")
-    with _balanced(stacked, sparse_frf):
+    with _balanced(stacked, sparse_frf) as scales:  # sparse_frf: by actuator (_sparse_scan)
         poles = identifier.identify(stacked, threshold_db=options.threshold_db)
-    poles, split = by_inputs([sparse_frf[a] for a in sorted(sparse_frf)], poles)  # read input by input
+    poles, split = by_inputs(list(sparse_frf.values()), poles, scales)  # read input by input
     good = poles.only_resolved()
     drive = _drives(good, sparse_frf, caps.channels)
     weak = drive[:, primary] < options.weak_drive * drive.max(axis=1)
@@ -224,12 +224,12 @@ def _sparse_scan(steps: "_Steps", device: Device, sweep: Sweep, actuators: list,
 def _balanced(stacked: FRF, frfs: dict):
     """Within: ``stacked``'s rows of each actuator (``frfs``' FRFs are views of them) scaled to unit RMS
     as :meth:`FRF.stack` scales them, so that none drowns the others in the poles' fit; after: back to
-    their measured values (to rounding)."""
+    their measured values (to rounding). Yields the scales, in ``frfs``' order."""
     scales = [f.unit_scale() for f in frfs.values()]
     for f, c in zip(frfs.values(), scales):
         f.scale_rows(c)
     try:
-        yield stacked
+        yield scales
     finally:
         for f, c in zip(frfs.values(), scales):
             f.scale_rows(1 / c)
@@ -379,8 +379,9 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
     frfs = [replace(with_noise_estimate(f), actuator=a)  # the inputs given, numbered as given
             for a, f in enumerate(frf if isinstance(frf, (list, tuple)) else [frf])]
     identifier = pick("identifier", method)
-    poles = identifier.identify(frfs[0] if len(frfs) == 1 else FRF.stack(frfs), threshold_db=threshold_db)
-    poles, split = by_inputs(frfs, poles)  # what the inputs tell apart: close modes, a mode one sees
+    scales = [f.unit_scale() for f in frfs]  # each input's weight in the poles' fit
+    poles = identifier.identify(frfs[0] if len(frfs) == 1 else FRF.stack(frfs, scales), threshold_db=threshold_db)
+    poles, split = by_inputs(frfs, poles, scales)  # what the inputs tell apart: close modes, a mode one sees
     grid = Grid.measured(frfs[0].points, density)
     meta = {"source": "identified from measured FRFs", "input_unit": frfs[0].input_unit}
     if len(frfs) == 1:
