@@ -126,3 +126,29 @@ def test_an_fe_plate_draws_each_mode_on_a_tile_of_its_own_pixels_with_its_patche
     assert (tile(0, 31, 8) == 0).all() and (tile(1, 35, 12) == 0).all() and not (tile(1, 31, 12) == 0).all()  # outlined
     assert (tile(0, 20, 60) == 0).all() and (tile(1, 21, 61) == 0).all() and not (tile(0, 20, 63) == 0).all()  # dotted
     assert Image.open(paths[1]).size[0] > 1000
+
+
+def test_a_closed_loop_of_many_modes_names_those_of_the_largest_references(tmp_path, monkeypatch):
+    """A plate's 50 modes in one legend hid the curves (a tablet's 254 took seconds to place): the ten of
+    the largest planned envelopes are named, each in a colour of its own; the others are drawn, grey."""
+    from modalctl.loops.recorder import Recorder
+    from modalctl.loops.runtime import log_fields
+
+    k, periods = 30, 40
+    log = tmp_path / "log.json"
+    recorder = Recorder(log, log_fields(k, 2), meta={"control_rate_hz": 20e3, "modes": [str(m + 1) for m in range(k)]})
+    size = np.random.default_rng(3).permutation(k) + 1.0  # each mode's planned envelope grows to its own size
+    for n in range(periods):
+        reference = size * n / periods
+        recorder.write(period=n, state=2, reference=reference, measured=0.9 * reference, command=0.1 * reference,
+                       fraction=1.0, phasor_sum=np.zeros(2), compute=0.0)
+    recorder.close()
+    drawn = []
+    monkeypatch.setattr(report, "_save", lambda fig, path: drawn.append(fig) or path)
+    report.plot_loop(log, tmp_path / "loop.png")
+    envelopes = drawn[0].axes[0]
+    named = [text.get_text() for text in envelopes.get_legend().get_texts()]
+    assert sorted(named) == sorted(f"mode {m + 1}" for m in np.argsort(-size)[:report.NAMED_MODES])
+    colours = [line.get_color() for line in envelopes.get_legend().get_lines()]
+    assert len(set(colours)) == report.NAMED_MODES
+    assert len(envelopes.lines) == 2 * k and f"the {k - report.NAMED_MODES} modes" in envelopes.get_title()

@@ -33,6 +33,16 @@ __all__ = ["plot_decomposition", "plot_modes_needed", "plot_spacetime", "plot_mo
            "plot_spectrogram", "plot_learning", "write_run_report", "plot_loop", "plot_sweep_maps", "sweep_table",
            "plot_identification", "plot_fe_shapes", "plot_fe_convergence"]
 
+NAMED_MODES = 10  # modes a closed loop's picture names in colour (plot_loop; the colour cycle's ten); the others grey
+LABELLED_TICKS = 30  # mode labels an axis of modes carries at most (a tablet's 254 overlapped)
+
+
+def _mode_ticks(ax, pos, labels) -> None:
+    """The modes' labels under their bars: each up to :data:`LABELLED_TICKS` modes, then every few."""
+    every = -(-len(labels) // LABELLED_TICKS)
+    ax.set_xticks(pos[::every], [str(l) for l in labels[::every]], fontsize=7)
+
+
 def _coefficients_panel(ax, dec: Decomposition):
     """|coefficient| of every mode (m/s sqrt(kg)), the kept ones in colour, the dropped in grey."""
     c = np.abs(dec.coefficients)
@@ -42,10 +52,10 @@ def _coefficients_panel(ax, dec: Decomposition):
     if not kept.all():
         ax.bar(pos[~kept], c[~kept], color="0.75", label="dropped")
     ax.bar(pos[kept], c[kept], color="C0", label="kept")
-    ax.set_xticks(pos, [str(l) for l in dec.model.labels], fontsize=7)
+    _mode_ticks(ax, pos, dec.model.labels)
     ax.set_xlabel("mode")
     ax.set_ylabel("|coefficient| (m/s sqrt(kg))")
-    ax.legend(frameon=False)
+    ax.legend(frameon=False, loc="upper right")
 
 
 def _reconstruction_panel(ax, dec: Decomposition):
@@ -247,20 +257,22 @@ def _modal_coefficients_panel(ax, shot):
     pos = np.arange(len(labels))
     for i, (name, colour) in enumerate([("reference", "C3"), ("reduced", "k"), ("measured", "C0")]):
         ax.bar(pos + (i - 1) * 0.27, coeffs[name], 0.27, color=colour, label=name)
-    ax.set_xticks(pos, [str(l) for l in labels], fontsize=7)
+    _mode_ticks(ax, pos, labels)
     ax.set_xlabel("mode")
     ax.set_ylabel("coefficient (m/s sqrt(kg))")
     ax.axhline(0, color="0.5", lw=0.5)
-    ax.legend(frameon=False, fontsize=8)
+    ax.legend(frameon=False, fontsize=8, loc="upper right")  # "best" searched a tablet's 762 bars
 
 
 def plot_modal_bars(shot, path) -> Path:
-    """Each mode's coefficient at T_F, reference, reduced and measured (thesis Fig 4.17), under a beam's field then."""
-    fig, (top, bottom) = _subplots(2, 1, figsize=(9, 6.5), gridspec_kw={"height_ratios": [2, 3]})
+    """Each mode's coefficient at T_F, reference, reduced and measured (thesis Fig 4.17), under a beam's field then
+    (a plate's field at T_F is :func:`plot_spacetime`'s)."""
     if shot.decomposition.model.grid.dim == 1:
+        fig, (top, bottom) = _subplots(2, 1, figsize=(9, 6.5), gridspec_kw={"height_ratios": [2, 3]})
         _focus_profile_panel(top, shot)
     else:
-        top.axis("off")
+        fig, bottom = _subplots(1, 1, figsize=(9, 4))
+        top = bottom
     _modal_coefficients_panel(bottom, shot)
     m = shot.metrics
     top.set_title(f"tau {m.tau:.3f} (model {m.tau_model:.3f}), tau_norm {m.tau_norm:.3f}, "
@@ -371,20 +383,32 @@ def write_run_report(shot, out, chosen=None) -> dict:
 
 def plot_loop(log, path) -> Path:
     """A closed-loop run from its log: each mode's envelope, planned (reference) and measured, and
-    the feedback command against the time; the fault, if any, marked."""
+    the feedback command against the time; the fault, if any, marked. With more than
+    :data:`NAMED_MODES` modes, the ten of the largest planned envelopes are named in colour and the
+    others drawn thin and grey: a legend of a plate's 50 modes hid the curves, a tablet's 254 took
+    3.7 s to place."""
     from modalctl.loops.recorder import read_log
 
     records, header = read_log(log)
     meta = header["meta"]
     t = (records["period"] + 1) / meta["control_rate_hz"] * 1e3
-    k = records["reference"].shape[1]
+    reference, measured, command = (np.abs(records[name]) for name in ("reference", "measured", "command"))
+    k = reference.shape[1]
+    named = np.sort(np.argsort(-reference.max(axis=0, initial=0.0))[:NAMED_MODES])
     fig, axes = _subplots(2, 1, figsize=(10, 6.5), sharex=True)
-    for i in range(k):
-        line, = axes[0].plot(t, np.abs(records["reference"][:, i]), lw=0.9, label=f"mode {meta['modes'][i]}")
-        axes[0].plot(t, np.abs(records["measured"][:, i]), lw=0.7, ls="--", color=line.get_color())
-        axes[1].plot(t, np.abs(records["command"][:, i]), lw=0.8, color=line.get_color())
-    axes[0].set(ylabel="|envelope| (m/s)", title="per-mode envelopes: reference (solid) and measured (dashed)")
-    axes[0].legend(fontsize=7, ncol=4)
+    others = np.setdiff1d(np.arange(k), named)
+    if others.size:  # one collection per panel: a line per mode cost 0.3 s a hundred modes
+        grey = {"color": "0.75", "lw": 0.5}
+        axes[0].plot(t, reference[:, others], **grey)
+        axes[0].plot(t, measured[:, others], ls="--", **grey)
+        axes[1].plot(t, command[:, others], **grey)
+    for i in named:
+        line, = axes[0].plot(t, reference[:, i], lw=0.9, label=f"mode {meta['modes'][i]}")
+        axes[0].plot(t, measured[:, i], lw=0.7, ls="--", color=line.get_color())
+        axes[1].plot(t, command[:, i], lw=0.8, color=line.get_color())
+    axes[0].set(ylabel="|envelope| (m/s)", title="per-mode envelopes: reference (solid) and measured (dashed)"
+                + (f"; the {others.size} modes of smaller references in grey" if others.size else ""))
+    axes[0].legend(fontsize=7, ncol=4, loc="upper left")
     axes[1].set(xlabel="time (ms)", ylabel="|feedback command| (modal force)",
                 title="feedback commands (the loops', within their authority, and what a touch or a drift is given "
                       "back)")
