@@ -1,4 +1,4 @@
-"""The convex planner's off-target cover (:class:`modalctl.plan.convex_basis.Cover`) against the
+"""The convex planner's off-target cover (:class:`modalctl.plan.convex_cover.Cover`) against the
 whole grid: its boxes' bounds hold every point's field at every sample, on random drives of the
 program's basis on a plate and a beam, and the ratio a plan on a plate reports is the one its
 field has on every point of the grid, the plant run independently."""
@@ -62,14 +62,54 @@ def boxes(box):
 
 
 def check_every_box(cover, velocity):
-    """Each box's bound on each child's points >= the field on every one of those points."""
+    """Each box's bound on each child's points >= the field on every one of those points: in double
+    precision, and as the search computes it, in single precision plus the cover's allowance for it."""
+    state, k = cover._state(velocity), velocity.shape[0]
+    allowance = cover.slack * (cover.reach @ np.abs(velocity))
     for box in boxes(cover.root):
         if not box.children:
             continue
-        bounds = box.bounds(velocity, np.abs(velocity))
-        for child, bound in zip(box.children, bounds):
+        bounds = box.bounds(velocity.T, np.abs(velocity.T))  # (samples, children)
+        single = box.bounds(state[:, :k], state[:, k:])
+        assert single.dtype == np.float32
+        single = single + allowance[:, None]
+        for child, bound, searched in zip(box.children, bounds.T, single.T):
             field = np.abs(cover.values[child.start:child.stop] @ velocity).max(axis=0)
             assert np.all(bound >= field * (1 - 1e-12)), "a box's bound below its points' field"
+            assert np.all(searched >= field), "a box's single-precision bound below its points' field"
+
+
+def test_where_a_bound_is_tight_single_precision_falls_below_the_field_and_the_allowance_holds_it():
+    """A mode affine along a line is fitted exactly (no residual): each box's bound is its points' largest
+    |w|, attained at its ends. In single precision it falls below that at some samples; with the cover's
+    allowance for round-off it never does."""
+    from modalctl.plan.convex_cover import Cover
+
+    x = np.linspace(0.0, 1.0, 301)
+    shapes = np.vstack([1.0 + 0.37 * x, np.zeros_like(x)])  # a second mode no point moves
+    cover = Cover(shapes, x)
+    velocity = np.random.default_rng(17).standard_normal((2, 4000))
+    state = cover._state(velocity)
+    allowance = cover.slack * (cover.reach @ np.abs(velocity))
+    below = 0
+    for box in (b for b in boxes(cover.root) if b.children):
+        single = box.bounds(state[:, :2], state[:, 2:])
+        for child, searched, allowed in zip(box.children, single.T, (single + allowance[:, None]).T):
+            field = np.abs(cover.values[child.start:child.stop] @ velocity).max(axis=0)
+            below += np.count_nonzero(searched < field)
+            assert np.all(allowed >= field)
+    assert below > 0  # the allowance is needed
+
+
+def test_the_single_precision_search_allows_for_its_round_off_whatever_the_modes_sizes():
+    """A drive whose modes differ by ten decades in size (one mode carries the field, the others' bounds
+    are all round-off): the boxes' single-precision bounds plus the allowance still hold every point."""
+    model = load_scene("thesis-al-cc")
+    shape = target(model, "sinc", width="18mm", center="24mm")
+    dec = decompose(model, shape, 9)
+    program, (velocity,) = random_drives(model, shape, dec, 1, seed=13)
+    velocity = velocity[:, ::7] * np.logspace(0, -10, velocity.shape[0])[:, None]
+    check_every_box(program.cover, velocity)
 
 
 @pytest.mark.slow

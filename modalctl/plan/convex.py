@@ -28,7 +28,7 @@ voltage and slew, each channel's own peaks) join the program until none does. Wi
 margin rows hold on drifted copies of the model, each of which must still reach a share of the
 focus at the target's peak.
 
-**The check on every point**: the off-target points are nested boxes (:class:`~.convex_basis.Cover`),
+**The check on every point**: the off-target points are nested boxes (:class:`~.convex_cover.Cover`),
 each with a bound on ``|w|`` over its points at any modal state: every mode fitted affinely over the
 box's points, ``phi_k(x_i) = a_k + b_k . (x_i - x_B) + r_ik``, so that ``|w(x_i)| <= max over the
 box's span of |A + B . d| + sum_k max_i |r_ik| |eta'_k|`` (``A``, ``B`` the fits times the modal

@@ -18,7 +18,8 @@ from modalctl.model.modes import ModalModel, drift_cases
 from modalctl.model.propagate import Plant
 from modalctl.options import PlanOptions
 
-from .convex_basis import Basis, Cover, Responses
+from .convex_basis import Basis, Responses
+from .convex_cover import Cover
 from .dispatch import dispatch
 from .qp import OUT_OF_TIME, QP, solve_qp
 
@@ -235,7 +236,7 @@ class Program:
     def off_target(self, velocity: np.ndarray, floor: float = 0.0) -> np.ndarray:
         """The largest off-target |w| at every sample, shape (N,), exactly wherever it exceeds
         ``floor``; elsewhere a bound on it, at most ``floor``, stands in (:meth:`Cover.top
-        <.convex_basis.Cover.top>`: the field is computed only where the bound of the off-target
+        <.convex_cover.Cover.top>`: the field is computed only where the bound of the off-target
         points' boxes exceeds ``floor``)."""
         return self.cover.top(velocity, floor)
 
