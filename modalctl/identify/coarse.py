@@ -221,7 +221,7 @@ def joint_pole(frf: FRF, f: float, zeta: float) -> JointPole:
     speak of): the error is inf and the noise alone says whether the frequency is fixed
     (:func:`~.estimators.frequency_fixed`, as for a resolved mode).
     """
-    df = float(frf.frequencies[1] - frf.frequencies[0])
+    df = frf.line_spacing
     half = max(3 * zeta * f, HALF_LINES * df) + LINES_SEARCHED * df
     keep = np.abs(frf.frequencies - f) <= half
     freqs, h = frf.frequencies[keep], frf.values[:, keep].T
@@ -289,7 +289,7 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
     (a sure pole, a joint one fixed) is left out as that mode's peak, not for a reason of its
     own: none is dropped unsaid, and none contradicts the mode.
     """
-    df = float(frf.frequencies[1] - frf.frequencies[0])
+    df = frf.line_spacing
     near = (LINES_SEARCHED + 1) * df
 
     def sharp(r) -> bool:  # a peak between the lines: its half-power points the wrong way round
@@ -346,7 +346,7 @@ def file_notes(frfs: list, frequencies: np.ndarray, damping: np.ndarray, poles=(
     whose shapes from the two inputs that drive it most agree to a MAC below ``AGREE`` (the same mode:
     they should agree)."""
     frf = frfs[0] if len(frfs) == 1 else FRF.stack(frfs)
-    df = float(frf.frequencies[1] - frf.frequencies[0])
+    df = frf.line_spacing
     poles = list(poles) + [None] * (len(frequencies) - len(poles))
     notes = []
     for k, (f, zeta) in enumerate(zip(frequencies, damping)):

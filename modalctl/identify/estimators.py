@@ -227,7 +227,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     ``frequency_check`` False skips that check (the constants of a pole already judged).
     """
     columns = _columns(len(others), general)
-    half_width = _widened(half_width, columns, frf.frequencies[1] - frf.frequencies[0])
+    half_width = _widened(half_width, columns, frf.line_spacing)
     keep = np.abs(frf.frequencies - f) <= half_width
     if np.count_nonzero(keep) < 2 * columns:  # at the edge of the measurement
         raise ModelError(f"identify: fewer than {2 * columns} FRF bins within {half_width:g} Hz of {f:g} Hz")
@@ -260,7 +260,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     if not resolved:
         near = min(others, key=lambda p: abs(p[0] - f), default=None)
         near = None if near is None else (near[0], abs(near[0] - f) / max(zeta * f, np.finfo(float).tiny))
-        lines = 2 * zeta * f / (frf.frequencies[1] - frf.frequencies[0])
+        lines = 2 * zeta * f / (frf.line_spacing)
         why = misfit_reason(misfit, noise is not None, seen, near, None if split else half_width, lines)
         if split:
             what = "close modes, or FRFs that disagree on a peak too narrow for the lines?" \
@@ -497,7 +497,7 @@ def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
         modes do not bias each other.
     """
     start = peak_picking(frf, threshold_db, min_frequency, frequency_check=False)  # checked once refined
-    df = frf.frequencies[1] - frf.frequencies[0]
+    df = frf.line_spacing
     rows = []
     for i, (f, zeta) in enumerate(zip(start.frequencies, start.damping)):
         if not start.resolved[i] or not 0 < zeta < 0.5:
@@ -545,7 +545,7 @@ def lines_read(lines: np.ndarray, frequencies: np.ndarray, damping: np.ndarray, 
 def constants_of(frf: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int, band: float = 3.0,
                  general: bool = False, counted: bool = False, frequency_check: bool = True) -> BandFit:
     """:func:`modal_constants` of mode ``k`` of a known set, in its band, with its neighbours."""
-    df = frf.frequencies[1] - frf.frequencies[0]
+    df = frf.line_spacing
     half = half_width(frequencies, damping, k, df, band)
     near = neighbours(frequencies, damping, k, half)
     return modal_constants(frf, frequencies[k], damping[k], half, list(zip(frequencies[near], damping[near])),

@@ -175,6 +175,17 @@ class FRF:
                              f"answered its drive (a channel not connected?)")
         return 1 / rms
 
+    @property
+    def line_spacing(self) -> float:
+        """Hz between two lines (the lines are evenly spaced)."""
+        return float(self.frequencies[1] - self.frequencies[0])
+
+    @staticmethod
+    def unit_scales(frfs: list["FRF"], scales: list[float] | None = None) -> list[float]:
+        """``scales`` if given, else each FRF's :meth:`unit_scale`: the weights of several inputs' FRFs
+        fitted together (:meth:`stack`)."""
+        return [f.unit_scale() for f in frfs] if scales is None else list(scales)
+
     def scale_rows(self, factor: float) -> None:
         """Multiply the values and their noise by ``factor``, in place (on views: the rows of the FRF they
         are taken from)."""
@@ -192,7 +203,7 @@ class FRF:
         """Rows of several actuators' FRFs in one (for poles, which all share), each actuator
         scaled to unit RMS so that none drowns the others (or by ``scales``, one per FRF: their unit
         scales over more lines than given); ``actuator`` is -1."""
-        scales = [f.unit_scale() for f in frfs] if scales is None else scales
+        scales = cls.unit_scales(frfs, scales)
         rows = np.cumsum([0, *(f.values.shape[0] for f in frfs)])
 
         def joined(arrays, factors):  # written into one array in place: no scaled copy to copy again

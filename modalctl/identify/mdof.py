@@ -61,7 +61,7 @@ def refine(frf: FRF, poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     converged : ndarray of bool, shape (k,)
         False where the fit ran away (out of the band, or a damping outside (0, 0.5)).
     """
-    df = frf.frequencies[1] - frf.frequencies[0]
+    df = frf.line_spacing
     poles = np.asarray(poles, float).reshape(-1, 2)
     poles = poles[np.argsort(poles[:, 0])]
     halves = np.array([half_width(poles[:, 0], poles[:, 1], i, df, BAND) for i in range(len(poles))])

@@ -57,8 +57,8 @@ def second_shape(frfs: list[FRF], frequencies: np.ndarray, damping: np.ndarray, 
         Each input's weight: its unit scale (:meth:`FRF.unit_scale`, as :meth:`FRF.stack` weighs
         them) by default.
     """
-    scales = [f.unit_scale() for f in frfs] if scales is None else scales
-    df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
+    scales = FRF.unit_scales(frfs, scales)
+    df = frfs[0].line_spacing
     half = half_width(frequencies, damping, k, df)
     near = neighbours(frequencies, damping, k, half)
     keep = np.abs(frfs[0].frequencies - frequencies[k]) <= half
@@ -78,8 +78,8 @@ def split_by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None = 
     """
     if len(frfs) < 2 or not poles.n_modes:
         return poles, []
-    scales = [f.unit_scale() for f in frfs] if scales is None else scales
-    df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
+    scales = FRF.unit_scales(frfs, scales)
+    df = frfs[0].line_spacing
     f_all, z_all = poles.frequencies, poles.damping
     split, added, notes = [], [], []
     for k in range(poles.n_modes):
@@ -116,7 +116,7 @@ def _two_poles(stacked: FRF, frequencies: np.ndarray, damping: np.ndarray, k: in
     rows ``(f, zeta, constants, misfit, True, "")``; None when they leave the band, lose a
     physical damping, meet, or either is not resolved."""
     f, zeta = frequencies[k], damping[k]
-    df = stacked.frequencies[1] - stacked.frequencies[0]
+    df = stacked.line_spacing
     half = half_width(frequencies, damping, k, df)
     near = neighbours(frequencies, damping, k, half)
     others = list(zip(frequencies[near], damping[near]))
@@ -141,7 +141,7 @@ def by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None = None) 
     (default: its unit scale, as :meth:`FRF.stack`'s). One input: ``poles`` as they are."""
     if len(frfs) < 2:
         return poles, []
-    scales = [f.unit_scale() for f in frfs] if scales is None else scales
+    scales = FRF.unit_scales(frfs, scales)
     rescued, kept = rescue_by_inputs(frfs, poles, scales)
     split, parted = split_by_inputs(frfs, rescued, scales)
     return split, kept + parted
@@ -155,7 +155,7 @@ def rescue_by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None =
     doubtful = [i for i in range(poles.n_modes) if poles.reasons[i] == DOUBTFUL]
     if len(frfs) < 2 or not doubtful:
         return poles, []
-    scales = [f.unit_scale() for f in frfs] if scales is None else scales
+    scales = FRF.unit_scales(frfs, scales)
     lines = frfs[0].frequencies
     sure_f, sure_z = poles.frequencies[poles.resolved], poles.damping[poles.resolved]
     diagrams, kept, notes = {}, {}, []
@@ -194,7 +194,7 @@ def _fair(frfs: list[FRF], scales: list[float], sure_f: np.ndarray, sure_z: np.n
     if not 0 < zeta < 0.5:
         return None
     trial_f, trial_z = np.r_[sure_f, f], np.r_[sure_z, zeta]
-    df = frfs[0].frequencies[1] - frfs[0].frequencies[0]
+    df = frfs[0].line_spacing
     near = _stacked_near(frfs, scales, f, half_width(trial_f, trial_z, trial_f.size - 1, df))
     fit = constants_of(near, trial_f, trial_z, trial_f.size - 1)
     return fit if fit.resolved and fit.misfit <= FAIR_ERROR else None
@@ -206,5 +206,5 @@ def _stacked_near(frfs: list[FRF], scales: list[float], f: float, half: float) -
     (``NEAR_HALF_WIDTHS`` of it, and ``NEAR_LINES`` lines besides): a survey's sparse FRFs stacked whole
     were as large again as themselves (plate-glass's 3.6 GB)."""
     lines = frfs[0].frequencies
-    keep = np.abs(lines - f) <= NEAR_HALF_WIDTHS * half + NEAR_LINES * (lines[1] - lines[0])
+    keep = np.abs(lines - f) <= NEAR_HALF_WIDTHS * half + NEAR_LINES * frfs[0].line_spacing
     return FRF.stack([g.lines(keep) for g in frfs], scales)

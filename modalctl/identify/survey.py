@@ -225,7 +225,7 @@ def _balanced(stacked: FRF, frfs: dict):
     """Within: ``stacked``'s rows of each actuator (``frfs``' FRFs are views of them) scaled to unit RMS
     as :meth:`FRF.stack` scales them, so that none drowns the others in the poles' fit; after: back to
     their measured values (to rounding). Yields the scales, in ``frfs``' order."""
-    scales = [f.unit_scale() for f in frfs.values()]
+    scales = FRF.unit_scales(list(frfs.values()))
     for f, c in zip(frfs.values(), scales):
         f.scale_rows(c)
     try:
@@ -379,7 +379,7 @@ def identify_frf(frf, density: float, method: str = SurveyOptions.method, orthog
     frfs = [replace(with_noise_estimate(f), actuator=a)  # the inputs given, numbered as given
             for a, f in enumerate(frf if isinstance(frf, (list, tuple)) else [frf])]
     identifier = pick("identifier", method)
-    scales = [f.unit_scale() for f in frfs]  # each input's weight in the poles' fit
+    scales = FRF.unit_scales(frfs)  # each input's weight in the poles' fit
     poles = identifier.identify(frfs[0] if len(frfs) == 1 else FRF.stack(frfs, scales), threshold_db=threshold_db)
     poles, split = by_inputs(frfs, poles, scales)  # what the inputs tell apart: close modes, a mode one sees
     grid = Grid.measured(frfs[0].points, density)

@@ -40,18 +40,18 @@ class _Box:
         affine part's largest size over the span (centre ``A``, each axis's slope times half-width ``B_d
         h_d``: one product and an absolute value, the rows folded so when the box was built). In single
         precision for single-precision samples (what :class:`Cover`'s search adds for it: its notes)."""
-        c = len(self.children)
         single = velocity.dtype == np.float32
         fit, residual = (self._fit32, self._residual32) if single else (self.fit.T, self.residual.T)
-        y = np.abs(velocity @ fit).reshape(velocity.shape[0], -1, c)
-        return y.sum(axis=1) + speed @ residual
+        return self._summed(velocity @ fit, speed @ residual)
 
     def rough(self, velocity: np.ndarray) -> np.ndarray:
         """The largest of the children's bounds at each column of ``velocity`` (K, s), shape (s,): a
         ranking of the columns (double precision, on the columns as they are: no copy of them)."""
-        c = len(self.children)
-        y = np.abs(self.fit @ velocity).reshape(-1, c, velocity.shape[1]).sum(axis=0)
-        return (y + self.residual @ np.abs(velocity)).max(axis=0)
+        return self._summed((self.fit @ velocity).T, (self.residual @ np.abs(velocity)).T).max(axis=1)
+
+    def _summed(self, affine: np.ndarray, residual: np.ndarray) -> np.ndarray:
+        """:meth:`bounds` from the fit's products (s, (1 + d) c) and the residuals' (s, c)."""
+        return np.abs(affine).reshape(affine.shape[0], -1, len(self.children)).sum(axis=1) + residual
 
     def terms(self) -> np.ndarray:
         """Each child's ``sum over the fit's rows of |row_k| + R_k`` (c, K): what multiplies ``|eta'_k|``
