@@ -50,7 +50,18 @@ def machine() -> dict:
 
     return {"python": platform.python_version(), "numpy": np.__version__, "scipy": scipy.__version__,
             "control": control.__version__, "casadi": casadi.__version__, "machine": platform.machine(),
-            "cpus": os.cpu_count(), "load_average_1_5_15_min": list(os.getloadavg()), "speed": speed_probe()}
+            "cpu": cpu_model(), "cpus": os.cpu_count(), "load_average_1_5_15_min": list(os.getloadavg()),
+            "speed": speed_probe()}
+
+
+def cpu_model() -> str:
+    """The processor's name (Linux's /proc/cpuinfo; the platform's otherwise): BLAS picks its kernels by
+    it, and an ill-conditioned computation's last bits with them (docs/identification.md)."""
+    try:
+        with open("/proc/cpuinfo") as info:
+            return next(line.split(":", 1)[1].strip() for line in info if line.startswith("model name"))
+    except (OSError, StopIteration):
+        return platform.processor() or "unknown"
 
 
 def speed_probe() -> dict:

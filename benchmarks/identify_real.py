@@ -30,6 +30,7 @@ import os
 import sys
 import time
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import matplotlib
@@ -52,6 +53,8 @@ from modalctl.model.projection import orthonormalize_model  # noqa: E402
 
 NAME = "identify_real"
 FOUND = 0.01  # a published mode is found within this relative distance
+ROUND_OFF = 1e-13  # the relative change of a file's values the round-off check makes (far below any noise)
+ROUND_OFF_DRAWS = 2  # seeded draws of that change
 PEER_ORDER = 60
 
 SETS = {
@@ -342,6 +345,7 @@ def score(name: str, path: Path) -> dict:
     except ModelError:  # no mode resolved
         sdof = np.zeros(0)
     sdof_seconds = time.perf_counter() - start
+    shaken = round_off(given, spec["density"], survey.model.frequencies)
     ref = peer(frfs, list(published))
     model, frf = survey.model, frfs[0]
     # what Gram-Schmidt always on did (none: more modes than points, which it cannot make orthonormal)
@@ -359,7 +363,30 @@ def score(name: str, path: Path) -> dict:
             "seconds": seconds, "sdof_found": int(sdof_found), "sdof_seconds": sdof_seconds,
             "peer_seconds": ref["seconds"], "notes": survey.notes, "orthogonalized": survey.orthogonalized,
             "mean_mobility": {"f_hz": frf.frequencies[::step].tolist(), "h": magnitude[::step].tolist()},
-            "identified_hz": model.frequencies.tolist(), "peer_hz": ref["f_hz"].tolist(), "unit": frf.unit}
+            "identified_hz": model.frequencies.tolist(), "peer_hz": ref["f_hz"].tolist(), "unit": frf.unit,
+            "round_off": shaken}
+
+
+def round_off(given, density: float, returned: np.ndarray) -> dict:
+    """``auto`` again on the file with every value changed by ``ROUND_OFF`` (relative, a seeded normal
+    draw, ``ROUND_OFF_DRAWS`` times): the modes each run returns, and those not returned by every run
+    (within ``FOUND`` of one another) with ``returned``, the unchanged file's."""
+    frfs = given if isinstance(given, list) else [given]
+    rng = np.random.default_rng(0)
+    runs = [np.asarray(returned, float)]
+    for _ in range(ROUND_OFF_DRAWS):
+        changed = [replace(f, values=f.values * (1 + ROUND_OFF * rng.standard_normal(f.values.shape))) for f in frfs]
+        try:
+            runs.append(identify_frf(changed if len(changed) > 1 else changed[0], density, "auto").model.frequencies)
+        except ModelError:
+            runs.append(np.zeros(0))
+    every = []  # each mode any run returned, once (the first of those within FOUND of one another)
+    for f in sorted(float(f) for run in runs for f in run):
+        if not every or f / every[-1] - 1 > FOUND:
+            every.append(f)
+    in_all = lambda f: all(run.size and np.min(np.abs(run / f - 1)) <= FOUND for run in runs)  # noqa: E731
+    return {"relative_change": ROUND_OFF, "runs_hz": [run.tolist() for run in runs[1:]],
+            "come_and_go_hz": [f for f in every if not in_all(f)]}
 
 
 def mode_line(m: dict, with_shapes: bool = False, with_inputs: bool = False) -> str:
@@ -402,6 +429,15 @@ def set_section(name: str, s: dict) -> list[str]:
              "|" + "---|" * (head.count("|") - 1)]
     lines += [mode_line(m, with_shapes, with_inputs) for m in s["modes"]]
     lines += ["", f"What the file shows: {s['remarks']}", ""] if s.get("remarks") else [""]
+    if s.get("round_off"):
+        shaken = s["round_off"]
+        runs = "; ".join(", ".join(f"{f:.1f}" for f in run) for run in shaken["runs_hz"])
+        lines += [f"Round-off: `auto` on the file with every value changed by {shaken['relative_change']:g} (relative, "
+                  f"{len(shaken['runs_hz'])} seeded draws) returned {runs} Hz; "
+                  + (f"modes that come and go between the three runs: "
+                     f"{', '.join(f'{f:.1f}' for f in shaken['come_and_go_hz'])} Hz "
+                     f"(LSCF's normal equations are numerically singular in the orders its poles are picked from: "
+                     f"`modalctl.identify.lscf`)" if shaken["come_and_go_hz"] else "the same modes") + ".", ""]
     for m in s["modes"]:
         near = m.get("nearest_returned_hz")
         if not m["found"] and m["left_out_because"]:
@@ -425,12 +461,15 @@ def report(data: dict, path: Path) -> None:
              f"{PEER_ORDER}, poles closest to the published frequencies. Found: within {FOUND:.0%}; MAC to the "
              "peer's normal modes on the same points (of the input whose rows fit best, when there are several). "
              "'f +- s': a mode whose half-power band spans fewer than 3 lines, fitted on all FRFs jointly, and the "
-             "jackknife standard error of its frequency over the FRFs (Hz).",
+             "jackknife standard error of its frequency over the FRFs (Hz). Round-off: `auto` again on each file "
+             f"with every value changed by {ROUND_OFF:g} (relative, {ROUND_OFF_DRAWS} seeded draws, far below any "
+             "measurement's noise); a mode not returned by every run is listed under its set and drawn orange.",
              ""]
     load = data.get("machine", {}).get("load_average_1_5_15_min")
     if load:
-        lines += [f"Times on {data['machine']['cpus']} cores at a load average of {load[0]:.1f} (the benchmark counts "
-                  "about one; more is other work sharing them).", ""]
+        lines += [f"Times on {data['machine']['cpus']} cores ({data['machine'].get('cpu', 'processor not recorded')}) "
+                  f"at a load average of {load[0]:.1f} (the benchmark counts about one; more is other work sharing "
+                  "them).", ""]
     missing = data.get("missing", [])
     if missing:
         lines += [f"Not run (not fetched): {', '.join(missing)}.", ""]
@@ -442,8 +481,13 @@ def report(data: dict, path: Path) -> None:
         ax.semilogy(s["mean_mobility"]["f_hz"], s["mean_mobility"]["h"], lw=0.6, color="0.4")
         for k, f in enumerate(s["modes"]):
             ax.axvline(f["published_hz"], color="tab:green", lw=3, alpha=0.35, label="published" if k == 0 else None)
-        for k, f in enumerate(s["identified_hz"]):
+        shaken = np.array(s.get("round_off", {}).get("come_and_go_hz") or [np.inf])
+        moved = [f for f in s["identified_hz"] if np.min(np.abs(shaken / f - 1)) <= FOUND]
+        for k, f in enumerate(f for f in s["identified_hz"] if f not in moved):
             ax.axvline(f, color="k", lw=0.8, ls="--", label="modalctl (auto)" if k == 0 else None)
+        for k, f in enumerate(moved):
+            ax.axvline(f, color="tab:orange", lw=1.0, ls=":",
+                       label=f"modalctl, not in every run of the file changed by {ROUND_OFF:g}" if k == 0 else None)
         ax.plot(s["peer_hz"], np.full(len(s["peer_hz"]), max(s["mean_mobility"]["h"])), "rv", ms=6,
                 label="sdypy-EMA (given published f)")
         found = sum(m["found"] for m in s["modes"])

@@ -17,6 +17,13 @@ damping; a cluster present in at least ``SUPPORT`` of the orders is a pole, a sm
 (at least two orders) is *doubtful*: reported, never returned as a mode. The poles are then
 refined by the nonlinear band fit (:func:`~modalctl.identify.estimators.fit_band`), which the
 linearized LSCF cannot replace under noise (its damping is biased).
+
+Known limit: ``R`` (monomials on a band's arc of the unit circle) has a condition number of 5e12 at
+order 20 and 1e15-1e19 from order 30 to 80, where the poles are picked; round-off (the CPU's BLAS
+kernels, the number of BLAS threads, a change of 1e-14 in the data) then decides where the
+computational poles of those orders fall, and a shoulder of a heavily damped real measurement is
+kept or not with it; the modes a clean peak holds do not move. ``benchmarks/identify_real.py`` shows
+which modes come and go; docs/identification.md says what a well-conditioned basis did instead.
 """
 
 from __future__ import annotations
