@@ -20,6 +20,7 @@ the same (any change to the numbers it draws is a new version).
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,7 @@ GENERATOR = "modalctl.splitmix64-box-muller"
 VERSION = 1
 NOISE_BLOCK = 4096  # samples of one point's noise stream (a stream per shot, point and block)
 BLOCK_VALUES = 1 << 17  # values of noise made at a time (points x instants): its temporaries stay in cache
+THREADED_BLOCKS = 4  # blocks each of two threads makes at least, or the noise is made on this one
 SAMPLES_MAX = 1 << 32  # a sample's index fits 32 bits of the counter (7 minutes at 10 MS/s)
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # SplitMix64's increment
@@ -134,12 +136,21 @@ def add_noise(field: np.ndarray, shot: np.uint64, rows: np.ndarray, samples: np.
     if not sigma or not field.size:
         return
     step = max(1, BLOCK_VALUES // max(nt, 1))  # points a block of noise
-    size = min(step, rows.size)
-    work, noise = np.empty((2, size, nt), np.uint64), np.empty((size, nt), np.float32)
     add = np.add if sign > 0 else np.subtract
-    for first in range(0, rows.size, step):
-        block = slice(first, first + step)
-        n = field[block].shape[0]
-        normals(shot, rows[block], samples, noise[:n], work[:, :n])
-        noise[:n] *= np.float32(sigma)
-        add(field[block], noise[:n], out=field[block])
+
+    def part(first: int, last: int) -> None:  # the blocks of points first:last, with scratch of their own
+        size = min(step, last - first)
+        work, noise = np.empty((2, size, nt), np.uint64), np.empty((size, nt), np.float32)
+        for start in range(first, last, step):
+            block = slice(start, min(start + step, last))
+            n = block.stop - block.start
+            normals(shot, rows[block], samples, noise[:n], work[:, :n])
+            noise[:n] *= np.float32(sigma)
+            add(field[block], noise[:n], out=field[block])
+
+    if rows.size < 2 * THREADED_BLOCKS * step:
+        part(0, rows.size)
+        return
+    half = -(-rows.size // 2 // step) * step  # whole blocks on either side: the same draws as one thread's
+    with ThreadPoolExecutor(2) as pool:  # NumPy lets go of the GIL in every pass: a plate's scan on two cores
+        list(pool.map(part, (0, half), (half, rows.size)))
