@@ -169,13 +169,13 @@ def report(data: dict, path) -> None:
 
 
 if __name__ == "__main__":
-    import sys
+    from common import command_line, read_json
 
-    if "--report-only" in sys.argv:  # redraw from the last run's JSON
-        from common import read_json
-
+    args = command_line({"--timescales": {"action": "store_true", "help": "with --report-only: add the table of "
+                                          "time scales to the last run's results"}}, reports=True)
+    if args.report_only:  # redraw from the last run's JSON
         data, path = read_json("closed_loop")
-        if "--timescales" in sys.argv:  # add the table of time scales to the last run's results
+        if args.timescales:  # add the table of time scales to the last run's results
             data["timescales"] = timescales()
             path = write_json("closed_loop", data)
         report(data, path)

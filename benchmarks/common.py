@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import platform
@@ -94,12 +95,26 @@ def read_json(name: str) -> tuple[dict, Path]:
     return json.loads(path.read_text()), path
 
 
+def command_line(flags: dict | None = None, reports: bool = False) -> argparse.Namespace:
+    """The running benchmark's command line: ``--help`` says its docstring, ``--report-only`` where
+    it can redraw from its last JSON (``reports``), ``flags`` its own (``{"--name": argparse's
+    keywords}``); anything else is refused with exit 2. Unparsed, ``finger.py --help`` ran the whole
+    benchmark (six minutes) and a mistyped flag was ignored."""
+    import __main__
+
+    parser = argparse.ArgumentParser(description=getattr(__main__, "__doc__", None),
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    if reports:
+        parser.add_argument("--report-only", action="store_true", help="redraw from the last run's JSON in results/")
+    for flag, keywords in (flags or {}).items():
+        parser.add_argument(flag, **keywords)
+    return parser.parse_args()
+
+
 def main_or_report(name: str, main, report) -> None:
     """A benchmark's entry point: ``main()``, or with ``--report-only`` its ``report(data, path)``
-    redrawn from the last run's ``results/<name>.json``."""
-    import sys
-
-    if "--report-only" in sys.argv:
+    redrawn from the last run's ``results/<name>.json`` (:func:`command_line`)."""
+    if command_line(reports=True).report_only:
         report(*read_json(name))
     else:
         main()

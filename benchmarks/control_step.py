@@ -20,7 +20,7 @@ from pathlib import Path
 
 import control
 import numpy as np
-from common import write_json, write_markdown
+from common import command_line, write_json, write_markdown
 
 from modalctl.loops.design import design_loops
 from modalctl.loops.lockin import lockin_bandwidths
@@ -146,4 +146,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

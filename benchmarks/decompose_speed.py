@@ -10,7 +10,7 @@ Medians over repeats; ratios are measured in this run on this machine.
 from __future__ import annotations
 
 import numpy as np
-from common import median_seconds, write_json
+from common import command_line, median_seconds, write_json
 
 from modalctl.model.metrics import tau
 from modalctl.model.projection import project, reconstruct
@@ -66,6 +66,7 @@ def main() -> dict:
 
 
 if __name__ == "__main__":
+    command_line()
     for c in main()["cases"]:
         print(f"{c['case']:18s} {c['shapes_per_s_end_to_end']:9.0f} shapes/s end to end, "
               f"{c['shapes_per_s_batched']:9.0f} batched; projection {1e6 * c['projection_median_s']:.1f} us, "

@@ -33,7 +33,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import main_or_report, save_figure, write_json, write_markdown  # noqa: E402
+from common import command_line, read_json, save_figure, write_json, write_markdown  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from modalctl.hil.scenario import Perturbation  # noqa: E402
@@ -382,16 +382,13 @@ def _refuse(message: str) -> None:
     raise SystemExit(2)
 
 
-def _argument(flag: str, default: str) -> list[str]:
-    import sys
-
-    return (sys.argv[sys.argv.index(flag) + 1] if flag in sys.argv else default).split(",")
-
-
 if __name__ == "__main__":
-    import sys
-
-    if "--controllers" in sys.argv:
-        controllers(_argument("--controllers", "pi"), _argument("--cases", "plate gaussian"))
+    args = command_line({"--controllers": {"help": "compare these controllers (comma-separated) only, e.g. pi,touch"},
+                         "--cases": {"default": "plate gaussian", "help": "with --controllers: the cases "
+                                     "(comma-separated; default: plate gaussian)"}}, reports=True)
+    if args.controllers:
+        controllers(args.controllers.split(","), args.cases.split(","))
+    elif args.report_only:
+        report(*read_json("finger"))
     else:
-        main_or_report("finger", main, report)
+        main()

@@ -18,7 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import open_loop, save_figure, target, write_json  # noqa: E402
+from common import command_line, open_loop, save_figure, target, write_json  # noqa: E402
 
 from modalctl.hil.scenario import Perturbation  # noqa: E402
 from modalctl.hil.sim_device import SimDevice  # noqa: E402
@@ -104,4 +104,5 @@ def figure(data) -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

@@ -14,7 +14,7 @@ import time
 import warnings
 
 import numpy as np
-from common import RESULTS, open_loop, target, write_json
+from common import RESULTS, command_line, open_loop, target, write_json
 from thesis_table import experiments
 
 from modalctl.hil.scenario import Perturbation
@@ -68,4 +68,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

@@ -18,7 +18,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import save_figure, write_json  # noqa: E402
+from common import command_line, save_figure, write_json  # noqa: E402
 
 from modalctl.identify.estimators import peak_picking, sdof_fit  # noqa: E402
 from modalctl.identify.frf import FRF, mobility  # noqa: E402
@@ -115,4 +115,5 @@ def plot(results: dict) -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

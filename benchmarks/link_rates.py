@@ -18,7 +18,7 @@ import tempfile
 import warnings
 from pathlib import Path
 
-from common import write_json, write_markdown
+from common import command_line, write_json, write_markdown
 
 from modalctl.cli import main as modalctl
 from modalctl.hil.can_board import CanBoardEmulator
@@ -112,4 +112,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

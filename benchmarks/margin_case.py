@@ -17,7 +17,7 @@ import re
 import warnings
 
 import numpy as np
-from common import RESULTS, median_seconds, open_loop, target, write_json
+from common import RESULTS, command_line, median_seconds, open_loop, target, write_json
 
 from modalctl.hil.sim_device import SimDevice
 from modalctl.model.metrics import margin_ratio
@@ -153,4 +153,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

@@ -27,13 +27,12 @@ On the thesis's margin case (al_sinc18_p4_margin) also:
 from __future__ import annotations
 
 import json
-import sys
 import warnings
 
 import numpy as np
 from common import (
+    command_line,
     machine,
-    main_or_report,
     median_seconds,
     open_loop,
     read_json,
@@ -320,7 +319,11 @@ def _figure(data, names, by) -> None:
 
 
 if __name__ == "__main__":
-    if "--bases-only" in sys.argv:
+    args = command_line({"--bases-only": {"action": "store_true", "help": "only the bases' comparison"}},
+                        reports=True)
+    if args.bases_only:
         bases_only()
+    elif args.report_only:
+        report(*read_json("margin_planner"))
     else:
-        main_or_report("margin_planner", main, report)
+        main()

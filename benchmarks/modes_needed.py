@@ -13,6 +13,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from common import command_line
 
 from modalctl.model.projection import project
 from modalctl.model.scenes import load_scene, thesis_tables
@@ -135,6 +136,7 @@ REASONS = """\
 
 
 if __name__ == "__main__":
+    command_line()
     for name, r in main().items():
         print(f"{name:13s} thesis {r['thesis']:2d}  20% set {r['rule_20_set']['count']:2d}  "
               f"20% band {r['rule_20_band']['count']:2d}  target set {r['target_set']['count']:2d}  "

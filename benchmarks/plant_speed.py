@@ -13,7 +13,7 @@ import warnings
 
 import control
 import numpy as np
-from common import RESULTS, median_seconds, state_space, target, write_json
+from common import RESULTS, command_line, median_seconds, state_space, target, write_json
 from scipy import signal
 
 from modalctl.hil.plant import Plant
@@ -69,4 +69,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

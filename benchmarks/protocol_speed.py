@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from common import median_seconds, write_json, write_markdown
+from common import command_line, median_seconds, write_json, write_markdown
 
 from modalctl.io import protocol as p
 
@@ -125,4 +125,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

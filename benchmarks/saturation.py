@@ -19,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import save_figure, target, write_json, write_markdown  # noqa: E402
+from common import command_line, save_figure, target, write_json, write_markdown  # noqa: E402
 
 import modalctl.loops.shot  # noqa: E402
 from modalctl.experiments.focus import Bench, run_focus  # noqa: E402
@@ -124,4 +124,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

@@ -20,7 +20,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import save_figure, write_json, write_markdown  # noqa: E402
+from common import command_line, save_figure, write_json, write_markdown  # noqa: E402
 
 from modalctl.experiments.executor import LocalExecutor  # noqa: E402
 from modalctl.experiments.focus import step_runtime  # noqa: E402
@@ -96,4 +96,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

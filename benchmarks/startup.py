@@ -14,7 +14,7 @@ import sys
 import time
 
 import numpy as np
-from common import write_json, write_markdown
+from common import command_line, write_json, write_markdown
 
 REPEATS = 7
 TARGET_S = 0.5
@@ -51,4 +51,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

@@ -20,7 +20,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from common import RESULTS, open_loop, target, write_json
+from common import RESULTS, command_line, open_loop, target, write_json
 from tqdm import tqdm
 
 from modalctl.hil.scenario import Perturbation
@@ -90,4 +90,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()

@@ -19,7 +19,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from common import RESULTS, open_loop, save_figure, target, write_json  # noqa: E402
+from common import RESULTS, command_line, open_loop, save_figure, target, write_json  # noqa: E402
 from scipy.ndimage import median_filter  # noqa: E402
 
 from modalctl.experiments.tracking import TrackingOptions, ramp, run_tracking, step  # noqa: E402
@@ -209,4 +209,5 @@ def plot(runs: dict, truth) -> None:
 
 
 if __name__ == "__main__":
+    command_line()
     main()
