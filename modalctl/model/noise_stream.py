@@ -151,6 +151,6 @@ def add_noise(field: np.ndarray, shot: np.uint64, rows: np.ndarray, samples: np.
     if rows.size < 2 * THREADED_BLOCKS * step:
         part(0, rows.size)
         return
-    half = -(-rows.size // 2 // step) * step  # whole blocks on either side (a draw depends on its point and sample only)
+    half = -(-rows.size // 2 // step) * step  # whole blocks either side (a draw depends on its point and sample only)
     with ThreadPoolExecutor(2) as pool:  # NumPy lets go of the GIL in every pass: a plate's scan on two cores
         list(pool.map(part, (0, half), (half, rows.size)))
