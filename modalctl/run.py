@@ -21,11 +21,11 @@ from modalctl.errors import InputError
 from modalctl.identify.trackers import updated_model
 from modalctl.identify.updating import update
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError, scan_indices
-from modalctl.loops.onboard import board_loop, check_table
-from modalctl.loops.runtime import LoopParts, PhasorBoard, RunResult, State
+from modalctl.loops.onboard import check_table
+from modalctl.loops.runtime import LoopParts, PhasorBoard, RunResult
 from modalctl.loops.schedule import HOLD
-from modalctl.loops.shot import closed_shot, loop_log, loop_parts
-from modalctl.model.metrics import margin_ratio, nrmse, tau, tau_norm
+from modalctl.loops.shot import board_shot, closed_shot, loop_parts
+from modalctl.model.metrics import Extremes, margin_ratio, nrmse, tau, tau_norm
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.projection import project
 from modalctl.model.shape import Shape
@@ -253,6 +253,8 @@ class ShotResult:
         A closed loop's.
     learning : LearningMetrics or None
         The learning shot's, when one was played.
+    extremes : Extremes or None
+        The largest ``|w|`` in and outside the target at each scan instant (the margin's, the picture's).
     """
 
     decomposition: Decomposition
@@ -266,6 +268,7 @@ class ShotResult:
     metrics: ShotMetrics
     loop: LoopMetrics | None = None
     learning: LearningMetrics | None = None
+    extremes: Extremes | None = None
 
     @property
     def fault(self) -> str | None:
@@ -402,7 +405,9 @@ def _play(the_plan: Plan, device: Device, options: RunOptions, voltage_limit, lo
     parts = loop_parts(the_plan, loop, board.noise, voltage_limit)
     designed = _time.perf_counter()
     if loop.on_board:
-        result = _loops_on_board(the_plan, board, parts, device, log)
+        if not board.runs_loops:
+            raise DeviceError(f"{device.url}: this board cannot run loops itself")
+        result = board_shot(the_plan, board, parts, log)
     else:
         result = closed_shot(the_plan, board, parts, tracker=tracker, log=log, progress=options.progress)
     try:
@@ -473,18 +478,21 @@ def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device
     focus_velocity = device.scan(played.capture.times, points=point if index is None else index)[0]
     scan_seconds = _time.perf_counter() - scanned
     sim_seconds = _time.perf_counter() - start
-    metrics = replace(_metrics(dec, the_plan, played.capture, (times, field), device, options, sim_seconds),
+    extremes = Extremes.of(field, shape.target_mask)
+    metrics = replace(_metrics(dec, the_plan, played.capture, (times, field, extremes), device, options, sim_seconds),
                       play_seconds=played.seconds + played.design_seconds, scan_seconds=scan_seconds)
     loop = None if played.result is None else _loop_metrics(played, the_plan, sim_seconds)
-    return ShotResult(dec, the_plan, played.capture, times, field, focus, point, focus_velocity, metrics, loop)
+    return ShotResult(dec, the_plan, played.capture, times, field, focus, point, focus_velocity, metrics, loop,
+                      extremes=extremes)
 
 
 def _metrics(dec, the_plan, capture, scan, device, options, sim_seconds) -> ShotMetrics:
-    """The shot's metrics from its record and ``scan``: the instants (nt,) and the field (n, nt) there."""
+    """The shot's metrics from its record and ``scan``: the instants (nt,), the field (n, nt) there
+    and its :class:`~modalctl.model.metrics.Extremes`."""
     model, shape = dec.model, dec.shape
-    times, field = scan
+    times, field, extremes = scan
     focus = field[:, np.argmin(np.abs(times - the_plan.focus_time))]
-    ratio, worst = margin_ratio(field, times, the_plan.focus_time, shape.target_mask)
+    ratio, worst = margin_ratio(field, times, the_plan.focus_time, shape.target_mask, outside=extremes.outside)
     criterion = THESIS_MARGIN if options.plan.margin is None else options.plan.margin
     report = the_plan.report
     whole = report.whole_model_margin_ratio
@@ -577,24 +585,3 @@ def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: 
         float(np.median((learned.damping / model.damping - 1)[the_plan.modes])),
         update_seconds=fit.seconds if fit is not None else _time.perf_counter() - tic, **details)
     return metrics, learned
-
-
-def _loops_on_board(the_plan: Plan, board: PhasorBoard, parts: LoopParts, device: Device, log) -> RunResult:
-    """Load the shot's loops into the board, let it run them, and keep its log (as the runtime's);
-    returns a :class:`~modalctl.loops.runtime.RunResult`."""
-    if not board.runs_loops:
-        raise DeviceError(f"{device.url}: this board cannot run loops itself")
-    s = parts.schedule
-    configured = _time.perf_counter()
-    board.configure(s)
-    start = _time.perf_counter()
-    loops = board_loop(parts)  # InputError: a controller other than PI asked to run on the board
-    record = board.run_loops(loops)
-    seconds = _time.perf_counter() - start
-    if log is not None:
-        with loop_log(the_plan, s, log, closed=True, on_board=True) as recorder:
-            for n in range(record.command.shape[1]):
-                recorder.write(period=n, state=int(State.ACTIVE), reference=record.reference[:, n],
-                               measured=record.measured[:, n], command=record.command[:, n], fraction=1.0,
-                               phasor_sum=np.abs(s.weights) @ np.abs(record.command[:, n]), compute=0.0)
-    return RunResult(State.INACTIVE, None, record.command.shape[1], np.zeros(0), 0, seconds, start - configured)

@@ -61,11 +61,22 @@ def test_without_axes_a_one_panel_picture_saves_its_own_figure(tmp_path):
 
 
 def test_the_largest_velocity_at_each_instant_is_read_a_block_of_points_at_a_time():
-    """The space-time picture's envelopes, without a copy of the field: the same as the copy's."""
+    """The space-time picture's envelopes and the margin's, without a copy of the field: the copy's."""
+    from modalctl.model.metrics import Extremes, largest_each_instant, margin_ratio
+
     field = np.random.default_rng(1).standard_normal((1000, 37)).astype(np.float32)
     rows = np.flatnonzero(np.arange(1000) % 3 != 0)
-    assert np.array_equal(report._largest(field, rows), np.abs(field[rows]).max(axis=0))
-    assert np.array_equal(report._largest(field, rows[:0]), np.zeros(37, np.float32))
+    assert np.array_equal(largest_each_instant(field, rows), np.abs(field[rows]).max(axis=0))
+    assert np.array_equal(largest_each_instant(field, rows[:0]), np.zeros(37, np.float32))
+    mask = np.arange(1000) % 3 == 0
+    extremes = Extremes.of(field, mask)
+    assert np.array_equal(extremes.inside, np.abs(field[mask]).max(axis=0))
+    assert np.array_equal(extremes.outside, np.abs(field[~mask]).max(axis=0))
+    times = np.arange(37) * 1e-4
+    given = margin_ratio(field, times, 2e-3, mask, outside=extremes.outside)
+    i, j = np.unravel_index(np.argmax(np.abs(field[~mask])), (rows.size, 37))  # the whole off-target block at once
+    assert given == margin_ratio(field, times, 2e-3, mask) and given[1] == (rows[i], times[j])
+    assert given[0] == np.abs(field[~mask]).max() / np.abs(field[:, 20]).max()
 
 
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "351", "--shape", "sinc", "--param", "width=18mm",

@@ -26,12 +26,13 @@ from modalctl.threads import serial_blas
 from .controller import LoopPlant
 from .lockin import lockin_bandwidths
 from .recorder import Recorder
-from .runtime import LoopParts, PhasorBoard, RunResult, Runtime, log_fields
+from .onboard import board_loop
+from .runtime import LoopParts, PhasorBoard, RunResult, Runtime, State, log_fields
 from .schedule import Schedule, envelope_noise, schedule
 from .sensing import feedthrough, leak_ratio, sensor_weights
 from .supervisor import Limits, Supervisor, envelope_bound
 
-__all__ = ["LoopParts", "loop_parts", "parts_for", "loop_sensing", "loop_log", "closed_shot"]
+__all__ = ["LoopParts", "loop_parts", "parts_for", "loop_sensing", "loop_log", "closed_shot", "board_shot"]
 
 
 def loop_sensing(model: ModalModel, modes, options: LoopOptions) -> tuple[np.ndarray, np.ndarray]:
@@ -122,3 +123,24 @@ def closed_shot(plan, board: PhasorBoard, parts: LoopParts, *, closed: bool = Tr
 
 def _finite_or_none(value: float) -> float | None:
     return float(value) if np.isfinite(value) else None
+
+
+def board_shot(plan, board: PhasorBoard, parts: LoopParts, log=None) -> RunResult:
+    """Load the loops of ``parts`` into ``board`` (one that ``runs_loops``), let it run them through
+    ``plan``, and keep its log at ``log`` as the runtime keeps one (:func:`closed_shot`'s on the host)."""
+    import time
+
+    s = parts.schedule
+    configured = time.perf_counter()
+    board.configure(s)
+    start = time.perf_counter()
+    loops = board_loop(parts)  # InputError: a controller other than PI asked to run on the board
+    record = board.run_loops(loops)
+    seconds = time.perf_counter() - start
+    if log is not None:
+        with loop_log(plan, s, log, closed=True, on_board=True) as recorder:
+            for n in range(record.command.shape[1]):
+                recorder.write(period=n, state=int(State.ACTIVE), reference=record.reference[:, n],
+                               measured=record.measured[:, n], command=record.command[:, n], fraction=1.0,
+                               phasor_sum=np.abs(s.weights) @ np.abs(record.command[:, n]), compute=0.0)
+    return RunResult(State.INACTIVE, None, record.command.shape[1], np.zeros(0), 0, seconds, start - configured)

@@ -5,9 +5,11 @@ Fields are arrays of shape (n,) (one field) or (f, n) (a batch, metric per row).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["tau", "tau_norm", "nrmse", "focus_contrast", "margin_ratio"]
+__all__ = ["tau", "tau_norm", "nrmse", "focus_contrast", "margin_ratio", "Extremes", "largest_each_instant"]
 
 _BLOCK = 256  # grid points per block of the margin's search (a few MB of samples)
 
@@ -56,7 +58,31 @@ def focus_contrast(field, target_mask):
         return np.where(outside > 0, inside / np.where(outside > 0, outside, 1.0), np.inf)
 
 
-def margin_ratio(field, times, focus_time: float, target_mask, peak: float | None = None):
+def largest_each_instant(field, rows: np.ndarray) -> np.ndarray:
+    """``max |field[rows]|`` at each instant, shape (nt,) (zeros without rows), a block of rows at
+    a time: a plate's scan is 10^7 samples and more, never copied whole."""
+    field = np.asarray(field)
+    parts = [np.abs(field[rows[start:start + _BLOCK]]).max(axis=0) for start in range(0, rows.size, _BLOCK)]
+    return np.max(parts, axis=0) if parts else np.zeros(field.shape[1], field.dtype)
+
+
+@dataclass(frozen=True)
+class Extremes:
+    """The largest ``|w|`` (m/s) inside and outside a target zone at each instant of a scan, shape
+    (nt,) each: what the margin is measured from, and what a run's picture draws (one pass over a
+    plate's field, not one for each)."""
+
+    inside: np.ndarray
+    outside: np.ndarray
+
+    @classmethod
+    def of(cls, field, target_mask) -> Extremes:
+        mask = np.asarray(target_mask, bool)
+        return cls(largest_each_instant(field, np.flatnonzero(mask)), largest_each_instant(field, np.flatnonzero(~mask)))
+
+
+def margin_ratio(field, times, focus_time: float, target_mask, peak: float | None = None,
+                 outside: np.ndarray | None = None):
     """Transient margin ratio: the largest ``|w|`` outside the target zone over the largest ``|w(x, T_F)|``.
 
     The thesis's criterion (chapter 5) asks for at most 0.5 over the transient and the
@@ -73,6 +99,8 @@ def margin_ratio(field, times, focus_time: float, target_mask, peak: float | Non
     target_mask : ndarray of bool, shape (n,)
     peak : float, optional
         Focus peak to divide by (m/s); by default ``max |field(:, T_F)|``.
+    outside : ndarray, shape (nt,), optional
+        The largest off-target ``|w|`` at each instant (:attr:`Extremes.outside`), when known.
 
     Returns
     -------
@@ -83,14 +111,10 @@ def margin_ratio(field, times, focus_time: float, target_mask, peak: float | Non
     field, times = np.asarray(field), np.asarray(times, float)  # float32 records read as they are
     if peak is None:
         peak = float(np.max(np.abs(field[:, np.argmin(np.abs(times - focus_time))])))
-    outside = np.flatnonzero(~np.asarray(target_mask, bool))
-    if outside.size == 0 or peak <= 0:
+    off = np.flatnonzero(~np.asarray(target_mask, bool))
+    if off.size == 0 or peak <= 0:
         return (0.0 if peak > 0 else np.inf), (-1, float(focus_time))
-    best, worst = -1.0, (-1, float(focus_time))
-    for start in range(0, outside.size, _BLOCK):  # a plate's scan is 10^7 samples: no copy of it whole
-        rows = outside[start:start + _BLOCK]
-        block = np.abs(field[rows])
-        i, j = np.unravel_index(np.argmax(block), block.shape)
-        if block[i, j] > best:
-            best, worst = float(block[i, j]), (int(rows[i]), float(times[j]))
-    return best / peak, worst
+    outside = largest_each_instant(field, off) if outside is None else outside
+    j = int(np.argmax(outside))
+    i = int(off[np.argmax(np.abs(field[off, j]))])
+    return float(outside[j]) / peak, (i, float(times[j]))

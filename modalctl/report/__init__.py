@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.figure import Figure
 
+from modalctl.model.metrics import Extremes
 from modalctl.plan.decompose import Decomposition
 
 from .figures import own_or_given as _own_or_given
@@ -159,17 +160,12 @@ def _field_panel(ax, shot, finger=None):
     ax.set_xlabel("t - T_F (ms)")
 
 
-def _largest(field: np.ndarray, rows: np.ndarray, block: int = 256) -> np.ndarray:
-    """max |field[rows]| at each instant (zero without rows), a block of rows at a time (no copy)."""
-    parts = [np.abs(field[rows[start:start + block]]).max(axis=0) for start in range(0, rows.size, block)]
-    return np.max(parts, axis=0) if parts else np.zeros(field.shape[1], field.dtype)
-
-
 def _extremes_panel(ax, shot, shade_window: bool = False):
     """The largest on- and off-target |w| (mm/s) over the shot, the margin's limit, the worst instant."""
     mask, m, tf = shot.decomposition.shape.target_mask, shot.metrics, shot.plan.focus_time
     whole = (shot.times - tf) * 1e3
-    on, off = _largest(shot.field, np.flatnonzero(mask)), _largest(shot.field, np.flatnonzero(~mask))
+    extremes = shot.extremes or Extremes.of(shot.field, mask)  # the shot's, measured once with its margin
+    on, off = extremes.inside, extremes.outside
     ax.plot(whole, on * 1e3, "C2", lw=1, label="max |w| in target zone")
     ax.plot(whole, off * 1e3, "C0", lw=1, label="max |w| off target")
     limit = m.margin_criterion * np.max(np.abs(shot.focus_field))
