@@ -386,7 +386,7 @@ if __name__ == "__main__":
     args = command_line({"--controllers": {"help": "compare these controllers (comma-separated) only, e.g. pi,touch"},
                          "--cases": {"default": "plate gaussian", "help": "with --controllers: the cases "
                                      "(comma-separated; default: plate gaussian)"}}, reports=True)
-    if args.controllers:
+    if args.controllers is not None:
         controllers(args.controllers.split(","), args.cases.split(","))
     elif args.report_only:
         report(*read_json("finger"))

@@ -262,14 +262,14 @@ def test_the_noise_drawn_on_two_threads_is_the_noise_drawn_on_one_and_on_any_sub
     from modalctl.model import noise_stream
 
     shot, samples = noise_stream.shot_key((3, 5)), np.arange(0, 9000, 3)  # 3000 instants: 43 points a block
-    rows = np.random.default_rng(0).permutation(2000)[:1500]  # enough blocks for two threads, in any order
+    rows = np.random.default_rng(0).permutation(4000)[:3000]  # 9e6 values: made on two threads, in any order
     threaded = np.zeros((rows.size, samples.size), np.float32)
     noise_stream.add_noise(threaded, shot, rows, samples, 2e-3)
-    monkeypatch.setattr(noise_stream, "THREADED_BLOCKS", 10**9)  # every block on this thread
+    monkeypatch.setattr(noise_stream, "THREADED_VALUES", 10**12)  # every block on this thread
     serial = np.zeros_like(threaded)
     noise_stream.add_noise(serial, shot, rows, samples, 2e-3)
     assert np.array_equal(threaded, serial)
     some = np.zeros((3, samples.size), np.float32)
-    noise_stream.add_noise(some, shot, rows[[0, 700, 1499]], samples, 2e-3)
-    assert np.array_equal(some, serial[[0, 700, 1499]])
-    assert abs(float(serial.std()) / 2e-3 - 1) < 0.01  # the noise asked for (4.5 M draws)
+    noise_stream.add_noise(some, shot, rows[[0, 700, 2999]], samples, 2e-3)
+    assert np.array_equal(some, serial[[0, 700, 2999]])
+    assert abs(float(serial.std()) / 2e-3 - 1) < 0.01  # the noise asked for (9 M draws)

@@ -260,7 +260,7 @@ def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
     if not resolved:
         near = min(others, key=lambda p: abs(p[0] - f), default=None)
         near = None if near is None else (near[0], abs(near[0] - f) / max(zeta * f, np.finfo(float).tiny))
-        lines = 2 * zeta * f / (frf.line_spacing)
+        lines = 2 * zeta * f / frf.line_spacing
         why = misfit_reason(misfit, noise is not None, seen, near, None if split else half_width, lines)
         if split:
             what = "close modes, or FRFs that disagree on a peak too narrow for the lines?" \

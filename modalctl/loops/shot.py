@@ -13,6 +13,7 @@ opens a port or draws.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -128,8 +129,6 @@ def _finite_or_none(value: float) -> float | None:
 def board_shot(plan, board: PhasorBoard, parts: LoopParts, log=None) -> RunResult:
     """Load the loops of ``parts`` into ``board`` (one that ``runs_loops``), let it run them through
     ``plan``, and keep its log at ``log`` as the runtime keeps one (:func:`closed_shot`'s on the host)."""
-    import time
-
     s = parts.schedule
     configured = time.perf_counter()
     board.configure(s)

@@ -78,7 +78,8 @@ class Extremes:
     @classmethod
     def of(cls, field, target_mask) -> Extremes:
         mask = np.asarray(target_mask, bool)
-        return cls(largest_each_instant(field, np.flatnonzero(mask)), largest_each_instant(field, np.flatnonzero(~mask)))
+        inside, outside = (largest_each_instant(field, np.flatnonzero(rows)) for rows in (mask, ~mask))
+        return cls(inside, outside)
 
 
 def margin_ratio(field, times, focus_time: float, target_mask, peak: float | None = None,

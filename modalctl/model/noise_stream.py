@@ -31,7 +31,8 @@ GENERATOR = "modalctl.splitmix64-box-muller"
 VERSION = 1
 NOISE_BLOCK = 4096  # samples of one point's noise stream (a stream per shot, point and block)
 BLOCK_VALUES = 1 << 17  # values of noise made at a time (points x instants): its temporaries stay in cache
-THREADED_BLOCKS = 4  # blocks each of two threads makes at least, or the noise is made on this one
+THREADED_VALUES = 1 << 23  # values from which the noise is made on two threads (a plate's scan: 5e7; a record's
+# passes, a block of 256 points on each of two threads of their own: 1.5e6, made on the thread that asks)
 SAMPLES_MAX = 1 << 32  # a sample's index fits 32 bits of the counter (7 minutes at 10 MS/s)
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)  # SplitMix64's increment
@@ -148,7 +149,7 @@ def add_noise(field: np.ndarray, shot: np.uint64, rows: np.ndarray, samples: np.
             noise[:n] *= np.float32(sigma)
             add(field[block], noise[:n], out=field[block])
 
-    if rows.size < 2 * THREADED_BLOCKS * step:
+    if rows.size * nt < THREADED_VALUES or rows.size < 2 * step:
         part(0, rows.size)
         return
     half = -(-rows.size // 2 // step) * step  # whole blocks either side (a draw depends on its point and sample only)
