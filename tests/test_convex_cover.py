@@ -13,6 +13,7 @@ from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
 from modalctl.options import PlanOptions
 from modalctl.plan.convex import Program
+from modalctl.plan.convex_cover import LEAF, SPLITS, Cover
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import plan
 from modalctl.plugin.manager import get_shape
@@ -83,7 +84,6 @@ def test_where_a_bound_is_tight_single_precision_falls_below_the_field_and_the_a
     """A mode affine along a line is fitted exactly (no residual): each box's bound is its points' largest
     |w|, attained at its ends. In single precision it falls below that at some samples; with the cover's
     allowance for round-off it never does."""
-    from modalctl.plan.convex_cover import Cover
 
     x = np.linspace(0.0, 1.0, 301)
     shapes = np.vstack([1.0 + 0.37 * x, np.zeros_like(x)])  # a second mode no point moves
@@ -166,6 +166,26 @@ def test_on_random_drives_of_a_beam_the_bound_holds_every_grid_point_at_every_sa
         np.testing.assert_allclose(top[true > 0.5 * true.max()], true[true > 0.5 * true.max()], rtol=1e-12)
         assert program.cover.largest(velocity) == pytest.approx(true.max(), rel=1e-12)
         check_every_box(program.cover, velocity[:, ::11])
+
+
+@pytest.mark.parametrize("leaf, splits", [(8, 1), (16, 3), (LEAF, SPLITS), (64, 6)])
+def test_the_boxes_size_and_fan_out_change_the_work_not_the_answer(leaf, splits):
+    """How small the boxes get and how many children each has (``benchmarks/margin_check.py`` picks
+    them for speed): on the beam's random drives the search is the whole grid's largest |w| wherever
+    that exceeds the floor, at most the floor elsewhere, and every box's bound holds its points."""
+    model = load_scene("thesis-al-cc")
+    shape = target(model, "sinc", width="18mm", center="24mm")
+    dec = decompose(model, shape, 9)
+    program, (velocity,) = random_drives(model, shape, dec, 1, seed=17)
+    cover = Cover(model.shapes[:, program.outside], model.grid.points[program.outside], leaf=leaf, splits=splits)
+    true = whole_grid_top(model, program.outside, velocity)
+    floor = 0.4 * true.max()
+    top = cover.top(velocity, floor)
+    above = true > floor
+    np.testing.assert_allclose(top[above], true[above], rtol=1e-12, atol=0)
+    assert np.all(top[~above] <= floor) and np.all(top >= true * (1 - 1e-12))
+    assert cover.largest(velocity) == pytest.approx(true.max(), rel=1e-12)
+    check_every_box(cover, velocity[:, ::13])
 
 
 def test_the_field_it_gives_is_exact_wherever_it_may_exceed_the_floor(plate):
