@@ -275,6 +275,49 @@ def test_the_shift_given_back_is_the_clean_modes_median_within_its_bound(bump):
         assert np.allclose(touch._detuned, -1j * touch._shared * all_omega)
 
 
+def test_a_shift_read_late_is_handed_over_from_the_loops_integrals_without_a_jump(bump):
+    """Unit: at the period a 1% shift is first read, what it gives back (-j dw y / r) comes off the PI loops'
+    integrals, which had been making up for the drift: the command sent is the loops' alone (no jump) and their
+    integrals hold that much less (the catch-up and the lift's test aside: they add their own terms)."""
+    import copy
+
+    from modalctl.loops.pi import PIControl
+    from modalctl.loops.shot import loop_parts
+    from modalctl.loops.touch import RETUNE
+    from modalctl.loops.touch_estimator import TouchEstimate
+    from modalctl.options import LoopOptions
+
+    plan = bump[2][True][1]
+    touch = loop_parts(plan, LoopOptions(controller="touch")).controller
+    touch.reset()
+    assert isinstance(touch.inner, PIControl)
+    touch.catch_up, touch.lift = None, None
+    touch._estimate = TouchEstimate(0.0, np.inf, None, 0.0)  # no touch read
+    omega = 2 * np.pi * plan.model.frequencies[plan.modes]
+    rng = np.random.default_rng(5)
+    k = omega.size
+    limit = np.full(k, 1e9)  # every loop within its authority
+    touch.estimator.detuning = lambda: np.zeros(touch.learned.size)
+    shadow = copy.deepcopy(touch.inner)
+    read = 45 * RETUNE  # 18 ms into the shot: the envelopes well up
+    given = -1j * 0.01 * omega * touch._give_rows[min(read + touch.lead, touch._give_rows.shape[0] - 1)]
+    size = np.abs(given).max() / touch.inner.kp.max()  # errors whose commands are about the give-back's size
+    assert size > 0
+    for period in range(read):  # the drift not read yet: the loops alone, their integrals gathering
+        touch.period = period
+        error = size * (rng.standard_normal(k) + 1j * rng.standard_normal(k))
+        assert np.array_equal(touch.update(error, limit), shadow.update(error, limit))
+    touch.estimator.detuning = lambda: 0.01 * omega[touch.learned]
+    alone = copy.deepcopy(touch.inner)  # the loops, told nothing
+    error = size * (rng.standard_normal(k) + 1j * rng.standard_normal(k))
+    touch.period = read
+    sent = touch.update(error, limit)
+    assert np.abs(given).max() > 0.05 * np.abs(sent).max()  # a jump the comparison below would see
+    np.testing.assert_allclose(sent, alone.update(error, limit), rtol=1e-12, atol=1e-12 * np.abs(sent).max())
+    np.testing.assert_allclose(touch.inner.integral, alone.integral - given, rtol=1e-12,
+                               atol=1e-12 * np.abs(given).max())
+
+
 RUN = ["run", "--scene", "thesis-al-cc", "--points", "211", "--shape", "bump", "--param", "width=25mm",
        "--focus-time", "25ms", "--quiet", "--no-plots", "--json"]
 

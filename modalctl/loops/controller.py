@@ -104,6 +104,12 @@ class Controller(ABC):
         """Multiply every gain by ``factor`` (a stability test: a divergent loop must be caught)."""
         raise NotImplementedError(f"{type(self).__name__} cannot scale its gains")
 
+    def hand_over(self, amount: np.ndarray) -> None:
+        """A feed-forward beside the loops now gives ``amount`` (k,) complex more of each mode's command
+        than it did: the loops' integral action gives that much less, so that the command does not jump
+        and the integrators do not go on supplying what the feed-forward now does (a bumpless hand-over).
+        Default: nothing (a law with no integral to hand it from)."""
+
     def observe(self, period: int, envelope: np.ndarray, sent: np.ndarray) -> None:
         """Called before :meth:`update` when ``observes`` is set: the period's index, each mode's
         own envelope as read (k,) (the other modes' planned share and the loops' leak removed,

@@ -47,6 +47,10 @@ class PIControl(Controller):
     def reset(self) -> None:
         self.integral = np.zeros(self.kp.size, complex)
 
+    def hand_over(self, amount: np.ndarray) -> None:
+        """The integrals give ``amount`` (k,) less (:meth:`Controller.hand_over <.controller.Controller.hand_over>`)."""
+        self.integral = self.integral - amount
+
     def scale(self, factor: float) -> None:
         """Multiply both gains (a stability test)."""
         self.kp, self.ki, self._ki_period = self.kp * factor, self.ki * factor, self._ki_period * factor
