@@ -46,8 +46,10 @@ class _Box:
 
     def rough(self, velocity: np.ndarray) -> np.ndarray:
         """The largest of the children's bounds at each column of ``velocity`` (K, s), shape (s,): a
-        ranking of the columns (double precision, on the columns as they are: no copy of them)."""
-        return self._summed((self.fit @ velocity).T, (self.residual @ np.abs(velocity)).T).max(axis=1)
+        ranking of the columns, in single precision (a copy of them: twice as fast as the double
+        product on the panel's 32 children, and the columns it ranks first are then computed exactly)."""
+        single = np.ascontiguousarray(velocity.T, np.float32)
+        return self.bounds(single, np.abs(single)).max(axis=1)
 
     def _summed(self, affine: np.ndarray, residual: np.ndarray) -> np.ndarray:
         """:meth:`bounds` from the fit's products (s, (1 + d) c) and the residuals' (s, c)."""
