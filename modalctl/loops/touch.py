@@ -221,8 +221,7 @@ class TouchControl(Controller):
         # not bounded by the authority, which bounds the feedback (a finger of 1 N s/m takes five times
         # a mode's planned drive at the focus; only to loops with authority: plate-glass's landing finger
         # given back 80 -> 77%, the panel's 76 -> 72%)
-        rows = self._give_rows
-        row = rows[min(self.period + self.lead, rows.shape[0] - 1)]
+        row = self._give_row()
         touch = estimate.sure * self._pattern_at(estimate.index) * row if estimate.sure > 0 else self._nothing
         if self.lift is not None:  # stopped by a lift, and what was given since taken back
             touch = self.lift.given(self.period, touch)
@@ -251,11 +250,15 @@ class TouchControl(Controller):
         shared = shares[middle] if len(shares) % 2 else (shares[middle - 1] + shares[middle]) / 2
         shared = min(max(shared, -SHIFT_MAX), SHIFT_MAX)
         if shared != self._shared:
-            rows = self._give_rows
-            self.inner.hand_over(self._jomega * (shared - self._shared) * rows[min(self.period + self.lead,
-                                                                                    rows.shape[0] - 1)])
+            self.inner.hand_over(self._jomega * (shared - self._shared) * self._give_row())
         np.multiply(self._jomega, shared, out=self._detuned)
         self._shared = shared
+
+    def _give_row(self) -> np.ndarray:
+        """Each mode's planned envelope over its residue (k,) when this period's command is reached (``lead``
+        periods on): what a give-back multiplies."""
+        rows = self._give_rows
+        return rows[min(self.period + self.lead, rows.shape[0] - 1)]
 
     def _pattern_at(self, index: int) -> np.ndarray:
         """``q_k = phi_k(x0)^2 / 2`` over every kept mode at grid point ``index`` (k,): the touch drains
