@@ -93,11 +93,11 @@ def test_the_clusters_of_plate_glass_are_the_modes_whose_bands_meet(plate):
 
 
 def _schedule_of(model) -> Schedule:
-    """A schedule of a model's two modes that holds only what the cluster's model needs: no shot, but
+    """A schedule of a model's modes that holds only what the cluster's model needs: no shot, but
     a shot's length (500 periods: 25 ms at 20 kHz), over which a law must hold."""
-    f = model.frequencies
-    return Schedule(20e3, 25, f, _bands(f), sensor_weights(model, [0, 1]), *(np.zeros((2, 500)),) * 3,
-                    np.zeros((model.actuator_gains.shape[1], 500)), dispatch(model, [0, 1]))
+    f, modes = model.frequencies, np.arange(model.n_modes)
+    return Schedule(20e3, 25, f, _bands(f), sensor_weights(model, modes), *(np.zeros((f.size, 500)),) * 3,
+                    np.zeros((model.actuator_gains.shape[1], 500)), dispatch(model, modes))
 
 
 def test_a_neighbour_just_inside_or_outside_the_band_and_crossover_is_linked_or_not():
@@ -493,9 +493,9 @@ def test_a_closed_loop_run_reports_the_clusters_whatever_the_controller(tmp_path
 def _pair_plant(model, drift: float = 0.01):
     from modalctl.loops.controller import LoopPlant
 
-    return LoopPlant(model.frequencies, model.damping, _bands(model.frequencies), 20e3, level=np.full(2, 0.01),
-                     noise=np.full(2, 1e-4), drift=drift, model=model, modes=np.array([0, 1]),
-                     schedule=_schedule_of(model))
+    k = model.n_modes
+    return LoopPlant(model.frequencies, model.damping, _bands(model.frequencies), 20e3, level=np.full(k, 0.01),
+                     noise=np.full(k, 1e-4), drift=drift, model=model, modes=np.arange(k), schedule=_schedule_of(model))
 
 
 PERIODS = 40000  # the 5% band's worst mode grows by 1.8e-4 a period: 16,000 periods read it within 9e-6 only
@@ -589,3 +589,23 @@ def test_a_drift_the_loops_cannot_expect_is_refused_naming_it(drift):
     assert LoopOptions(drift=0.0).drift == 0.0 and LoopOptions(drift=0.5).drift == 0.5
     with pytest.raises(InputError, match="drift must lie in"):
         LoopOptions(drift=drift)
+
+
+def test_the_laws_designed_in_a_forked_child_are_those_designed_here(plate, monkeypatch):
+    """From ``BESIDE`` clusters on, about half the laws are designed in a forked child: plate-glass's first ten
+    modes in five pairs, the child asked once, its laws (every matrix, to the bit) and refusals those this
+    process designs alone, in the groups' order."""
+    import modalctl.loops.cluster as cluster
+
+    plant = _pair_plant(plate.select(np.arange(10)))
+    groups = Clusters(tuple((i, i + 1) for i in range(0, 10, 2)), ())
+    asked, fork = [], cluster.beside
+    monkeypatch.setattr(cluster, "beside", lambda job: asked.append(job) or fork(job))
+    beside = ClusterControl(plant, groups)
+    monkeypatch.setattr(cluster, "BESIDE", len(groups.groups) + 1)
+    here = ClusterControl(plant, groups)
+    assert len(asked) == 1 and len(beside.laws) + len(beside.refused) == 5
+    assert beside.clusters == here.clusters and beside.refused == here.refused
+    for ours, theirs in zip(beside.laws, here.laws, strict=True):
+        for name in ("loops", "A", "B", "C", "M", "K", "Ki", "turn", "offsets"):
+            assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
