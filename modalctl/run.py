@@ -21,6 +21,7 @@ from modalctl.errors import InputError
 from modalctl.identify.trackers import updated_model
 from modalctl.identify.updating import update
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError, scan_indices
+from modalctl.loops.close_modes import clusters_of
 from modalctl.loops.onboard import check_table
 from modalctl.loops.runtime import LoopParts, PhasorBoard, RunResult
 from modalctl.loops.schedule import HOLD
@@ -152,7 +153,7 @@ class LoopMetrics:
     note : str or None
         What the run chose in the options' place (a lower control rate the link sustains).
     clusters : dict or None
-        Which kept modes' loops read each other and why (:meth:`~modalctl.loops.cluster.Clusters.to_dict`, modes
+        Which kept modes' loops read each other and why (:meth:`~modalctl.loops.close_modes.Clusters.to_dict`, modes
         by label), ``together``: whether the controller controls each cluster as one, and ``lines``: one per cluster.
     """
 
@@ -538,8 +539,6 @@ def _loop_metrics(played: _Played, the_plan: Plan, sim_seconds: float) -> LoopMe
 
 def _clusters(parts: LoopParts, the_plan: Plan) -> dict:
     """Which kept modes' loops read each other (whatever the controller), modes by label."""
-    from modalctl.loops.cluster import clusters_of  # python-control's: loaded once loops are designed
-
     carriers = the_plan.model.frequencies[the_plan.modes]
     found, together = clusters_of(parts.controller, carriers, parts.schedule.bandwidths)
     labels = [int(label) for label in the_plan.model.labels[the_plan.modes]]

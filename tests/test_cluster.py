@@ -9,7 +9,8 @@ import pytest
 from scipy.linalg import expm
 from scipy.signal import butter, lsim, sosfilt
 
-from modalctl.loops.cluster import ClusterControl, Clusters, closed_loop_radius, find_clusters
+from modalctl.loops.close_modes import Clusters, find_clusters
+from modalctl.loops.cluster import ClusterControl, closed_loop_radius
 from modalctl.loops.controller import Controller
 from modalctl.loops.design import _series, cluster_model
 from modalctl.loops.lockin import LockIn, Oscillators, lockin_bandwidths
@@ -609,3 +610,23 @@ def test_the_laws_designed_in_a_forked_child_are_those_designed_here(plate, monk
     for ours, theirs in zip(beside.laws, here.laws, strict=True):
         for name in ("loops", "A", "B", "C", "M", "K", "Ki", "turn", "offsets"):
             assert np.array_equal(getattr(ours, name), getattr(theirs, name)), name
+
+
+def test_an_error_in_this_processs_half_of_the_laws_stops_the_child_designing_the_other(monkeypatch):
+    """What the laws designed here raise is raised, and the forked child designing the rest is stopped, not left
+    behind (a Ctrl-C there alike)."""
+    import modalctl.loops.cluster as cluster
+
+    children, fork = [], cluster.beside
+    monkeypatch.setattr(cluster, "beside", lambda job: children.append(fork(job)) or children[-1])
+
+    def judge(group):
+        if group == (0, 1):  # the largest first, to this process
+            raise ValueError("a fault of the design's own")
+        return group
+
+    groups = tuple((i, i + 1) for i in range(0, 10, 2))
+    with pytest.raises(ValueError, match="own"):
+        cluster._judged_beside(groups, judge)
+    assert len(children) == 1 and children[0]._process is None  # stopped: killed and joined
+    assert cluster._judged_beside(groups, lambda group: group) == list(groups)

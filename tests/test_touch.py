@@ -222,7 +222,8 @@ def test_the_default_closed_loop_is_its_inner_laws_on_an_untouched_structure_and
     """No finger, no drift (with 40 dB of noise or none): the default controller (touch+cluster) plays the shot of
     the laws it wraps exactly, nothing sure to give back; those are PI's on the modes in no cluster (the bump's
     one cluster, modes 4-7, has its LQ law), and with no cluster they are the PI loops, update for update."""
-    from modalctl.loops.cluster import ClusterControl, Clusters
+    from modalctl.loops.close_modes import Clusters
+    from modalctl.loops.cluster import ClusterControl
     from modalctl.loops.design import pi_controller
     from modalctl.loops.shot import loop_parts
     from modalctl.options import LoopOptions
