@@ -205,8 +205,9 @@ def drift_radius(plant: LoopPlant, law: _Law, drifted: list | None = None) -> tu
 
 def _judged(plant: LoopPlant, loops: np.ndarray, crossover: np.ndarray, noise: np.ndarray, drifted: list,
             periods: int) -> tuple:
-    """A cluster's law and nominal radius, ``(law, radius, None)``, or ``(None, None, why)``: no law, unstable on the
-    model, or growing more than ``GROWTH`` over the shot's ``periods`` at the drift band's worst (:func:`drift_radius`)."""
+    """A cluster's law and nominal radius, ``(law, radius, None)``, or ``(None, None, why)``: no law, unstable on
+    the model, or growing more than ``GROWTH`` over the shot's ``periods`` at the drift band's worst
+    (:func:`drift_radius`)."""
     try:
         law = _design(plant, loops, crossover, noise)
     except np.linalg.LinAlgError as error:  # no observer or LQ law (_solved): per-mode loops
