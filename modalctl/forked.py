@@ -3,8 +3,9 @@
 A finite-element model needs two meshes solved before it can say whether they agree, the
 coarse one a quarter of the fine one's work: solved in a child while this process solves the
 fine one, the pair takes about the fine one's time. A run draws its pictures in a child while it
-writes its fields, and the cluster controller designs half its laws in one (:mod:`modalctl.loops.cluster`). The child is forked (it shares this process's memory as it is: nothing is sent
-to it), ends without running this process's exit handlers, and its answer comes back pickled
+writes its fields, and the cluster controller designs half its laws in one (:mod:`modalctl.loops.cluster`).
+The child is forked (it shares this process's memory as it is: nothing is sent to it), ends
+without running this process's exit handlers, and its answer comes back pickled
 through a :mod:`multiprocessing` pipe: arrays and small dicts, not files. Where there is no
 ``fork`` (not Linux), or the fork fails (no memory for it), the job runs here, at once.
 
