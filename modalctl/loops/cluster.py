@@ -50,7 +50,7 @@ from .design import _real, _series, cluster_model, design_loops, pi_controller
 from .lqg import NOISE_FLOOR, LQGControl, observer_loop_radius
 from .sensing import feedthrough
 
-__all__ = ["Clusters", "find_clusters", "clusters_of", "ClusterControl", "drift_radius"]
+__all__ = ["ClusterControl", "drift_radius", "closed_loop_radius"]
 
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
