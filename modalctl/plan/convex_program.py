@@ -27,7 +27,7 @@ __all__ = ["Program", "Solution", "OUT_OF_TIME", "PROOFS"]
 
 PROOFS = ("infeasible", "infeasible or past the energy bound", "past the energy bound")  # the solvers' proofs
 FAR = 3.0  # a drive whose field passes this many times the check's floor is far over the margin
-THREADS = 2  # threads checking a robust program's plants at once (a round's checks: benchmarks/plate_speed.py)
+THREADS = 2  # threads working on a robust program's plants at once (their tables, a round's checks)
 PEAKS = 64  # time-local peaks whose field is searched for lobes at once (the points-by-peaks array)
 
 
@@ -138,8 +138,8 @@ class Program:
             lobes -= options.convex.leak * (model.n_modes - self.modes.size)
         self.focus_lobes = max(lobes, 0.0)  # every drive's ratio is at least this
         self.plants = [model] + [model.drifted(s) for s in drift_cases(options.robust_drift)]
-        with _Checks(len(self.plants)) as checks:  # each plant's tables on a thread of its own
-            self.responses = list(checks.map(lambda m: Responses(m, self.basis, self.fs, self.focus_time), self.plants))
+        with _PlantPool(len(self.plants)) as pool:  # each plant's tables on a thread of its own
+            self.responses = list(pool.map(lambda m: Responses(m, self.basis, self.fs, self.focus_time), self.plants))
         self.offset = None if offset is None else np.asarray(offset, float)[:, :self.samples]
         driven = [r.driven(self.offset) for r in self.responses] if offset is not None else None
         self.offset_velocity = None if driven is None else [v for v, _ in driven]  # (K, N + 1) per plant
@@ -336,7 +336,7 @@ class Program:
             eq, known = self._multipliers
             duals = np.r_[eq, [known.get(key, 0.0) for key in rows.order]]
         played = None
-        checks = _Checks(len(self.plants))
+        plants = _PlantPool(len(self.plants))
         bar = tqdm(total=opts.rounds, desc="margin program", unit="round", disable=not progress, leave=False)
         try:
             for round_ in range(1, opts.rounds + 1):
@@ -357,7 +357,7 @@ class Program:
                     self._multipliers = (duals[:neq], dict(zip(rows.order, duals[neq:])))
                 tic = _time.perf_counter()
                 volts = self.voltages(x)
-                velocities, floors, tops = (list(a) for a in zip(*checks.map(
+                velocities, floors, tops = (list(a) for a in zip(*plants.map(
                     lambda s: self._check_plant(s, volts, margin), range(len(self.plants)))))
                 played = (x, volts, velocities, [top.max() if top.max() > floor else None
                                                  for top, floor in zip(tops, floors)])
@@ -375,7 +375,7 @@ class Program:
                 self._new_margin_rows(rows, velocities, tops, margin, floors)
                 self.seconds["rows"] += _time.perf_counter() - tic
         finally:
-            checks.close()
+            plants.close()
             bar.close()
         return self._solution(x, status, history, len(rows), start, played)
 
@@ -462,12 +462,12 @@ class Program:
         return best, min(low, high)
 
 
-class _Checks:
-    """Where a round checks its plants: the robust program's five (the model and its drifted copies)
-    on two threads, each plant's simulation and the cover's descent being mostly numpy and BLAS
-    calls that release the interpreter's lock (the panel's closed-loop check 2.7-3.1 s to 2.1-2.4 s,
-    the same drive); one plant here. The plants' response tables are made so too (the tablet's
-    20 mm closed loop's five: 2.3-3.1 s to 1.6-1.9 s, the panel's 0.26 to 0.20 s)."""
+class _PlantPool:
+    """Where the program works on its plants: the robust program's five (the model and its drifted
+    copies) on two threads, each plant's work being mostly numpy and BLAS calls that release the
+    interpreter's lock: a round's checks (the simulation and the cover's descent; the panel's
+    closed-loop check 2.7-3.1 s to 2.1-2.4 s, the same drive) and the response tables (the tablet's
+    20 mm closed loop's five: 2.3-3.1 s to 1.6-1.9 s, the panel's 0.26 to 0.20 s); one plant here."""
 
     def __init__(self, plants: int):
         workers = min(plants, os.cpu_count() or 1, THREADS)
@@ -480,7 +480,7 @@ class _Checks:
         if self.pool is not None:
             self.pool.shutdown()
 
-    def __enter__(self) -> "_Checks":
+    def __enter__(self) -> "_PlantPool":
         return self
 
     def __exit__(self, *exc) -> None:
