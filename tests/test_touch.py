@@ -394,6 +394,33 @@ def test_what_one_touch_does_not_explain_is_not_given_back():
     assert e.fit < FIT_MIN and e.sure == 0
 
 
+def test_a_touch_is_given_back_once_sure_and_then_shrunk_by_one_standard_error():
+    """A resting touch of 0.8 N s/m read through noisy envelopes: nothing is given back until the
+    estimate stands SURE standard errors above zero, then the estimate less SHRINK standard errors,
+    not less SURE of them (which read every sure period three standard errors short); some periods
+    fall between the two and give nothing back; over the sure periods the given damping is closer to
+    the truth than the estimate less SURE standard errors."""
+    from modalctl.loops.touch_estimator import SHRINK, SURE, TouchEstimator
+
+    assert SHRINK < SURE
+    rng = np.random.default_rng(5)
+    shapes = rng.standard_normal((4, 64)) * 20
+    estimator = TouchEstimator([400.0, 1100.0, 2300.0, 3900.0], [0.01] * 4, shapes, 20e3, at=31)
+    z, u = _noisy_step(estimator, shapes, 31, 0.8, 0.8, step=0, periods=400, noise=2e-3)
+    estimates = []
+    for n in range(z.shape[0]):
+        estimator.update(z[n], u[n])
+        estimates.append(estimator.estimate)
+    sure = [e for e in estimates if e.damping - SURE * e.stderr > 0 and e.fit >= 0.5]
+    between = [e for e in estimates if e.damping - SHRINK * e.stderr > 0 >= e.damping - SURE * e.stderr]
+    assert len(sure) > 100 and between
+    assert all(e.sure == pytest.approx(e.damping - SHRINK * e.stderr) for e in sure)
+    assert all(e.sure == 0 for e in between)
+    given = np.mean([e.sure for e in sure])
+    soft = np.mean([e.damping - SURE * e.stderr for e in sure])
+    assert abs(given - 0.8) < abs(soft - 0.8)
+
+
 def _noisy_step(estimator, shapes, at, before, after, step, periods, noise, seed=3):
     """Envelopes of every mode under a touch at ``at`` that changes from ``before`` to ``after`` N s/m
     at period ``step``, the drive a steady carrier, white noise of ``noise`` times the largest
