@@ -400,7 +400,7 @@ def test_a_touch_is_given_back_once_sure_and_then_shrunk_by_one_standard_error()
     not less SURE of them (which read every sure period three standard errors short); some periods
     fall between the two and give nothing back; over the sure periods the given damping is closer to
     the truth than the estimate less SURE standard errors."""
-    from modalctl.loops.touch_estimator import SHRINK, SURE, TouchEstimator
+    from modalctl.loops.touch_estimator import FIT_MIN, SHRINK, SURE, TouchEstimator
 
     assert SHRINK < SURE
     rng = np.random.default_rng(5)
@@ -411,7 +411,7 @@ def test_a_touch_is_given_back_once_sure_and_then_shrunk_by_one_standard_error()
     for n in range(z.shape[0]):
         estimator.update(z[n], u[n])
         estimates.append(estimator.estimate)
-    sure = [e for e in estimates if e.damping - SURE * e.stderr > 0 and e.fit >= 0.5]
+    sure = [e for e in estimates if e.damping - SURE * e.stderr > 0 and e.fit >= FIT_MIN]
     between = [e for e in estimates if e.damping - SHRINK * e.stderr > 0 >= e.damping - SURE * e.stderr]
     assert len(sure) > 100 and between
     assert all(e.sure == pytest.approx(e.damping - SHRINK * e.stderr) for e in sure)

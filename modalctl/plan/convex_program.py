@@ -336,9 +336,8 @@ class Program:
             eq, known = self._multipliers
             duals = np.r_[eq, [known.get(key, 0.0) for key in rows.order]]
         played = None
-        plants = _PlantPool(len(self.plants))
-        bar = tqdm(total=opts.rounds, desc="margin program", unit="round", disable=not progress, leave=False)
-        try:
+        with _PlantPool(len(self.plants)) as plants, tqdm(total=opts.rounds, desc="margin program", unit="round",
+                                                         disable=not progress, leave=False) as bar:
             for round_ in range(1, opts.rounds + 1):
                 if deadline is not None and round_ > 1 and _time.perf_counter() > deadline:
                     status = OUT_OF_TIME  # x: the last round's, checked
@@ -374,9 +373,6 @@ class Program:
                     break
                 self._new_margin_rows(rows, velocities, tops, margin, floors)
                 self.seconds["rows"] += _time.perf_counter() - tic
-        finally:
-            plants.close()
-            bar.close()
         return self._solution(x, status, history, len(rows), start, played)
 
     def _floor(self, velocity: np.ndarray, floor: float) -> float:
