@@ -348,3 +348,25 @@ def test_the_points_share_one_axis_the_inputs_need_not(tmp_path):
     two_axes = write(tmp_path / "two_axes.uff", nodes, functions, [(1 if s == 5 else 3, 3) for s, _, _ in functions])
     inputs = read_uff58_references(two_axes)
     assert len(inputs) == 2 and all(np.all(np.isfinite(f.values)) for f in inputs)
+
+
+def test_the_modes_of_a_file_do_not_depend_on_the_machine_s_blas_threads():
+    # heavily damped modes, some close, in noise: LSCF's normal equations are ill-conditioned, and
+    # OpenBLAS on two threads sums the lines in another order; run on the caller's one thread or
+    # two, identify_frf must return the same modes to the last bit (it runs BLAS on one itself)
+    from threadpoolctl import threadpool_limits
+
+    rng = np.random.default_rng(1)
+    freqs = np.arange(100.0, 3500.0, 1.0)
+    poles = [300, 1000, 1075, 1920, 1965, 2140, 2620, 2750]
+    damping = [0.037, 0.017, 0.038, 0.022, 0.05, 0.026, 0.03, 0.03]
+    h = mobility(freqs, poles, damping, rng.standard_normal((len(poles), 5)))
+    h = h + 5e-4 * np.abs(h).max() * (rng.standard_normal(h.shape) + 1j * rng.standard_normal(h.shape))
+    frf = FRF(freqs, h, np.ones(h.shape), np.linspace(0, 0.16, 5)[:, None], input_unit="N")
+    found = []
+    for threads in (1, 2):
+        with threadpool_limits(threads, "blas"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = identify_frf(frf, DENSITY, "auto").model
+        found.append((model.frequencies, model.damping))
+    assert np.array_equal(found[0][0], found[1][0]) and np.array_equal(found[0][1], found[1][1])

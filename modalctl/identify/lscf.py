@@ -20,8 +20,8 @@ linearized LSCF cannot replace under noise (its damping is biased).
 
 Known limit: ``R`` (monomials on a band's arc of the unit circle) has a condition number of 5e12 at
 order 20 and 1e15-1e19 from order 30 to 80, where the poles are picked; round-off (the CPU's BLAS
-kernels, the number of BLAS threads, a change of 1e-14 in the data) then decides where the
-computational poles of those orders fall, and a shoulder of a heavily damped real measurement is
+kernels, the number of BLAS threads, which identification holds at one, a change of 1e-14 in the
+data) then decides where the computational poles of those orders fall, and a shoulder of a heavily damped real measurement is
 kept or not with it; the modes a clean peak holds do not move. ``benchmarks/identify_real.py`` shows
 which modes come and go; docs/identification.md says what a well-conditioned basis did instead.
 """
