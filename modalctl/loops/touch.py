@@ -11,7 +11,8 @@ force that cancels the touch's damping on the planned motion: in mode k's carrie
 ``y_k`` the planned velocity envelope when the command plays and ``r_k`` the velocity residue.
 A resonance drifted from its carrier by ``dw`` is given back the same way, ``-j dw y_k / r_k``: the
 estimator reads each clean mode's detuning (:meth:`~.touch_estimator.TouchEstimator.detuning`) and
-every mode is shifted by their median share. Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
+every mode is shifted by their median share, as long as the shift leaves its carrier nearer its own
+resonance than any other mode's (:func:`drivable`). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
 lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
 that the drive and the response meet in the lock-in's frame; and the residuals its envelope
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
@@ -25,6 +26,7 @@ memories) and the give-back meanwhile pumps the modes no longer damped.
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 
 import numpy as np
@@ -40,7 +42,7 @@ from .schedule import HOLD
 from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
 from .touch_lift import LiftRelease
 
-__all__ = ["TouchControl", "CommandFilter", "learned_from", "LEAK_MAX"]
+__all__ = ["TouchControl", "CommandFilter", "learned_from", "drivable", "LEAK_MAX"]
 
 RETUNE = 8  # periods between two readings of the modes' detunings (a drift moves over milliseconds)
 READ_EVERY = 0.2e-3  # s between two readings of the touch: within the estimator's shortest memory (0.25 ms), a
@@ -61,6 +63,23 @@ def learned_from(plant: LoopPlant) -> np.ndarray | None:
         clean = np.asarray(plant.leaks) <= LEAK_MAX
         learned = clean if learned is None else learned & clean
     return learned
+
+
+def drivable(plant: LoopPlant, shift: float) -> np.ndarray:
+    """Which kept modes (k,) keep their carrier nearer their own resonance than any other mode's of
+    ``plant.model`` once every resonance is shifted by ``shift`` (a fraction). The drift's give-back
+    drives a mode's planned motion at its planned carrier; past that point the carrier drives, and its
+    lock-in reads, a neighbour more than the mode: on plate-glass-clamped at 3% drift mode 14's carrier
+    (10229 Hz) lies 307 Hz below its resonance and 206 Hz above mode 13's, and the give-back made the
+    shot diverge (tau 0.32, stopped by the supervisor). Every mode where the plant has no model."""
+    k = plant.frequencies.size
+    if plant.model is None or plant.modes is None or not shift:
+        return np.ones(k, bool)
+    carriers = np.asarray(plant.frequencies, float)
+    moved = np.abs(plant.model.frequencies[:, None] * (1 + shift) - carriers[None, :])  # (K, k)
+    own = moved[np.asarray(plant.modes, int), np.arange(k)].copy()
+    moved[np.asarray(plant.modes, int), np.arange(k)] = np.inf
+    return own <= moved.min(axis=0)
 
 
 def _known(plant: LoopPlant, use) -> EnvelopeNoise | None:
@@ -125,6 +144,7 @@ class TouchControl(Controller):
             LiftRelease(decay, plant.control_rate, np.asarray(plant.bandwidths)[use])
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
         self.residues = velocity_residues(plant.frequencies, plant.damping)
+        self._drivable = functools.partial(drivable, plant)
         omega = 2 * np.pi * np.asarray(plant.frequencies, float)
         self._jomega, self._learned_omega = -1j * omega, omega[self.learned]
         self.held = hold_gain(s.carriers, s.control_rate * s.decimation, HOLD)[use]
@@ -159,6 +179,7 @@ class TouchControl(Controller):
         self._pattern = (None, None)  # (grid index, q over every kept mode there)
         self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
         self._shared = 0.0  # the relative shift of every resonance it is sure of
+        self._shift = np.zeros(self.residues.size)  # and the share of it each mode is given back (drivable)
         self.period = self._last = -1
         self._checked = self._nothing  # the force given back on the loops learned from, in the command last returned
         self._estimate, self._read_at = None, -self._read_every  # the touch as last read (TouchEstimate), and when
@@ -243,6 +264,8 @@ class TouchControl(Controller):
         the focus of a 1% drift) overshot the focus on plates (plate-glass's 30 mm bump at 1% drift, the
         touch controller: tau 1.074, margin 0.557; handed over, 1.017 and 0.532; the beam's sinc at 5%, the
         default: 0.960 and 0.517, handed over 0.964 and 0.507).
+
+        A mode whose carrier the shift leaves nearer another mode is not given it (:func:`drivable`).
         """
         sure = self.estimator.detuning()
         shares = np.sort(sure / self._learned_omega).tolist()
@@ -250,9 +273,10 @@ class TouchControl(Controller):
         shared = shares[middle] if len(shares) % 2 else (shares[middle - 1] + shares[middle]) / 2
         shared = min(max(shared, -SHIFT_MAX), SHIFT_MAX)
         if shared != self._shared:
-            self.inner.hand_over(self._jomega * (shared - self._shared) * self._give_row())
-        np.multiply(self._jomega, shared, out=self._detuned)
-        self._shared = shared
+            shift = shared * self._drivable(shared)
+            self.inner.hand_over(self._jomega * (shift - self._shift) * self._give_row())
+            np.multiply(self._jomega, shift, out=self._detuned)
+            self._shift, self._shared = shift, shared
 
     def _give_row(self) -> np.ndarray:
         """Each mode's planned envelope over its residue (k,) when this period's command is reached (``lead``
