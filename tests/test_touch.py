@@ -277,23 +277,31 @@ def test_the_shift_given_back_is_the_clean_modes_median_within_its_bound(bump):
 
 
 
-def test_a_drift_is_not_given_back_to_a_mode_whose_carrier_it_leaves_nearer_another_mode():
-    """Unit, by hand: modes at 1000, 1050 and 3000 Hz (the model's, all kept). Shifted +3% they sit at 1030,
-    1081.5 and 3090 Hz: 1050 Hz's carrier is 31.5 Hz from its own and 20 Hz from 1030 (held back), the
-    others nearer their own. Shifted -3% (970, 1018.5, 2910 Hz): 1000 Hz's carrier is 30 Hz from its own
-    and 18.5 Hz from 1018.5 (held back). No model, or no shift: every mode."""
+def test_a_drift_is_not_given_back_to_a_mode_whose_carrier_it_leaves_nearer_another_mode_its_drive_moves():
+    """Unit, by hand: modes at 1000, 1050 and 3000 Hz (the model's, all kept, damping 1%). Shifted +3% they sit
+    at 1030, 1081.5 and 3090 Hz: 1050 Hz's carrier is 31.5 Hz from its own and 20 Hz from 1030, whose
+    mobility there is the larger (|s / (s^2 + 2 zeta w s + w^2)| at s = j w: 1 / 281 against 1 / 424 s/rad);
+    shifted -3% (970, 1018.5, 2910 Hz), 1000 Hz's carrier is 30 Hz from its own and 18.5 Hz from 1018.5.
+    One actuator driving all three equally: those are held back. Two actuators that keep the two lower
+    modes apart (their drives reach each other not at all): nothing is. No model, or no shift: every mode."""
     from types import SimpleNamespace
 
     from modalctl.loops.controller import LoopPlant
     from modalctl.loops.touch import drivable
 
-    f = np.array([1000.0, 1050.0, 3000.0])
-    plant = LoopPlant(f, np.full(3, 0.01), np.full(3, 50.0), 20e3, 1, model=SimpleNamespace(frequencies=f),
-                      modes=np.arange(3))
-    assert drivable(plant, 0.03).tolist() == [True, False, True]
-    assert drivable(plant, -0.03).tolist() == [False, True, True]
-    assert drivable(plant, 0.0).all() and drivable(LoopPlant(f, np.full(3, 0.01), np.full(3, 50.0), 20e3, 1),
-                                                   0.03).all()
+    f, zeta = np.array([1000.0, 1050.0, 3000.0]), np.full(3, 0.01)
+
+    def plant(gains, weights):
+        model = SimpleNamespace(frequencies=f, omega=2 * np.pi * f, damping=zeta, actuator_gains=np.array(gains))
+        return LoopPlant(f, zeta, np.full(3, 50.0), 20e3, 1, model=model, modes=np.arange(3),
+                         schedule=SimpleNamespace(weights=np.array(weights)))
+
+    shared = plant([[1.0], [1.0], [1.0]], [[1.0, 1.0, 1.0]])
+    assert drivable(shared, 0.03).tolist() == [True, False, True]
+    assert drivable(shared, -0.03).tolist() == [False, True, True]
+    apart = plant([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], [[1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
+    assert drivable(apart, 0.03).all() and drivable(apart, -0.03).all()
+    assert drivable(shared, 0.0).all() and drivable(LoopPlant(f, zeta, np.full(3, 50.0), 20e3, 1), 0.03).all()
 
 
 def test_the_default_closed_loop_holds_a_plate_drifted_past_its_plan_s_band(tmp_path, capsys):

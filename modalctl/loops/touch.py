@@ -11,8 +11,8 @@ force that cancels the touch's damping on the planned motion: in mode k's carrie
 ``y_k`` the planned velocity envelope when the command plays and ``r_k`` the velocity residue.
 A resonance drifted from its carrier by ``dw`` is given back the same way, ``-j dw y_k / r_k``: the
 estimator reads each clean mode's detuning (:meth:`~.touch_estimator.TouchEstimator.detuning`) and
-every mode is shifted by their median share, as long as the shift leaves its carrier nearer its own
-resonance than any other mode's (:func:`drivable`). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
+every mode is shifted by their median share, unless the shift leaves its carrier nearer another mode
+that its drive moves more (:func:`drivable`). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
 lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
 that the drive and the response meet in the lock-in's frame; and the residuals its envelope
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
@@ -32,6 +32,7 @@ from collections import deque
 import numpy as np
 
 from modalctl.model.touch import velocity_residues
+from modalctl.plan.dispatch import mobility
 
 from .catch_up import CatchUp
 from .controller import Controller, LoopPlant
@@ -66,20 +67,30 @@ def learned_from(plant: LoopPlant) -> np.ndarray | None:
 
 
 def drivable(plant: LoopPlant, shift: float) -> np.ndarray:
-    """Which kept modes (k,) keep their carrier nearer their own resonance than any other mode's of
-    ``plant.model`` once every resonance is shifted by ``shift`` (a fraction). The drift's give-back
-    drives a mode's planned motion at its planned carrier; past that point the carrier drives, and its
-    lock-in reads, a neighbour more than the mode: on plate-glass-clamped at 3% drift mode 14's carrier
-    (10229 Hz) lies 307 Hz below its resonance and 206 Hz above mode 13's, and the give-back made the
-    shot diverge (tau 0.32, stopped by the supervisor). Every mode where the plant has no model."""
+    """Which kept modes (k,) the drift's give-back still serves once every resonance of ``plant.model`` is
+    shifted by ``shift`` (a fraction): all but those whose carrier the shift leaves nearer another mode's
+    resonance than its own *and* whose drive (the plan's actuator weights ``g_k``) that mode answers more
+    than the mode itself, ``|H_j(j w_k)| |b_j . g_k| > |H_k(j w_k)| |b_k . g_k|`` on the shifted resonances.
+
+    The give-back drives a mode's planned motion at its planned carrier; on plate-glass-clamped at 3% drift
+    mode 14's carrier (10229 Hz) lies 307 Hz below its resonance and 206 Hz above mode 13's, which its
+    drive reaches, and giving it back made the shot diverge (tau 0.32, stopped by the supervisor; at 5%
+    tau 0.17); held back, tau 1.007 and 0.966, margin 0.535 and 0.587. Either test alone held back too
+    much: nearness on the tablet's dense spectrum (its 20 mm bump at 1%: tau 0.976 -> 0.924, the
+    dispatch sparing the neighbours), the drive's answer on plate-glass, whose modes 11 and 12 the
+    patches push along one direction (2%: tau 0.978 -> 0.919). Every mode where the plant has no model."""
     k = plant.frequencies.size
-    if plant.model is None or plant.modes is None or not shift:
+    if plant.model is None or plant.modes is None or plant.schedule is None or not shift:
         return np.ones(k, bool)
-    carriers = np.asarray(plant.frequencies, float)
-    moved = np.abs(plant.model.frequencies[:, None] * (1 + shift) - carriers[None, :])  # (K, k)
-    own = moved[np.asarray(plant.modes, int), np.arange(k)].copy()
-    moved[np.asarray(plant.modes, int), np.arange(k)] = np.inf
-    return own <= moved.min(axis=0)
+    model, own = plant.model, (np.asarray(plant.modes, int), np.arange(k))
+    resonances = model.omega[:, None] * (1 + shift)  # (K, 1): every mode's, shifted
+    carriers = model.omega[own[0]][None, :]  # (1, k)
+    distance = np.abs(resonances - carriers)  # (K, k)
+    answer = np.abs(mobility(1j * carriers, resonances, model.damping[:, None]))
+    answer *= np.abs(model.actuator_gains @ np.asarray(plant.schedule.weights))  # mode j's answer to g_k
+    nearest, most = distance[own].copy(), answer[own].copy()
+    distance[own], answer[own] = np.inf, 0.0
+    return (nearest <= distance.min(axis=0)) | (most >= answer.max(axis=0))
 
 
 def _known(plant: LoopPlant, use) -> EnvelopeNoise | None:
@@ -265,7 +276,8 @@ class TouchControl(Controller):
         touch controller: tau 1.074, margin 0.557; handed over, 1.017 and 0.532; the beam's sinc at 5%, the
         default: 0.960 and 0.517, handed over 0.964 and 0.507).
 
-        A mode whose carrier the shift leaves nearer another mode is not given it (:func:`drivable`).
+        A mode whose carrier the shift leaves nearer another mode, which its drive moves more, is not given it
+        (:func:`drivable`).
         """
         sure = self.estimator.detuning()
         shares = np.sort(sure / self._learned_omega).tolist()
