@@ -287,7 +287,7 @@ def test_a_drift_is_not_given_back_to_a_mode_whose_carrier_it_leaves_nearer_anot
     from types import SimpleNamespace
 
     from modalctl.loops.controller import LoopPlant
-    from modalctl.loops.touch import drivable
+    from modalctl.loops.touch import Drivable
 
     f, zeta = np.array([1000.0, 1050.0, 3000.0]), np.full(3, 0.01)
 
@@ -297,11 +297,11 @@ def test_a_drift_is_not_given_back_to_a_mode_whose_carrier_it_leaves_nearer_anot
                          schedule=SimpleNamespace(weights=np.array(weights)))
 
     shared = plant([[1.0], [1.0], [1.0]], [[1.0, 1.0, 1.0]])
-    assert drivable(shared, 0.03).tolist() == [True, False, True]
-    assert drivable(shared, -0.03).tolist() == [False, True, True]
+    assert Drivable(shared)(0.03).tolist() == [True, False, True]
+    assert Drivable(shared)(-0.03).tolist() == [False, True, True]
     apart = plant([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], [[1.0, 0.0, 1.0], [0.0, 1.0, 1.0]])
-    assert drivable(apart, 0.03).all() and drivable(apart, -0.03).all()
-    assert drivable(shared, 0.0).all() and drivable(LoopPlant(f, zeta, np.full(3, 50.0), 20e3, 1), 0.03).all()
+    assert Drivable(apart)(0.03).all() and Drivable(apart)(-0.03).all()
+    assert Drivable(shared)(0.0).all() and Drivable(LoopPlant(f, zeta, np.full(3, 50.0), 20e3, 1))(0.03).all()
 
 
 def test_the_default_closed_loop_holds_a_plate_drifted_past_its_plan_s_band(tmp_path, capsys):

@@ -12,7 +12,7 @@ force that cancels the touch's damping on the planned motion: in mode k's carrie
 A resonance drifted from its carrier by ``dw`` is given back the same way, ``-j dw y_k / r_k``: the
 estimator reads each clean mode's detuning (:meth:`~.touch_estimator.TouchEstimator.detuning`) and
 every mode is shifted by their median share, unless the shift leaves its carrier nearer another mode
-that its drive moves more (:func:`drivable`). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
+that its drive moves more (:class:`Drivable`). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
 lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
 that the drive and the response meet in the lock-in's frame; and the residuals its envelope
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
@@ -26,7 +26,6 @@ memories) and the give-back meanwhile pumps the modes no longer damped.
 
 from __future__ import annotations
 
-import functools
 from collections import deque
 
 import numpy as np
@@ -43,7 +42,7 @@ from .schedule import HOLD
 from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
 from .touch_lift import LiftRelease
 
-__all__ = ["TouchControl", "CommandFilter", "learned_from", "drivable", "LEAK_MAX"]
+__all__ = ["TouchControl", "CommandFilter", "learned_from", "Drivable", "LEAK_MAX"]
 
 RETUNE = 8  # periods between two readings of the modes' detunings (a drift moves over milliseconds)
 READ_EVERY = 0.2e-3  # s between two readings of the touch: within the estimator's shortest memory (0.25 ms), a
@@ -66,10 +65,10 @@ def learned_from(plant: LoopPlant) -> np.ndarray | None:
     return learned
 
 
-def drivable(plant: LoopPlant, shift: float) -> np.ndarray:
-    """Which kept modes (k,) the drift's give-back still serves once every resonance of ``plant.model`` is
-    shifted by ``shift`` (a fraction): all but those whose carrier the shift leaves nearer another mode's
-    resonance than its own *and* whose drive (the plan's actuator weights ``g_k``) that mode answers more
+class Drivable:
+    """Called with a shift (a fraction), which kept modes (k,) the drift's give-back still serves once every
+    resonance of ``plant.model`` is shifted by it: all but those whose carrier the shift leaves nearer
+    another mode's resonance than its own *and* whose drive (the plan's actuator weights ``g_k``) that mode answers more
     than the mode itself, ``|H_j(j w_k)| |b_j . g_k| > |H_k(j w_k)| |b_k . g_k|`` on the shifted resonances.
 
     The give-back drives a mode's planned motion at its planned carrier; on plate-glass-clamped at 3% drift
@@ -78,19 +77,31 @@ def drivable(plant: LoopPlant, shift: float) -> np.ndarray:
     tau 0.17); held back, tau 1.007 and 0.966, margin 0.535 and 0.587. Either test alone held back too
     much: nearness on the tablet's dense spectrum (its 20 mm bump at 1%: tau 0.976 -> 0.924, the
     dispatch sparing the neighbours), the drive's answer on plate-glass, whose modes 11 and 12 the
-    patches push along one direction (2%: tau 0.978 -> 0.919). Every mode where the plant has no model."""
-    k = plant.frequencies.size
-    if plant.model is None or plant.modes is None or plant.schedule is None or not shift:
-        return np.ones(k, bool)
-    model, own = plant.model, (np.asarray(plant.modes, int), np.arange(k))
-    resonances = model.omega[:, None] * (1 + shift)  # (K, 1): every mode's, shifted
-    carriers = model.omega[own[0]][None, :]  # (1, k)
-    distance = np.abs(resonances - carriers)  # (K, k)
-    answer = np.abs(mobility(1j * carriers, resonances, model.damping[:, None]))
-    answer *= np.abs(model.actuator_gains @ np.asarray(plant.schedule.weights))  # mode j's answer to g_k
-    nearest, most = distance[own].copy(), answer[own].copy()
-    distance[own], answer[own] = np.inf, 0.0
-    return (nearest <= distance.min(axis=0)) | (most >= answer.max(axis=0))
+    patches push along one direction (2%: tau 0.978 -> 0.919). Every mode where the plant has no model.
+
+    What the shift does not change (each mode's answer through the actuators to each kept mode's weights)
+    is made once, here; a call (when the shift read changes, every few periods) costs two (K, k) arrays."""
+
+    def __init__(self, plant: LoopPlant):
+        self.k = plant.frequencies.size
+        model = plant.model
+        self.known = model is not None and plant.modes is not None and plant.schedule is not None
+        if not self.known:
+            return
+        self.own = (np.asarray(plant.modes, int), np.arange(self.k))
+        self.omega, self.damping = model.omega[:, None], model.damping[:, None]  # (K, 1): every mode's
+        self.carriers = model.omega[self.own[0]][None, :]  # (1, k)
+        self.reach = np.abs(model.actuator_gains @ np.asarray(plant.schedule.weights))  # mode j's part of g_k
+
+    def __call__(self, shift: float) -> np.ndarray:
+        if not self.known or not shift:
+            return np.ones(self.k, bool)
+        resonances = self.omega * (1 + shift)
+        distance = np.abs(resonances - self.carriers)  # (K, k)
+        answer = np.abs(mobility(1j * self.carriers, resonances, self.damping)) * self.reach
+        nearest, most = distance[self.own], answer[self.own]  # copies (index arrays)
+        distance[self.own], answer[self.own] = np.inf, 0.0
+        return (nearest <= distance.min(axis=0)) | (most >= answer.max(axis=0))
 
 
 def _known(plant: LoopPlant, use) -> EnvelopeNoise | None:
@@ -155,7 +166,7 @@ class TouchControl(Controller):
             LiftRelease(decay, plant.control_rate, np.asarray(plant.bandwidths)[use])
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
         self.residues = velocity_residues(plant.frequencies, plant.damping)
-        self._drivable = functools.partial(drivable, plant)
+        self._drivable = Drivable(plant)
         omega = 2 * np.pi * np.asarray(plant.frequencies, float)
         self._jomega, self._learned_omega = -1j * omega, omega[self.learned]
         self.held = hold_gain(s.carriers, s.control_rate * s.decimation, HOLD)[use]
@@ -190,7 +201,7 @@ class TouchControl(Controller):
         self._pattern = (None, None)  # (grid index, q over every kept mode there)
         self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
         self._shared = 0.0  # the relative shift of every resonance it is sure of
-        self._shift = np.zeros(self.residues.size)  # and the share of it each mode is given back (drivable)
+        self._shift = np.zeros(self.residues.size)  # and the share of it each mode is given back (Drivable)
         self.period = self._last = -1
         self._checked = self._nothing  # the force given back on the loops learned from, in the command last returned
         self._estimate, self._read_at = None, -self._read_every  # the touch as last read (TouchEstimate), and when
@@ -277,7 +288,7 @@ class TouchControl(Controller):
         default: 0.960 and 0.517, handed over 0.964 and 0.507).
 
         A mode whose carrier the shift leaves nearer another mode, which its drive moves more, is not given it
-        (:func:`drivable`).
+        (:class:`Drivable`).
         """
         sure = self.estimator.detuning()
         shares = np.sort(sure / self._learned_omega).tolist()
