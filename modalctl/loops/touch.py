@@ -12,7 +12,9 @@ force that cancels the touch's damping on the planned motion: in mode k's carrie
 A resonance drifted from its carrier by ``dw`` is given back the same way, ``-j dw y_k / r_k``: the
 estimator reads each clean mode's detuning (:meth:`~.touch_estimator.TouchEstimator.detuning`) and
 every mode is shifted by their median share, unless the shift leaves its carrier nearer another mode
-that its drive moves more (:class:`Drivable`). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
+that its drive moves more (:class:`Drivable`), and sent as the commands that make those forces: on modes whose
+resonances overlap, solved together (:class:`~modalctl.loops.overlap.Overlapping`: a pair the patches push along
+one direction was given twice what it needed). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
 lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
 that the drive and the response meet in the lock-in's frame; and the residuals its envelope
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
@@ -38,6 +40,7 @@ from .controller import Controller, LoopPlant
 from .design import CommandFilter
 from .envelope_noise import EnvelopeNoise
 from .lockin import hold_gain
+from .overlap import Overlapping
 from .schedule import HOLD
 from .touch_estimator import MEMORIES, TouchEstimator, planned_residuals
 from .touch_lift import LiftRelease
@@ -167,6 +170,7 @@ class TouchControl(Controller):
         self.velocity, self.drive = np.asarray(s.velocity), np.asarray(s.drive)
         self.residues = velocity_residues(plant.frequencies, plant.damping)
         self._drivable = Drivable(plant)
+        self._overlapping = Overlapping(plant)  # the commands that give modes whose resonances overlap their forces
         omega = 2 * np.pi * np.asarray(plant.frequencies, float)
         self._jomega, self._learned_omega = -1j * omega, omega[self.learned]
         self.held = hold_gain(s.carriers, s.control_rate * s.decimation, HOLD)[use]
@@ -268,7 +272,8 @@ class TouchControl(Controller):
         touch = estimate.sure * self._pattern_at(estimate.index) * row if estimate.sure > 0 else self._nothing
         if self.lift is not None:  # stopped by a lift, and what was given since taken back
             touch = self.lift.given(self.period, touch)
-        given = touch + self._detuned * row
+        drift = self._overlapping(self._detuned * row, self._playing()) if self._shared else self._nothing
+        given = touch + drift
         if self.inner.observes:
             self._checked = given * self._learned_mask
         return feedback + given
@@ -297,9 +302,15 @@ class TouchControl(Controller):
         shared = min(max(shared, -SHIFT_MAX), SHIFT_MAX)
         if shared != self._shared:
             shift = shared * self._drivable(shared)
-            self.inner.hand_over(self._jomega * (shift - self._shift) * self._give_row())
+            self.inner.hand_over(self._overlapping(self._jomega * (shift - self._shift) * self._give_row(),
+                                                   self._playing()))
             np.multiply(self._jomega, shift, out=self._detuned)
             self._shift, self._shared = shift, shared
+
+    def _playing(self) -> float:
+        """When this period's command plays (s from the shot's start: ``lead`` periods on), the carriers'
+        phases the forces given back are made at (:class:`~modalctl.loops.overlap.Overlapping`)."""
+        return (self.period + self.lead) / self.rate
 
     def _give_row(self) -> np.ndarray:
         """Each mode's planned envelope over its residue (k,) when this period's command is reached (``lead``
