@@ -144,7 +144,10 @@ def _design(plant: LoopPlant, loops: np.ndarray, crossover: np.ndarray, noise: n
     # envelope: its residue is about a half); the cluster's highest carrier and largest level for all
     w = PROCESS * (2 * 2 * np.pi * plant.drift * np.max(plant.frequencies[loops]) * period * level) ** 2
     v = np.diag(np.repeat(noise[loops] ** 2, 2))
-    prior = np.asarray(_solved(control.dlqe, a, g, c, w * np.eye(g.shape[1]), v)[1])
+    # the Riccati equation in units of the process noise (its solution scales with both noises): scipy's
+    # reordering failed on plate-glass's modes 42-43 at w 1e-10, v 1e-12 (the cluster left to per-mode loops)
+    unit = w if w > 0 else 1.0
+    prior = unit * np.asarray(_solved(control.dlqe, a, g, c, (w / unit) * np.eye(g.shape[1]), v / unit)[1])
     m = prior @ c.T @ np.linalg.inv(c @ prior @ c.T + v)
     return _Law(loops, a, b, c, m, gain[:, :size], gain[:, size:], turn, offsets, lead)
 
