@@ -46,12 +46,13 @@ def test_a_pair_the_patches_push_along_one_direction_is_given_the_forces_once():
 
     asked = np.array([1.0, 1.0, 2.0], complex)
     assert np.allclose(made(asked[:2], 0.0), [2.0, 2.0])  # each loop's own command: twice
-    commands = overlapping(asked, 0.0)
+    commands = overlapping(asked, 0)
     assert np.allclose(made(commands[:2], 0.0), [1.0, 1.0]) and commands[2] == asked[2]
     rng = np.random.default_rng(3)
-    for t in (1.3e-3, 7.7e-3, 21e-3):
+    for period in (26, 154, 1500, 420):  # periods of 50 us: 1.3, 7.7, 75 and 21 ms (past and back in its table)
+        t = period / 20e3
         asked = rng.standard_normal(3) + 1j * rng.standard_normal(3)
-        commands = overlapping(asked, t)
+        commands = overlapping(asked, period)
         direction = np.exp(-1j * w * t)  # F = direction (exp(j w t) . c): what the patch can make
         projected = direction * np.vdot(direction, asked[:2]) / np.vdot(direction, direction)
         assert np.allclose(made(commands[:2], t), projected)
@@ -59,8 +60,8 @@ def test_a_pair_the_patches_push_along_one_direction_is_given_the_forces_once():
         assert abs(np.vdot(unfelt, commands[:2])) < 1e-12  # the least command: none along it
         assert commands[2] == asked[2]
     apart = Overlapping(_plant(f, [[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]], [[1.0, 0.0, 1.0], [0.0, 1.0, 1.0]]))
-    assert np.allclose(apart(asked, 0.01), asked)
-    assert Overlapping(LoopPlant(f, np.full(3, 0.01), np.full(3, 50.0), 20e3, 1))(asked, 0.01) is asked
+    assert np.allclose(apart(asked, 200), asked)
+    assert Overlapping(LoopPlant(f, np.full(3, 0.01), np.full(3, 50.0), 20e3, 1))(asked, 200) is asked
 
 
 def test_the_default_closed_loop_no_longer_overshoots_plate_glass_at_one_percent_drift(tmp_path, capsys):

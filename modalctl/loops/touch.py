@@ -307,10 +307,10 @@ class TouchControl(Controller):
             np.multiply(self._jomega, shift, out=self._detuned)
             self._shift, self._shared = shift, shared
 
-    def _playing(self) -> float:
-        """When this period's command plays (s from the shot's start: ``lead`` periods on), the carriers'
-        phases the forces given back are made at (:class:`~modalctl.loops.overlap.Overlapping`)."""
-        return (self.period + self.lead) / self.rate
+    def _playing(self) -> int:
+        """The period this period's command plays in (``lead`` periods on): the carriers' phases the forces
+        given back are made at (:class:`~modalctl.loops.overlap.Overlapping`)."""
+        return self.period + self.lead
 
     def _give_row(self) -> np.ndarray:
         """Each mode's planned envelope over its residue (k,) when this period's command is reached (``lead``
