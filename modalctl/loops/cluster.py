@@ -47,6 +47,7 @@ from modalctl.threads import serial_blas
 from .close_modes import Clusters, find_clusters
 from .controller import Controller, LoopDesign, LoopPlant
 from .design import _real, _series, cluster_model, design_loops, pi_controller
+from .lockin import PeriodTurns
 from .lqg import NOISE_FLOOR, LQGControl, observer_loop_radius
 from .sensing import feedthrough
 
@@ -64,7 +65,6 @@ DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: a
 # shot lost its 40 Hz pair's law to per-mode loops, tau 0.967 -> 0.944, margin 0.527 -> 0.604; the tablet's
 # 30 mm bump refuses the same 12 groups, the least x1.08 over its 580 periods)
 GROWTH = 1.05
-TURNS = 1024  # periods of the frames' turns computed at once (ClusterControl._turn)
 # lock-in corners from a cluster's carriers within which its observer keeps a mode's dynamics (beyond, the lock-in
 # passes 5^-4 of it): cluster_poles' 20 made panel-rounded's 18 laws 1,132 states, an update 206 us; 5: 654 states,
 # 46 us, the finger benchmark's give-back within 0.1 point (3: 87.6% on the panel where 5 and 8 give 88.7, 88.6%)
@@ -345,7 +345,7 @@ class ClusterControl(Controller):
         kind = sparse.csr_array if self._sparse else np.asarray
         self._A, self._C, self._M, self._K, self._Ki = (
             kind(block_diag(*(getattr(law, name) for law in laws))) for name in ("A", "C", "M", "K", "Ki"))
-        self._turns = (-1, np.ones((0, spin.size), complex))  # (first period, the frames' turns from it on)
+        self._turn = PeriodTurns(self._angle)  # spin ** period: the frames' turn at a period
         self._join()
         slots, start = [], 0  # where each law's newest command in flight sits in the stacked state
         for law in laws:
@@ -362,15 +362,6 @@ class ClusterControl(Controller):
         stack, kind = (sparse.vstack, sparse.csr_array) if self._sparse else (np.vstack, np.asarray)
         ka = stack([self._K, self._A])
         self._CKA, self._KAM = kind(stack([self._C, ka])), kind(ka @ self._M)
-
-    def _turn(self, period: int) -> np.ndarray:
-        """``spin ** period``: the frames' turn at a period, from a table computed :data:`TURNS` periods at a
-        time (a complex power each period cost 6 us on panel-rounded's 42 clustered loops)."""
-        first, table = self._turns
-        if not 0 <= period - first < table.shape[0]:
-            first, table = self._turns = period, np.exp(1j * np.multiply.outer(np.arange(period, period + TURNS),
-                                                                               self._angle))
-        return table[period - first]
 
     def reset(self) -> None:
         if self.inner is not None:

@@ -31,11 +31,11 @@ from __future__ import annotations
 import numpy as np
 
 from .controller import LoopPlant
+from .lockin import PeriodTurns
 
 __all__ = ["Overlapping", "overlapping_groups", "RCOND"]
 
 RCOND = 0.1  # directions of a group the patches move less than this share of its strongest: no command
-TURNS = 1024  # periods of the carriers' turns computed at once (a complex exponential each call cost 4 us)
 
 
 def overlapping_groups(frequencies, damping) -> list[np.ndarray]:
@@ -82,8 +82,8 @@ class Overlapping:
             inverse[start:start + g.size, start:start + g.size] = np.linalg.pinv(coupling[np.ix_(g, g)], rcond=RCOND)
             start += g.size
         self._inverse = inverse
-        self._angle = 2 * np.pi * np.asarray(plant.schedule.carriers, float)[self._index] / plant.control_rate
-        self._turns = (-1, np.ones((0, self._index.size), complex))  # (first period, D's diagonal from it on)
+        self._turn = PeriodTurns(2 * np.pi * np.asarray(plant.schedule.carriers, float)[self._index]
+                                 / plant.control_rate)  # D's diagonal at a period's start
 
     def __call__(self, forces: np.ndarray, period: int) -> np.ndarray:
         if not self.groups:
@@ -92,11 +92,3 @@ class Overlapping:
         commands = np.array(forces, complex)
         commands[self._index] = turn.conj() * (self._inverse @ (turn * commands[self._index]))
         return commands
-
-    def _turn(self, period: int) -> np.ndarray:
-        """``exp(j w t)`` at the start of ``period``, from a table of :data:`TURNS` periods at a time."""
-        first, table = self._turns
-        if not 0 <= period - first < table.shape[0]:
-            first, table = self._turns = period, np.exp(1j * np.multiply.outer(np.arange(period, period + TURNS),
-                                                                               self._angle))
-        return table[period - first]
