@@ -28,6 +28,8 @@ THESIS_MARGIN = 0.5
 
 #: The most DAC samples per channel a shot may take: 1 s at 1 MHz, 40 times the thesis's shots.
 SHOT_SAMPLES_MAX = 1_000_000
+LOOP_PERIODS_MIN = 10  # control periods a closed-loop shot holds at least: a loop that cannot act ten times does
+# nothing (and a shot shorter than one period failed inside the plant's propagation: issue 37's hostile inputs)
 
 #: The widest band of resonance drift a plan may be made robust to: half the frequency is another
 #: structure (its drifted copies would have no positive resonances past it).
@@ -403,6 +405,11 @@ class RunOptions(_Options):
                              f"{SHOT_SAMPLES_MAX:.3g} (1 s at 1 MHz)")
         if self.loop is not None:  # as the loops' schedule needs it, refused before any plan (issue 39)
             decimation(self.plan.sample_rate, self.loop.control_rate)
+            periods = int((self.focus_time + self.plan.after) * self.loop.control_rate)
+            if periods < LOOP_PERIODS_MIN:
+                raise InputError(f"the closed loop at {self.loop.control_rate:g} Hz has {periods} control periods in the "
+                                 f"shot (T_F + after = {self.focus_time + self.plan.after:g} s); at least "
+                                 f"{LOOP_PERIODS_MIN}: raise --control-rate (default {LoopOptions.control_rate:g} Hz)")
         if self.learn is not None and self.learn not in LEARN_FROM:
             raise InputError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
         if self.learn is not None and self.loop is None:

@@ -305,6 +305,9 @@ def test_a_finger_sliding_over_the_slot_lifts_there_and_lands_past_it():
      "the control rate 7000 Hz must divide the DAC rate 500000 Hz"),
     ([*RUN, "--loop", "closed", "--control-rate", "7kHz"], "the control rate 7000 Hz must divide the DAC rate 1e+06"),
     ([*RUN, "--loop", "closed", "--control-rate", "2MHz"], "the control rate 2e+06 Hz must divide the DAC rate"),
+    # before: exit 4, a traceback from the plant's propagation (no period in the shot); 100 Hz ran 2 periods
+    ([*RUN, "--loop", "closed", "--control-rate", "10Hz"], "the closed loop at 10 Hz has 0 control periods"),
+    ([*RUN, "--loop", "closed", "--control-rate", "100Hz"], "has 2 control periods in the shot"),
 ])
 def test_a_shot_s_options_are_refused_before_out_is_claimed_or_a_plan_made(capsys, request, tmp_path, argv, words):
     """Before: sweep refused these in its first case, leaving run.json in --out; the control rate was checked
