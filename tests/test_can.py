@@ -86,11 +86,14 @@ def test_host_loops_run_at_the_rate_the_bus_carries_with_a_note(model, tmp_path,
 
 
 def test_bad_can_urls_say_what_is_wrong():
-    with pytest.raises(DeviceError, match="expected can://"):
+    """A URL the user wrote wrong is bad input (InputError: exit 2); a bus that cannot be opened, the device's."""
+    from modalctl.errors import InputError
+
+    with pytest.raises(InputError, match="expected can://"):
         open_device("can://virtual")
-    with pytest.raises(DeviceError, match="node 300"):
+    with pytest.raises(InputError, match="node 300"):
         open_device("can://virtual/x?node=300")
-    with pytest.raises(DeviceError, match="unknown option"):
+    with pytest.raises(InputError, match="unknown option"):
         open_device("can://virtual/x?speed=1")
     with pytest.raises(DeviceError, match="cannot open the socketcan bus 'nosuchcan9'"):
         open_device("can://socketcan/nosuchcan9")  # a real interface, absent here: said, not a traceback

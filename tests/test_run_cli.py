@@ -153,9 +153,14 @@ def test_unknown_transport_exits_2(capsys, tmp_path):
     assert code == 2 and "no transport for 'nope://x'" in err
 
 
-def test_device_errors_exit_3(capsys, tmp_path):
+def test_a_device_url_written_wrong_exits_2_and_a_device_that_fails_exits_3(capsys, tmp_path):
+    """An unknown option in the URL is the user's input (exit 2; it was a device error, exit 3, before); a port
+    that is not there is the device's fault (exit 3)."""
     code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "sim://?bogus=1", "--out", str(tmp_path))
-    assert code == 3 and "unknown option" in err
+    assert code == 2 and "unknown option(s) bogus; known: hold, tol" in err
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "serial:///dev/no-such-port",
+                       "--out", str(tmp_path / "s"))
+    assert code == 3 and "cannot open /dev/no-such-port" in err
 
 
 def test_sim_device_lifecycle_and_transport_registry():

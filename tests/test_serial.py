@@ -136,8 +136,12 @@ def test_a_line_too_slow_for_host_loops_is_refused_before_planning(model, tmp_pa
 def test_bad_serial_urls_say_what_is_wrong():
     with pytest.raises(DeviceError, match="cannot open"):
         open_device("serial:///dev/does-not-exist")
-    with pytest.raises(DeviceError, match="unknown option"):
+    from modalctl.errors import InputError
+
+    with pytest.raises(InputError, match="unknown option"):  # the user's URL: exit 2, not a device fault
         open_device("serial:///dev/null?speed=9600")
+    with pytest.raises(InputError, match="baud must be an integer"):
+        open_device("serial:///dev/null?baud=fast")
 
 
 def test_modalctl_emulate_serves_a_pty_and_says_where(capsys):

@@ -6,13 +6,13 @@ from __future__ import annotations
 import hashlib
 from dataclasses import replace
 from pathlib import Path
-from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 import scipy.fft
 from tqdm.auto import tqdm
 
-from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError
+from modalctl.errors import InputError
+from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, DeviceError, url_options
 from modalctl.loops.onboard import TABLE_VALUES
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.noise_stream import NoiseStream
@@ -52,7 +52,7 @@ class SimDevice(Device):
     def __init__(self, model: ModalModel, perturbation: Perturbation = Perturbation(), hold: str = "zoh",
                  tol: float = 1e-4, url: str = "sim://"):
         if hold not in HOLDS:
-            raise DeviceError(f"{url}: hold must be one of {HOLDS}, got {hold!r}")
+            raise InputError(f"{url}: hold must be one of {HOLDS}, got {hold!r}")
         super().__init__(url)
         self.model, self.perturbation, self.hold, self.tol = model, perturbation, hold, tol
         self.truth = perturb(model, perturbation)
@@ -76,14 +76,11 @@ class SimDevice(Device):
         """``sim://?hold=zoh&tol=1e-4``. The structure is the context's model, or the scene its
         ``truth`` option names (the same actuators and sensors, other modes); the other options
         (those of :func:`modalctl.hil.transport.modalctl_add_options`) make its perturbation."""
-        query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
-        unknown = set(query) - {"hold", "tol"}
-        if unknown:
-            raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: hold, tol")
+        query = url_options(url, {"hold", "tol"})  # the URL is the user's: InputError (exit 2)
         try:
             tol = float(query.get("tol", 1e-4))
         except ValueError:
-            raise DeviceError(f"{url}: tol must be a number, got {query['tol']!r}") from None
+            raise InputError(f"{url}: tol must be a number, got {query['tol']!r}") from None
         structure = _structure(context)
         # the target lies on the model's grid: its peak is placed by position, whatever the truth's grid
         perturbation = Perturbation.from_options(context.options, context.model or structure, context.target)

@@ -21,10 +21,11 @@ import argparse
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable
-from urllib.parse import urlsplit
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
+from modalctl.errors import InputError
 from modalctl.loops.runtime import PhasorBoard
 from modalctl.model.modes import ModalModel
 from modalctl.model.noise_stream import NoiseStream
@@ -32,7 +33,7 @@ from modalctl.model.shape import Shape
 from modalctl.plugin.manager import PluginError, plugin_manager
 
 __all__ = ["DeviceError", "Capabilities", "Capture", "Device", "PhasorBoard", "DeviceContext", "TransportOptions",
-           "TransportFactory", "transports", "add_transport_options", "open_device", "scan_indices"]
+           "TransportFactory", "transports", "add_transport_options", "open_device", "url_options", "scan_indices"]
 
 
 class DeviceError(RuntimeError):
@@ -276,6 +277,16 @@ def open_device(url: str, context: DeviceContext = DeviceContext(), manager=None
     if scheme not in found:
         raise PluginError(f"no transport for {url!r}; installed: {', '.join(s + '://' for s in found)}")
     return found[scheme](url, context)
+
+
+def url_options(url: str, known) -> dict[str, str]:
+    """A device URL's query options (``?baud=9600&timeout=1``: the last value of each), the user's input: an
+    option not in ``known`` is an :class:`~modalctl.errors.InputError` (exit 2), not a device's fault."""
+    query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
+    unknown = set(query) - set(known)
+    if unknown:
+        raise InputError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")
+    return query
 
 
 def scan_indices(caps: Capabilities, positions: np.ndarray, url: str = "device"):

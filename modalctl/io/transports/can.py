@@ -15,12 +15,13 @@ state (a reset), ends the shot. What the device does with the messages is
 from __future__ import annotations
 
 import time
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import urlsplit
 
 import numpy as np
 
 from modalctl.io import protocol as p
-from modalctl.io.device import DeviceError
+from modalctl.errors import InputError
+from modalctl.io.device import DeviceError, url_options
 
 from .protocol_device import ProtocolDevice
 
@@ -63,27 +64,22 @@ class CanDevice(ProtocolDevice):
     def __init__(self, url: str):
         import can
 
-        parts = urlsplit(url)
-        query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-        unknown = set(query) - self.OPTIONS
-        if unknown:
-            raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; "
-                              f"known: {', '.join(sorted(self.OPTIONS))}")
+        parts, query = urlsplit(url), url_options(url, self.OPTIONS)  # the URL is the user's: InputError (exit 2)
         try:
             nodes = [int(n) for n in query.get("nodes", query.get("node", "1")).split(",")]
             timeout = float(query.get("timeout", 0.5))
             self.heartbeat = float(query.get("heartbeat", 0.5))
             self.bitrate, self.data_bitrate = float(query.get("bitrate", 1e6)), float(query.get("data_bitrate", 8e6))
         except ValueError:
-            raise DeviceError(f"{url}: nodes must be integers, rates and timeout numbers") from None
+            raise InputError(f"{url}: nodes must be integers, rates and timeout numbers") from None
         for node in nodes:
             if not 1 <= node <= 127:
-                raise DeviceError(f"{url}: node {node} outside 1-127")
+                raise InputError(f"{url}: node {node} outside 1-127")
         if len(set(nodes)) != len(nodes):
-            raise DeviceError(f"{url}: a node is listed twice")
+            raise InputError(f"{url}: a node is listed twice")
         interface, channel = parts.netloc, parts.path.lstrip("/")
         if not interface or not channel:
-            raise DeviceError(f"{url}: expected can://<interface>/<channel>, e.g. can://socketcan/can0")
+            raise InputError(f"{url}: expected can://<interface>/<channel>, e.g. can://socketcan/can0")
         super().__init__(url, timeout, nodes)
         options = {} if interface == "virtual" else {"bitrate": int(self.bitrate), "data_bitrate": int(self.data_bitrate)}
         try:

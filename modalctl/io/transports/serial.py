@@ -7,12 +7,13 @@ them is :class:`~modalctl.io.transports.protocol_device.ProtocolDevice`.
 
 from __future__ import annotations
 
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import urlsplit
 
 import numpy as np
 
 from modalctl.io import protocol as p
-from modalctl.io.device import DeviceError
+from modalctl.errors import InputError
+from modalctl.io.device import DeviceError, url_options
 
 from .protocol_device import ProtocolDevice
 
@@ -38,15 +39,11 @@ class SerialDevice(ProtocolDevice):
     def __init__(self, url: str):
         import serial
 
-        parts = urlsplit(url)
-        query = {k: v[-1] for k, v in parse_qs(parts.query).items()}
-        unknown = set(query) - {"baud", "timeout"}
-        if unknown:
-            raise DeviceError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: baud, timeout")
+        parts, query = urlsplit(url), url_options(url, {"baud", "timeout"})  # the URL is the user's: InputError
         try:
             baud, timeout = int(query.get("baud", 3_000_000)), float(query.get("timeout", 0.5))
         except ValueError:
-            raise DeviceError(f"{url}: baud must be an integer and timeout a number of seconds") from None
+            raise InputError(f"{url}: baud must be an integer and timeout a number of seconds") from None
         super().__init__(url, timeout)
         self.baud, self.path = baud, parts.path or parts.netloc
         try:
