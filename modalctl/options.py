@@ -19,8 +19,9 @@ from typing import Any
 
 from modalctl.errors import InputError
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions", "PlanOptions",
-           "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM", "decimation"]
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "LOOP_PERIODS_MIN", "ROBUST_DRIFT_MAX", "MODES_MAX",
+           "ConvexOptions", "PlanOptions", "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM",
+           "decimation", "control_periods"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
@@ -405,11 +406,12 @@ class RunOptions(_Options):
                              f"{SHOT_SAMPLES_MAX:.3g} (1 s at 1 MHz)")
         if self.loop is not None:  # as the loops' schedule needs it, refused before any plan (issue 39)
             decimation(self.plan.sample_rate, self.loop.control_rate)
-            periods = int((self.focus_time + self.plan.after) * self.loop.control_rate)
+            periods = control_periods(self.focus_time + self.plan.after, self.plan.sample_rate, self.loop.control_rate)
             if periods < LOOP_PERIODS_MIN:
-                raise InputError(f"the closed loop at {self.loop.control_rate:g} Hz has {periods} control periods in the "
-                                 f"shot (T_F + after = {self.focus_time + self.plan.after:g} s); at least "
-                                 f"{LOOP_PERIODS_MIN}: raise --control-rate (default {LoopOptions.control_rate:g} Hz)")
+                raise InputError(f"the closed loop at {self.loop.control_rate:g} Hz has {periods} control periods in "
+                                 f"the shot (T_F + after = {self.focus_time + self.plan.after:g} s); at least "
+                                 f"{LOOP_PERIODS_MIN}: raise --control-rate (default {LoopOptions.control_rate:g} Hz) "
+                                 "or the focus time")
         if self.learn is not None and self.learn not in LEARN_FROM:
             raise InputError(f"learn must be one of {LEARN_FROM}, got {self.learn!r}")
         if self.learn is not None and self.loop is None:
@@ -453,6 +455,11 @@ class SurveyOptions(_Options):
     orthogonalize: bool = True
     threshold_db: float = 3.0
     weak_drive: float = 0.1
+
+
+def control_periods(duration: float, sample_rate: float, control_rate: float) -> int:
+    """Control periods in a shot of ``duration`` (s): its DAC samples (rounded) over a period's."""
+    return int(round(duration * sample_rate)) // max(int(round(sample_rate / control_rate)), 1)
 
 
 def decimation(sample_rate: float, control_rate: float) -> int:

@@ -30,7 +30,7 @@ from modalctl.model.metrics import Extremes, margin_ratio, nrmse, tau, tau_norm
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.projection import project
 from modalctl.model.shape import Shape
-from modalctl.options import THESIS_MARGIN, LoopOptions, RunOptions
+from modalctl.options import THESIS_MARGIN, LoopOptions, RunOptions, control_periods
 from modalctl.plan.decompose import Decomposition
 from modalctl.plan.planner import Plan, plan_shot
 from modalctl.plugin.manager import name_of, pick
@@ -421,8 +421,7 @@ def _play(the_plan: Plan, device: Device, options: RunOptions, voltage_limit, lo
 
 def _periods(duration: float, options: RunOptions) -> int:
     """Control periods in a shot of ``duration`` (s) at the options' rates."""
-    decimation = int(round(options.plan.sample_rate / options.loop.control_rate))
-    return int(round(duration * options.plan.sample_rate)) // max(decimation, 1)
+    return control_periods(duration, options.plan.sample_rate, options.loop.control_rate)
 
 
 #: Control periods before the focus below which host loops over a link are refused: they could

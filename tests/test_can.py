@@ -95,6 +95,8 @@ def test_bad_can_urls_say_what_is_wrong():
         open_device("can://virtual/x?node=300")
     with pytest.raises(InputError, match="unknown option"):
         open_device("can://virtual/x?speed=1")
+    with pytest.raises(InputError, match="positive and finite"):  # before: int(nan) out of the parsing, exit 4
+        open_device("can://virtual/x?bitrate=nan")
     with pytest.raises(DeviceError, match="cannot open the socketcan bus 'nosuchcan9'"):
         open_device("can://socketcan/nosuchcan9")  # a real interface, absent here: said, not a traceback
 

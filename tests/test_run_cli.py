@@ -158,6 +158,8 @@ def test_a_device_url_written_wrong_exits_2_and_a_device_that_fails_exits_3(caps
     that is not there is the device's fault (exit 3)."""
     code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "sim://?bogus=1", "--out", str(tmp_path))
     assert code == 2 and "unknown option(s) bogus; known: hold, tol" in err
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "sim://?tol=-1", "--out", str(tmp_path))
+    assert code == 2 and "tol must lie in (0, 1)" in err
     code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "serial:///dev/no-such-port",
                        "--out", str(tmp_path / "s"))
     assert code == 3 and "cannot open /dev/no-such-port" in err

@@ -142,6 +142,10 @@ def test_bad_serial_urls_say_what_is_wrong():
         open_device("serial:///dev/null?speed=9600")
     with pytest.raises(InputError, match="baud must be an integer"):
         open_device("serial:///dev/null?baud=fast")
+    with pytest.raises(InputError, match="must be positive"):  # before: pyserial's ValueError, exit 4
+        open_device("serial:///dev/null?baud=-1")
+    with pytest.raises(InputError, match="unknown option"):  # an option without a value was dropped unsaid
+        open_device("serial:///dev/null?speed")
 
 
 def test_modalctl_emulate_serves_a_pty_and_says_where(capsys):

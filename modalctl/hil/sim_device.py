@@ -81,6 +81,8 @@ class SimDevice(Device):
             tol = float(query.get("tol", 1e-4))
         except ValueError:
             raise InputError(f"{url}: tol must be a number, got {query['tol']!r}") from None
+        if not 0 < tol < 1:
+            raise InputError(f"{url}: tol must lie in (0, 1), got {tol:g}")
         structure = _structure(context)
         # the target lies on the model's grid: its peak is placed by position, whatever the truth's grid
         perturbation = Perturbation.from_options(context.options, context.model or structure, context.target)

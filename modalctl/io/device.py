@@ -282,7 +282,7 @@ def open_device(url: str, context: DeviceContext = DeviceContext(), manager=None
 def url_options(url: str, known) -> dict[str, str]:
     """A device URL's query options (``?baud=9600&timeout=1``: the last value of each), the user's input: an
     option not in ``known`` is an :class:`~modalctl.errors.InputError` (exit 2), not a device's fault."""
-    query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
+    query = {k: v[-1] for k, v in parse_qs(urlsplit(url).query, keep_blank_values=True).items()}
     unknown = set(query) - set(known)
     if unknown:
         raise InputError(f"{url}: unknown option(s) {', '.join(sorted(unknown))}; known: {', '.join(sorted(known))}")

@@ -58,8 +58,8 @@ def overlapping_groups(frequencies, damping) -> list[np.ndarray]:
 
 
 class Overlapping:
-    """Called with the forces asked of the kept modes (k,) complex and the control period they play in (its
-    start, ``t = period / control_rate``, gives the carriers' phases), the commands (k,) that make them (the
+    """Called with the forces asked of the kept modes (k,) complex and the control period at whose start they are
+    reached (``t = period / control_rate`` gives the carriers' phases), the commands (k,) that make them (the
     module's doc); the forces themselves where the plant has no model (its actuator gains and the plan's
     weights) or no bands overlap. A call costs 6 us on panel-rounded's 9 groups (21 modes).
 

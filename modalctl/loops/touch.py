@@ -14,8 +14,8 @@ estimator reads each clean mode's detuning (:meth:`~.touch_estimator.TouchEstima
 every mode is shifted by their median share, unless the shift leaves its carrier nearer another mode
 that its drive moves more (:class:`Drivable`), and sent as the commands that make those forces: on modes whose
 resonances overlap, solved together (:class:`~modalctl.loops.overlap.Overlapping`: a pair the patches push along
-one direction was given twice what it needed). Untouched and undrifted, it is the inner controller. The commands the estimator is told of pass through the
-lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
+one direction was given twice what it needed). Untouched and undrifted, it is the inner controller. The commands
+the estimator is told of pass through the lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
 that the drive and the response meet in the lock-in's frame; and the residuals its envelope
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
 the estimator reads the departure from the plan. It learns from every period and is read every
@@ -308,9 +308,10 @@ class TouchControl(Controller):
             self._shift, self._shared = shift, shared
 
     def _playing(self) -> int:
-        """The period this period's command plays in (``lead`` periods on): the carriers' phases the forces
-        given back are made at (:class:`~modalctl.loops.overlap.Overlapping`)."""
-        return self.period + self.lead
+        """The period at whose start this period's command is reached (the board ramps to it over the ``lead``-th
+        period on; :meth:`_give_row`'s instant): the carriers' phases the forces given back are made at
+        (:class:`~modalctl.loops.overlap.Overlapping`)."""
+        return self.period + self.lead + 1
 
     def _give_row(self) -> np.ndarray:
         """Each mode's planned envelope over its residue (k,) when this period's command is reached (``lead``

@@ -72,6 +72,9 @@ class CanDevice(ProtocolDevice):
             self.bitrate, self.data_bitrate = float(query.get("bitrate", 1e6)), float(query.get("data_bitrate", 8e6))
         except ValueError:
             raise InputError(f"{url}: nodes must be integers, rates and timeout numbers") from None
+        if not (0 < timeout < float("inf") and 0 <= self.heartbeat < float("inf")
+                and 0 < self.bitrate < float("inf") and 0 < self.data_bitrate < float("inf")):
+            raise InputError(f"{url}: timeout and rates must be positive and finite, the heartbeat finite (0: none)")
         for node in nodes:
             if not 1 <= node <= 127:
                 raise InputError(f"{url}: node {node} outside 1-127")

@@ -44,6 +44,8 @@ class SerialDevice(ProtocolDevice):
             baud, timeout = int(query.get("baud", 3_000_000)), float(query.get("timeout", 0.5))
         except ValueError:
             raise InputError(f"{url}: baud must be an integer and timeout a number of seconds") from None
+        if not (baud > 0 and 0 < timeout < float("inf")):
+            raise InputError(f"{url}: baud and timeout must be positive (timeout finite), got {baud} and {timeout:g}")
         super().__init__(url, timeout)
         self.baud, self.path = baud, parts.path or parts.netloc
         try:
