@@ -318,3 +318,16 @@ def test_a_shot_longer_than_the_bound_exits_2_before_allocating(capsys, tmp_path
     played ten seconds to exit 0."""
     code, _, err = run(capsys, *RUN, "--focus-time", focus_time, "--after", after, "--out", str(tmp_path))
     assert code == 2 and "samples per channel; at most 1e+06" in err
+
+
+def test_a_transport_that_refuses_its_url_with_a_plain_value_error_exits_2(capsys, tmp_path, monkeypatch):
+    """A transport plugin, or the library under it (pyserial refuses a negative baud with a ValueError), that
+    refuses what it was given with a plain ValueError refuses bad input: exit 2 naming the URL, not a bug (4)."""
+    import modalctl.io.device
+
+    def refusing(url, context=None, manager=None):
+        raise ValueError("Not a valid baudrate: -1")
+
+    monkeypatch.setattr(modalctl.io.device, "open_device", refusing)
+    code, _, err = run(capsys, *RUN, "--focus-time", "25ms", "--transport", "sim://", "--out", str(tmp_path))
+    assert code == 2 and "sim://: Not a valid baudrate: -1" in err and "internal" not in err

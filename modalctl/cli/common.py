@@ -158,6 +158,7 @@ def open_device(args, model=None, shape=None):
     plain ValueError refuses bad input (exit 2), as an :class:`~modalctl.errors.InputError` would."""
     from urllib.parse import urlsplit
 
+    from modalctl.errors import InputError
     from modalctl.io.device import DeviceContext
     from modalctl.io.device import open_device as open_url
     from modalctl.model.shape import ParamError
@@ -166,7 +167,12 @@ def open_device(args, model=None, shape=None):
     misplaced = args.transports.misplaced(args, scheme)
     if misplaced:
         raise ParamError(f"{', '.join(misplaced)}: not an option of {scheme}:// (--transport {args.transport})")
-    return open_url(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
+    try:
+        return open_url(args.transport, DeviceContext(model, shape, args.transports.of(args, scheme)))
+    except InputError:
+        raise
+    except ValueError as refused:  # a transport plugin's (or its library's: pyserial's baud) refusal of its input
+        raise InputError(f"{args.transport}: {refused}") from refused
 
 
 def refuse(command: str, code: int, message: str, as_json: bool, certificate=None, stderr: bool = True) -> int:
