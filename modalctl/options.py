@@ -405,7 +405,6 @@ class RunOptions(_Options):
                              f"{self.plan.sample_rate:g} Hz) is {samples:.3g} samples per channel; at most "
                              f"{SHOT_SAMPLES_MAX:.3g} (1 s at 1 MHz)")
         if self.loop is not None:  # as the loops' schedule needs it, refused before any plan (issue 39)
-            decimation(self.plan.sample_rate, self.loop.control_rate)
             periods = control_periods(self.focus_time + self.plan.after, self.plan.sample_rate, self.loop.control_rate)
             if periods < LOOP_PERIODS_MIN:
                 raise InputError(f"the closed loop at {self.loop.control_rate:g} Hz has {periods} control periods in "
@@ -458,8 +457,9 @@ class SurveyOptions(_Options):
 
 
 def control_periods(duration: float, sample_rate: float, control_rate: float) -> int:
-    """Control periods in a shot of ``duration`` (s): its DAC samples (rounded) over a period's."""
-    return int(round(duration * sample_rate)) // max(int(round(sample_rate / control_rate)), 1)
+    """Control periods in a shot of ``duration`` (s): its DAC samples (rounded) over a period's
+    (:func:`decimation`: InputError unless ``control_rate`` divides ``sample_rate``)."""
+    return int(round(duration * sample_rate)) // decimation(sample_rate, control_rate)
 
 
 def decimation(sample_rate: float, control_rate: float) -> int:

@@ -15,8 +15,8 @@ every mode is shifted by their median share, unless the shift leaves its carrier
 that its drive moves more (:class:`Drivable`), and sent as the commands that make those forces: on modes whose
 resonances overlap, solved together (:class:`~modalctl.loops.overlap.Overlapping`: a pair the patches push along
 one direction was given twice what it needed). Untouched and undrifted, it is the inner controller. The commands
-the estimator is told of pass through the lock-in's low-pass, discretized for the board's ramp between periods (first-order hold), so
-that the drive and the response meet in the lock-in's frame; and the residuals its envelope
+the estimator is told of pass through the lock-in's low-pass, discretized for the board's ramp between periods
+(first-order hold), so that the drive and the response meet in the lock-in's frame; and the residuals its envelope
 model leaves on the plan itself are taken away (:func:`~.touch_estimator.planned_residuals`):
 the estimator reads the departure from the plan. It learns from every period and is read every
 :data:`READ_EVERY` (0.2 ms: a quarter of the periods at 20 kHz), its solve being the update's costliest step.

@@ -14,6 +14,7 @@ state (a reset), ends the shot. What the device does with the messages is
 
 from __future__ import annotations
 
+import math
 import time
 from urllib.parse import urlsplit
 
@@ -72,8 +73,8 @@ class CanDevice(ProtocolDevice):
             self.bitrate, self.data_bitrate = float(query.get("bitrate", 1e6)), float(query.get("data_bitrate", 8e6))
         except ValueError:
             raise InputError(f"{url}: nodes must be integers, rates and timeout numbers") from None
-        if not (0 < timeout < float("inf") and 0 <= self.heartbeat < float("inf")
-                and 0 < self.bitrate < float("inf") and 0 < self.data_bitrate < float("inf")):
+        rates = (timeout, self.bitrate, self.data_bitrate)
+        if not (all(0 < x < math.inf for x in rates) and 0 <= self.heartbeat < math.inf):
             raise InputError(f"{url}: timeout and rates must be positive and finite, the heartbeat finite (0: none)")
         for node in nodes:
             if not 1 <= node <= 127:
