@@ -20,7 +20,8 @@ import numpy as np
 
 from modalctl.model.modes import ModelError
 
-from .frf import FRF, mobility
+from .band_fit import _lstsq, fit_band, pole_basis  # noqa: F401 (fit_band, pole_basis: the identifiers' API)
+from .frf import FRF
 from .noise import NOISE_EXCESS, SIGNIFICANCE, NoiseFigures, noise_figures, noise_weights, within_noise
 
 __all__ = ["Identifier", "Modes", "BandFit", "peak_picking", "sdof_fit", "fit_band", "modal_constants", "one_pole_stands",
@@ -169,22 +170,6 @@ class Identifier(ABC):
         row, misfit and whether each is resolved; ``threshold_db`` is the peaks' prominence."""
 
 
-def pole_basis(freqs: np.ndarray, poles, centre: float, general: bool = False) -> np.ndarray:
-    """One column per pole ``(f, zeta)`` plus a complex constant and slope for the modes outside
-    the band, shape (nb, len(poles) + 2).
-
-    ``general`` adds a second column per pole, ``w_k^2 / (w_k^2 - w^2 + 2 j zeta_k w_k w)``:
-    with it a mode's mobility may have any first-order numerator, as a mode of a structure with
-    non-proportional damping (complex shapes) has; the poles are then fitted without bias.
-    """
-    f, z = np.array(poles, float).reshape(-1, 2).T
-    columns = mobility(freqs, f, z, np.eye(f.size)).T
-    if general:
-        w, wk = 2 * np.pi * np.asarray(freqs)[:, None], 2 * np.pi * f[None, :]
-        columns = np.column_stack([columns, wk**2 / (wk**2 - w**2 + 2j * z[None, :] * wk * w)])
-    return np.column_stack([columns, np.ones(freqs.size), freqs / centre - 1])
-
-
 def _columns(others: int, general: bool) -> int:
     """The unknowns per point of a band fit with ``others`` neighbouring poles (:func:`pole_basis`)."""
     return (1 + others) * (2 if general else 1) + 2
@@ -193,11 +178,6 @@ def _columns(others: int, general: bool) -> int:
 def _widened(half_width: float, columns: int, df: float) -> float:
     """A band's half width (Hz), widened to ``BINS_PER_COLUMN`` bins (``df`` apart) per unknown."""
     return max(half_width, BINS_PER_COLUMN * columns * df / 2)
-
-
-def _lstsq(b: np.ndarray, h: np.ndarray) -> np.ndarray:
-    """``np.linalg.lstsq(b, h)[0]``, through ``b``'s pseudo-inverse once for all of ``h``'s columns (40x faster)."""
-    return np.linalg.pinv(b, rcond=np.finfo(float).eps * max(b.shape)) @ h
 
 
 def modal_constants(frf: FRF, f: float, zeta: float, half_width: float,
@@ -443,46 +423,6 @@ def peak_picking(frf: FRF, threshold_db: float = 3.0, min_frequency: float | Non
             fit = BandFit(constants, np.inf, misfit_reason(np.inf, frf.noise_std is not None))
         rows.append((f, zeta, constants, fit.misfit, fit.resolved, fit.reason))
     return modes_from_rows(rows, frf.values.shape[0], "peaks")
-
-
-def fit_band(frf: FRF, poles, centre: float, half_width: float, components: int = 4,
-             max_bins: int = 256, fixed=(), general: bool = False) -> np.ndarray:
-    """Poles ``[(f in Hz, zeta), ...]`` of the modes in ``centre +- half_width`` by a local
-    least-squares fit to all points at once; returns them refined, shape (len(poles), 2).
-
-    Variable projection: for trial poles, the response at every point is fitted linearly
-    (each mode's constant, a complex constant and slope); the poles minimize what is left.
-    To keep it fast, the points are first reduced to their principal FRFs (the SVD of the
-    band; ``components`` plus one per extra pole), which carry the modes whatever their
-    shapes, and the band to at most ``max_bins`` evenly spread bins. Poles in ``fixed`` are
-    in the basis but not moved (modes outside the band that still reach into it);
-    ``general`` is passed to :func:`pole_basis`.
-    """
-    import scipy.optimize  # here, not at import: the command line's help loads every identifier
-
-    start = np.array(poles, float).reshape(-1, 2)
-    keep = np.flatnonzero(np.abs(frf.frequencies - centre) <= half_width)
-    keep = keep[::max(1, -(-keep.size // max_bins))]
-    freqs = frf.frequencies[keep]
-    band = frf.values[:, keep]  # its left singular vectors from the bins' Gram matrix: bins^2 points, not the SVD's
-    power, u = np.linalg.eigh(band.T @ band.conj())
-    data = (u * np.sqrt(np.maximum(power, 0)))[:, ::-1][:, :components + len(start) - 1]
-
-    def trial(x):
-        x = x.reshape(-1, 2)
-        return np.column_stack([start[:, 0] * (1 + 1e-3 * x[:, 0]), start[:, 1] * np.exp(x[:, 1])])
-
-    fixed = np.array(fixed, float).reshape(-1, 2)
-
-    def residual(x):
-        b = pole_basis(freqs, np.vstack([trial(x), fixed]), centre, general)
-        coef, *_ = np.linalg.lstsq(b, data, rcond=None)
-        r = data - b @ coef
-        return np.concatenate([r.real.ravel(), r.imag.ravel()])
-
-    scale = np.column_stack([start[:, 1] * 1e3, np.full(len(start), 0.3)]).ravel()
-    sol = scipy.optimize.least_squares(residual, np.zeros(2 * len(start)), x_scale=scale, method="lm")
-    return trial(sol.x)
 
 
 def sdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = None,

@@ -31,8 +31,8 @@ from __future__ import annotations
 import numpy as np
 
 from .coarse import CoarseRow, under_resolved
-from .estimators import (FAIR_ERROR, Modes, _lstsq, constants_of, fit_band, half_width, modes_from_rows, neighbours,
-                         pole_basis)
+from .band_fit import _lstsq, fit_band, pole_basis
+from .estimators import FAIR_ERROR, Modes, constants_of, half_width, modes_from_rows, neighbours
 from .frf import FRF
 from .mdof import DOUBTFUL, band_poles, bands
 
