@@ -199,6 +199,28 @@ def test_auto_drops_an_unresolved_sdof_peak_of_no_damping_beside_the_mode_mdof_t
     assert np.any((np.abs(got.frequencies - 760) < 1) & ~got.resolved)
 
 
+
+def test_auto_lists_a_pole_the_mdof_fit_left_out_for_its_own_reason(monkeypatch):
+    """A pole the MDOF fit found stable but left out (its band poorly explained), with no SDOF row near it,
+    is listed as left out with that reason (it was dropped unsaid: the aircraft's 26.4 Hz); one within the
+    half-power half-width of a mode returned is that mode's, not listed again."""
+    from modalctl.identify import mdof
+    from modalctl.identify.estimators import Modes
+
+    frf, poles = close_pair(3.0, 0.01)
+    n = frf.values.shape[0]
+    why = "one pole explains its band poorly (misfit 0.36)"
+    single = Modes(np.array([700.0]), np.array([0.01]), np.ones((1, n)), np.array([0.01]), np.array([True]),
+                   "sdof", ("",))
+    multi = Modes(np.array([703.0, 1300.0]), np.array([0.01, 0.01]), np.zeros((2, n)), np.array([0.4, 0.4]),
+                  np.array([False, False]), "mdof", (why, why))
+    monkeypatch.setattr(mdof, "sdof_fit", lambda *args, **kwargs: single)
+    monkeypatch.setattr(mdof, "mdof_fit", lambda *args, **kwargs: multi)
+    got = mdof.auto_fit(frf)
+    assert got.frequencies.tolist() == [700.0, 1300.0]
+    assert got.resolved.tolist() == [True, False] and got.reasons[1] == why
+
+
 @pytest.mark.parametrize("off", [-2e-3, 2e-3])
 def test_the_band_fit_of_general_poles_moves_to_the_truth_from_either_side(off):
     """Two close modes (one half-power bandwidth apart, 2% damping) fitted together with any residues
