@@ -131,17 +131,17 @@ def test_only_the_lines_around_a_pole_are_stacked(monkeypatch):
 
 def test_a_mode_the_inputs_disagree_on_is_read_on_the_input_one_pole_explains_best():
     """A mode at 130 Hz (0.8%) seen by three inputs, the third also seeing a damped one at 131 Hz (2%)
-    the others do not: the inputs disagree on its shape, and one pole fitted on them all lands 0.01% high
+    the others do not: the inputs disagree on its shape, and one pole fitted on them all lands 0.025% high
     (computed here). :func:`_best_input` reads it on an input that sees it alone, at the modal sum's pole,
-    with the constants on every input."""
+    with the constants on every input (resolved there: else None, and the joint pole stands)."""
     mode, hump = (130.0, 0.008), (131.0, 0.02)
-    frfs = inputs_frfs([(1.0, 0.8, 0.1), (0.0, 0.0, 3.0), (0.0, 0.0, 0.0)], noise=1e-4,
+    frfs = inputs_frfs([(1.0, 0.8, 0.1), (0.0, 0.0, 3.0), (1.0, 1.0, 1.0)], noise=3e-3,
                        modes=(mode, hump, ALONE))
     stacked = FRF.stack(frfs)
     f, zeta = np.array([ALONE[0], mode[0] * 1.001]), np.array([ALONE[1], mode[1]])
     joint = fit_band(stacked, [(f[1], zeta[1])], f[1], half_width(f, zeta, 1, DF))[0]
-    assert abs(joint[0] / mode[0] - 1) > 5e-5
+    assert abs(joint[0] / mode[0] - 1) > 1e-4
     q, row, misfit = _best_input(frfs, stacked, f, zeta, 1)
-    assert q in (0, 1) and misfit < 0.01
-    assert abs(row[0] / mode[0] - 1) < 1e-5 and abs(row[1] / mode[1] - 1) < 0.01
-    assert row[2].shape == (stacked.values.shape[0],) and row[4]
+    assert q in (0, 1) and misfit < 0.05
+    assert abs(row[0] / mode[0] - 1) < 5e-5 and abs(row[1] / mode[1] - 1) < 0.03
+    assert row[2].shape == (stacked.values.shape[0],)

@@ -82,8 +82,11 @@ def _projection(basis: np.ndarray, data: np.ndarray) -> np.ndarray:
     A least-squares solve on all of them then turns the fit's finite-difference steps (1e-8 of a
     pole) into round-off, and the band fit stopped where it started (the aircraft's 13 modes: 9
     moved by less than 0.001 Hz from starts 0.2% off). The directions dropped carry less than the
-    cut of any column, far below a measurement's noise."""
-    scaled = basis / np.linalg.norm(basis, axis=0)
+    cut of any column, far below a measurement's noise. The rank is a hard one: the residual would
+    jump where a singular value crossed the cut between two steps of the fit (on the aircraft and the
+    tests' pairs the fit lands on the same pole from either side)."""
+    size = np.linalg.norm(basis, axis=0)
+    scaled = basis / np.where(size > 0, size, 1.0)  # a column of zeros (a one-line band's slope) stays zero
     u, s, _ = np.linalg.svd(scaled, full_matrices=False)
     u = u[:, s > PROJECTION_CUT * s[0]]
     return u @ (u.conj().T @ data)

@@ -29,7 +29,6 @@ from .frf import FRF, mobility
 from .lscf import SCATTER, pick_poles, stabilization
 
 EDGE_OF_BAND = "too few bins between the pole and the edge of the measurement"
-RAN_AWAY_FROM_LSCF = "stable in the LSCF diagram but the band fit ran away from it"
 DOUBTFUL = "doubtful: stable in too few LSCF orders"
 HIDDEN = "its own response at its resonance is a small share of the measured one: the band's response is another's"
 UNSEEN = "only the noise test holds it (misfit above the fair limit) and no LSCF order shows a pole there"
@@ -57,20 +56,14 @@ def bands(f_low: float, f_high: float) -> list[tuple[float, float, float, float]
     return [(a, b, max(f_low, a / (1 + OVERLAP)), min(f_high, b * (1 + OVERLAP))) for a, b in zip(edges, edges[1:])]
 
 
-def refine(frf: FRF, poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Poles ``(f, zeta)`` refined by the band fit, groups of overlapping bands fitted together.
-
-    Returns
-    -------
-    refined : ndarray, shape (k, 2)
-    converged : ndarray of bool, shape (k,)
-        False where the fit ran away (out of the band, or a damping outside (0, 0.5)).
-    """
+def refine(frf: FRF, poles: np.ndarray) -> np.ndarray:
+    """Poles ``(f, zeta)`` refined by the band fit, groups of overlapping bands fitted together, shape (k, 2),
+    by frequency; a group whose fit leaves the diagram's clusters keeps LSCF's poles (:func:`_within_cluster`)."""
     df = frf.line_spacing
     poles = np.asarray(poles, float).reshape(-1, 2)
     poles = poles[np.argsort(poles[:, 0])]
     halves = np.array([half_width(poles[:, 0], poles[:, 1], i, df, BAND) for i in range(len(poles))])
-    refined, converged = poles.copy(), np.ones(len(poles), bool)
+    refined = poles.copy()
     start = 0
     while start < len(poles):
         stop = start + 1
@@ -79,24 +72,25 @@ def refine(frf: FRF, poles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         lo, hi = poles[start, 0] - halves[start], poles[stop - 1, 0] + halves[stop - 1]
         others = np.delete(poles, np.arange(start, stop), axis=0)
         group = fit_band(frf, poles[start:stop], (lo + hi) / 2, (hi - lo) / 2, fixed=others, general=True)
-        group = refined[start:stop] = _within_cluster(group, poles[start:stop])
-        converged[start:stop] = (group[:, 0] > lo) & (group[:, 0] < hi) & (group[:, 1] > 0) & (group[:, 1] < 0.5)
+        refined[start:stop] = _within_cluster(group, poles[start:stop])
         start = stop
-    return refined, converged
+    return refined
 
 
 def _within_cluster(refined: np.ndarray, poles: np.ndarray) -> np.ndarray:
-    """``refined`` (k, 2), but LSCF's pole where the band fit left the diagram's cluster: moved by more than
-    ``SCATTER`` of its half-power half-width or its damping by more than a third (the tolerances the
-    picker's clusters hold, :func:`~.lscf.pick_poles`). A group's fit is as right as the poles it is given:
-    where the diagram put one pole for two modes (the aircraft's 125.21 and 125.58 Hz, split later by
-    :mod:`.multiref`), the group's other poles take up what that one leaves (135.52 Hz to 134.59 Hz at a
-    damping of 2.5%, from 0.95%), which the diagram, stable over many orders, does not show."""
+    """``refined`` (k, 2), one group's fit, or LSCF's ``poles`` for the whole group where the fit moved any
+    pole out of the diagram's cluster: by more than ``SCATTER`` of its half-power half-width, or its damping
+    by more than a third (the tolerances the picker's clusters hold, :func:`~.lscf.pick_poles`), or out of
+    the band (the same, a fortiori). A group's fit is as right as the poles it is given: where the diagram
+    put one pole for two modes (the aircraft's 125.21 and 125.58 Hz, split later by :mod:`.multiref`), the
+    group's other poles take up what that one leaves (135.52 Hz to 134.59 Hz at a damping of 2.5%, from
+    0.95%, and 130.04 Hz to 129.85 Hz with it), which the diagram, stable over many orders, does not show."""
     f, zeta = poles[:, 0], poles[:, 1]
-    moved = np.abs(refined[:, 0] - f) > SCATTER * zeta * f
-    ratio = refined[:, 1] / zeta
-    damped = ~((ratio >= 3 / 4) & (ratio <= 4 / 3))  # a damping not a number: left too
-    return np.where((moved | damped)[:, None], poles, refined)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        near = np.abs(refined[:, 0] - f) <= SCATTER * zeta * f
+        ratio = refined[:, 1] / zeta
+    kept = near & (ratio >= 3 / 4) & (ratio <= 4 / 3)  # a number not finite: not kept
+    return refined.copy() if kept.all() else poles.copy()
 
 
 def _rows(frf: FRF, poles: np.ndarray) -> list:
@@ -115,7 +109,7 @@ def _rows(frf: FRF, poles: np.ndarray) -> list:
             rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False, EDGE_OF_BAND))
             continue
         share = own_share(frf, f, z, fit.constants)
-        if fit.resolved and share < DOMINANCE:
+        if fit.resolved and not share >= DOMINANCE:  # a share not a number: left out too
             rows.append((f, z, fit.constants, fit.misfit, False, f"{HIDDEN} ({share:.2f}, at least {DOMINANCE:g})"))
             continue
         rows.append((f, z, fit.constants, fit.misfit, fit.resolved, fit.reason))
@@ -176,10 +170,7 @@ def mdof_fit(frf: FRF, threshold_db: float = 3.0, min_frequency: float | None = 
     poles, doubtful = distinct(np.vstack(found)), np.vstack(doubtful)
     rows = []
     if len(poles):
-        refined, converged = refine(frf, poles)
-        for f, z in poles[~converged]:
-            rows.append((f, z, np.zeros(frf.values.shape[0]), np.inf, False, RAN_AWAY_FROM_LSCF))
-        rows += _rows(frf, refined[converged])
+        rows += _rows(frf, refine(frf, poles))
     returned = np.array([r[0] for r in rows if r[4]])
     for f, z in doubtful:
         if returned.size == 0 or np.min(np.abs(returned - f)) > z * f:
@@ -240,6 +231,6 @@ def _unsaid(multi: Modes, rows: list, df: float) -> list:
     for i in np.flatnonzero(~multi.resolved):
         f, z = multi.frequencies[i], multi.damping[i]
         reach = max(z * f if np.isfinite(z) and z > 0 else 0.0, (LINES_SEARCHED + 1) * df)
-        if multi.reasons[i] != DOUBTFUL and not (said.size and np.min(np.abs(said - f)) <= reach):
+        if multi.reasons[i] != DOUBTFUL and not (said.size and np.nanmin(np.abs(said - f)) <= reach):
             out.append(multi.row(i))
     return out

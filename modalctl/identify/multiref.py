@@ -93,8 +93,8 @@ def split_by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None = 
         pair = _two_poles(stacked, f_all, z_all, k)
         if pair is None:
             best = _best_input(frfs, stacked, f_all, z_all, k)
-            said = "" if best is None else (f"; read at {best[1][0]:.2f} Hz on input {best[0]}, whose FRFs one pole "
-                                            f"explains best (misfit {best[2]:.2f})")
+            said = "" if best is None else (f"; read at {best[1][0]:.2f} Hz on input {best[0]}, whose own FRFs one pole "
+                                            f"explains best (misfit {best[2]:.2f} there)")
             notes.append(f"mode at {f:.2f} Hz: the inputs see it with two shapes (second singular value of its "
                          f"residues {share:.2f} of the first) but two poles do not fit its band: kept as one{said}")
             if best is not None:
@@ -146,6 +146,8 @@ def _best_input(frfs: list[FRF], stacked: FRF, frequencies: np.ndarray, damping:
         return None
     moved_f, moved_z = best[1]
     fit = constants_of(stacked, moved_f, moved_z, k)
+    if not fit.resolved:  # on every input together the moved pole is no mode: the joint one stands
+        return None
     row = (float(moved_f[k]), float(moved_z[k]), fit.constants, fit.misfit, True, "")
     return best[0], row, best[2]
 
