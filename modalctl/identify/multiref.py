@@ -22,8 +22,9 @@ The stacked FRFs' stabilization diagram is moved by every input: a mode one inpu
 another hardly (the aircraft's 135.28 Hz, weak at the fin's accelerometer) may be stable in too few
 orders to be kept (doubtful). :func:`rescue_by_inputs` gives such a pole a second reading: the band's
 diagram of each input alone (the classical single-reference one); a pole it holds stable there, and
-that one pole explains on every input to a fair misfit, is kept. On the aircraft it keeps 135.29 Hz
-(misfit 0.16) and none of the sixteen doubtful poles below 32 Hz an input also holds (misfits 0.85-2.1).
+that one pole explains on every input to a fair misfit, is kept. On the aircraft, in the runs where
+round-off leaves 135.28 Hz doubtful in the stacked diagram, it keeps it at 135.29 Hz (misfit 0.16),
+and none of the sixteen doubtful poles below 32 Hz an input also holds (misfits 0.85-2.1).
 """
 
 from __future__ import annotations
@@ -93,8 +94,8 @@ def split_by_inputs(frfs: list[FRF], poles: Modes, scales: list[float] | None = 
         pair = _two_poles(stacked, f_all, z_all, k)
         if pair is None:
             best = _best_input(frfs, stacked, f_all, z_all, k)
-            said = "" if best is None else (f"; read at {best[1][0]:.2f} Hz on input {best[0]}, whose own FRFs one pole "
-                                            f"explains best (misfit {best[2]:.2f} there)")
+            said = "" if best is None else (f"; read at {best[1][0]:.2f} Hz on input {best[0]}, whose own FRFs "
+                                            f"one pole explains best (misfit {best[2]:.2f} there)")
             notes.append(f"mode at {f:.2f} Hz: the inputs see it with two shapes (second singular value of its "
                          f"residues {share:.2f} of the first) but two poles do not fit its band: kept as one{said}")
             if best is not None:
