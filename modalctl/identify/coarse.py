@@ -30,7 +30,7 @@ from .estimators import (FREQUENCY_TOLERANCE, NO_HALF_POWER, RESOLVED_LINES, UNR
 from .frf import FRF
 from .noise import SIGNIFICANCE, noise_weights
 
-__all__ = ["JointPole", "joint_pole", "coarse_rows", "CoarseRow", "under_resolved", "file_notes",
+__all__ = ["JointPole", "joint_pole", "coarse_rows", "joint_reach", "CoarseRow", "under_resolved", "file_notes",
            "LINES_SEARCHED", "HALF_LINES", "AGREE", "JACKKNIFE_ROWS"]
 
 LINES_SEARCHED = 1.0  # the frequency is searched this many lines either side of the start
@@ -269,6 +269,12 @@ def _same_peak(r, f: float, near: float):
                            f"of it): the same peak, not a second mode")
 
 
+def joint_reach(df: float) -> float:
+    """How far (Hz) a joint fit's peak reaches on lines ``df`` apart: the lines it searches and one more;
+    rows within it are one peak (:func:`coarse_rows`)."""
+    return (LINES_SEARCHED + 1) * df
+
+
 def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
     """Rows ``(f, zeta, constants, misfit, resolved, reason)`` with every under-resolved pole the
     band fit did not explain (misfit above ``UNRESOLVED_ERROR``) fitted again by :func:`joint_pole`.
@@ -290,7 +296,7 @@ def coarse_rows(frf: FRF, rows: list, skip=()) -> list:
     own: none is dropped unsaid, and none contradicts the mode.
     """
     df = frf.line_spacing
-    near = (LINES_SEARCHED + 1) * df
+    near = joint_reach(df)
 
     def sharp(r) -> bool:  # a peak between the lines: its half-power points the wrong way round
         return r[5] == NO_HALF_POWER and bool(np.isfinite(r[1]) and r[1] <= 0)

@@ -20,7 +20,7 @@ import numpy as np
 
 from modalctl.model.modes import ModelError
 
-from .band_fit import _lstsq, fit_band, pole_basis  # noqa: F401 (fit_band, pole_basis: the identifiers' API)
+from .band_fit import _lstsq, fit_band, pole_basis
 from .frf import FRF
 from .noise import NOISE_EXCESS, SIGNIFICANCE, NoiseFigures, noise_figures, noise_weights, within_noise
 

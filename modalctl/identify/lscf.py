@@ -36,13 +36,15 @@ from modalctl.model.modes import ModelError
 
 from .frf import FRF
 
-__all__ = ["Stabilization", "stabilization", "pick_poles", "DAMPING_MAX", "SUPPORT", "DOUBTFUL", "COMPONENTS"]
+__all__ = ["Stabilization", "stabilization", "pick_poles", "DAMPING_MAX", "SUPPORT", "DOUBTFUL", "COMPONENTS",
+           "SCATTER", "DAMPING_SCATTER"]
 
 DAMPING_MAX = 0.3  # a pole damped more than this is taken as computational
 SUPPORT = 0.4  # share of the orders (upper half of the diagram) a pole must appear in to be returned...
 DOUBTFUL = 0.25  # ...and to be reported as doubtful (fewer: a computational pole, not reported)
 COMPONENTS = 12  # principal FRFs the denominator is fitted on (all rows share the poles)
-SCATTER = 0.5  # poles of one cluster lie within this share of their half-power half-width of each other
+SCATTER = 0.5  # poles of one cluster lie within this share of their half-power half-width of each other...
+DAMPING_SCATTER = 1 / 3  # ...and within this share of each other's damping (a ratio of 1 + it at most)
 SIGNIFICANT = 0.05  # principal FRFs below this share of the first are taken as noise
 DIRECT_ROWS = 256  # rows up to which the principal FRFs come from the whole Gram matrix (see _principal)
 SKETCH_EXTRA = 8  # directions the range of more rows is sketched with beyond the components kept
@@ -178,7 +180,7 @@ def pick_poles(stab: Stabilization, support: float = SUPPORT) -> tuple[np.ndarra
     order, f, z = np.array(points).T
     scale_f = SCATTER * np.maximum(z, 1e-4) * f  # Hz
     df = np.abs(f[:, None] - f[None, :]) / np.minimum(scale_f[:, None], scale_f[None, :])
-    dz = np.abs(np.log(z[:, None] / z[None, :])) / np.log(1 + 1 / 3)
+    dz = np.abs(np.log(z[:, None] / z[None, :])) / np.log(1 + DAMPING_SCATTER)
     distance = np.maximum(df, dz)
     links = scipy.cluster.hierarchy.linkage(distance[np.triu_indices(len(f), 1)], "complete")
     labels = scipy.cluster.hierarchy.fcluster(links, 1.0, "distance")

@@ -24,9 +24,9 @@ from .estimators import (
     sdof_fit,
 )
 from .band_fit import fit_band
-from .coarse import LINES_SEARCHED, coarse_rows
+from .coarse import coarse_rows, joint_reach
 from .frf import FRF, mobility
-from .lscf import SCATTER, pick_poles, stabilization
+from .lscf import DAMPING_SCATTER, SCATTER, pick_poles, stabilization
 
 EDGE_OF_BAND = "too few bins between the pole and the edge of the measurement"
 DOUBTFUL = "doubtful: stable in too few LSCF orders"
@@ -89,8 +89,8 @@ def _within_cluster(refined: np.ndarray, poles: np.ndarray) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         near = np.abs(refined[:, 0] - f) <= SCATTER * zeta * f
         ratio = refined[:, 1] / zeta
-    kept = near & (ratio >= 3 / 4) & (ratio <= 4 / 3)  # a number not finite: not kept
-    return refined.copy() if kept.all() else poles.copy()
+    kept = near & (ratio >= 1 / (1 + DAMPING_SCATTER)) & (ratio <= 1 + DAMPING_SCATTER)  # not finite: not kept
+    return refined if kept.all() else poles
 
 
 def _rows(frf: FRF, poles: np.ndarray) -> list:
@@ -230,7 +230,7 @@ def _unsaid(multi: Modes, rows: list, df: float) -> list:
     out = []
     for i in np.flatnonzero(~multi.resolved):
         f, z = multi.frequencies[i], multi.damping[i]
-        reach = max(z * f if np.isfinite(z) and z > 0 else 0.0, (LINES_SEARCHED + 1) * df)
+        reach = max(z * f if np.isfinite(z) and z > 0 else 0.0, joint_reach(df))
         if multi.reasons[i] != DOUBTFUL and not (said.size and np.nanmin(np.abs(said - f)) <= reach):
             out.append(multi.row(i))
     return out

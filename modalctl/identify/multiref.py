@@ -130,9 +130,7 @@ def _best_input(frfs: list[FRF], stacked: FRF, frequencies: np.ndarray, damping:
     1e-13 the stacked diagram puts the pole at 135.27-135.52 Hz, and this reading lands at
     135.30-135.43 Hz."""
     f, zeta = frequencies[k], damping[k]
-    half = half_width(frequencies, damping, k, frfs[0].line_spacing)
-    near = neighbours(frequencies, damping, k, half)
-    others = list(zip(frequencies[near], damping[near]))
+    half, others = _band_beside(frequencies, damping, k, frfs[0].line_spacing)
     best = None
     for q, frf in enumerate(frfs):
         pole = fit_band(frf, [(f, zeta)], f, half, fixed=others)[0]
@@ -153,15 +151,20 @@ def _best_input(frfs: list[FRF], stacked: FRF, frequencies: np.ndarray, damping:
     return best[0], row, best[2]
 
 
+def _band_beside(frequencies: np.ndarray, damping: np.ndarray, k: int, df: float) -> tuple[float, list]:
+    """Mode ``k``'s band half width (Hz) and the poles ``(f, zeta)`` reaching into it, held fixed in its fits."""
+    half = half_width(frequencies, damping, k, df)
+    near = neighbours(frequencies, damping, k, half)
+    return half, list(zip(frequencies[near], damping[near]))
+
+
 def _two_poles(stacked: FRF, frequencies: np.ndarray, damping: np.ndarray, k: int) -> list | None:
     """Mode ``k`` fitted as two poles on every row of ``stacked`` (its neighbours fixed), as two
     rows ``(f, zeta, constants, misfit, True, "")``; None when they leave the band, lose a
     physical damping, meet, or either is not resolved."""
     f, zeta = frequencies[k], damping[k]
     df = stacked.line_spacing
-    half = half_width(frequencies, damping, k, df)
-    near = neighbours(frequencies, damping, k, half)
-    others = list(zip(frequencies[near], damping[near]))
+    half, others = _band_beside(frequencies, damping, k, df)
     pair = fit_band(stacked, [(f - zeta * f / 2, zeta), (f + zeta * f / 2, zeta)], f, half, fixed=others)
     if not all(abs(p - f) <= half and 0 < z < 0.5 for p, z in pair) or abs(pair[0, 0] - pair[1, 0]) < df:
         return None
