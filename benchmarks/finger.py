@@ -239,7 +239,8 @@ def _over_draws(settling: list[dict]) -> list[str]:
     """The table of :func:`_settling`'s draws: per case and scenario, medians and the worst draw."""
     md = ["", "## Over noise draws (the default, no touch sensor)", "",
           f"Seeds {SEEDS[0]}-{SEEDS[-1]} of the HIL's noise (the tables above: seed 0); settled: within 10% of the "
-          "truth and staying there until the focus, after the finger landed (the shot's start when it rests); "
+          "truth and staying there until the focus, after the finger landed (the shot's start when it rests; '-': "
+          "not within 10% at the focus in half the draws, or in one); "
           "recovered, tau and margin (as the vibrometer measures it): median, and the worst draw in brackets.", "",
           "| case | scenario | settled median (ms) | settled max (ms) | under 5 ms | recovered | tau | margin |",
           "|---|---|---|---|---|---|---|---|"]
@@ -252,7 +253,8 @@ def _over_draws(settling: list[dict]) -> list[str]:
             back = np.array([np.nan if r.get("recovered") is None else r["recovered"] for r in got])
             tau = np.array([r["tau"] for r in got])
             margin = np.array([r.get("margin_ratio", np.nan) for r in got])
-            md.append(f"| {case} | {scenario} | {1e3 * np.median(times):.1f} | {1e3 * times.max():.1f} | "
+            median, most = (_fmt(None if not np.isfinite(v) else 1e3 * v, ".1f") for v in (np.median(times), times.max()))
+            md.append(f"| {case} | {scenario} | {median} | {most} | "
                       f"{np.sum(times < 5e-3)}/{times.size} | {np.nanmedian(back):.0%} ({np.nanmin(back):.0%}) | "
                       f"{np.median(tau):.3f} ({tau.min():.3f}) | {np.median(margin):.3f} ({margin.max():.3f}) |")
     return md
@@ -290,7 +292,7 @@ def report(data: dict, path) -> None:
     if data.get("settling"):
         md += _over_draws(data["settling"])
     write_markdown("finger", md, path)
-    _draw(rows, sweep)
+    _draw(rows, sweep, data.get("settling") or [])
 
 
 def _at_focus(history: list, shot) -> float | None:
@@ -310,7 +312,7 @@ def _fmt(value, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
-def _draw(rows, sweep) -> None:
+def _draw(rows, sweep, draws: list) -> None:
     fig, axes = plt.subplots(2, 3, figsize=(18, 9.6))
     axes = axes.ravel()
     colors = {"open": "0.6", "pi": "tab:blue", "touch": "tab:red", "default": "tab:purple",
@@ -322,12 +324,18 @@ def _draw(rows, sweep) -> None:
                    for s in SCENARIOS]
             if None in got:
                 continue
-            ax.bar(np.arange(len(SCENARIOS)) + (i - (len(METHODS) - 1) / 2) * width,
-                   [100 * (r["recovered"] or 0) for r in got], width, color=colors[method], label=method)
+            at = np.arange(len(SCENARIOS)) + (i - (len(METHODS) - 1) / 2) * width
+            ax.bar(at, [100 * (r["recovered"] or 0) for r in got], width, color=colors[method], label=method)
+            if method == "default":  # the spread over the noise draws, where they were played
+                for x, scenario in zip(at, SCENARIOS):
+                    back = [100 * r["recovered"] for r in draws if r["case"] == case and r["scenario"] == scenario
+                            and r.get("recovered") is not None]
+                    if back:
+                        ax.plot([x, x], [min(back), max(back)], color="k", lw=1.5)
         ax.axhline(90, color="k", ls=":", lw=1)
         ax.set_xticks(np.arange(len(SCENARIOS)), list(SCENARIOS), rotation=15)
         ax.set_ylabel("focus peak recovered (% of what the finger took)")
-        ax.set_title(case)
+        ax.set_title(f"{case}\n(black: the default over {len(SEEDS)} noise draws)", fontsize=10)
     ax = axes[len(CASES)]
     for method in ("open", "pi", "default"):
         got = [r for r in sweep if r["sweep"] == "damping" and r["method"] == method]
