@@ -63,6 +63,39 @@ def test_a_pair_the_patches_push_along_one_direction_is_given_the_forces_once():
     assert Overlapping(LoopPlant(f, np.full(3, 0.01), np.full(3, 50.0), 20e3, 1))(asked, 200) is asked
 
 
+def test_the_touch_s_forces_are_solved_together_with_the_drift_s_only_where_the_controller_says_so():
+    """The touch controller's commands (``TouchControl._commands``) on the pair above (one patch) and 3000 Hz:
+    ``together`` (the default's), the touch's and the drift's forces are sent as one set of commands that make,
+    on the pair, their sum's projection on the direction the patch pushes (computed here from that direction):
+    the finger's mode is not given its force twice over through its neighbour; otherwise each mode's touch force
+    is its own loop's command and the drift's alone is solved together. Nothing asked: nothing sent."""
+    from modalctl.loops.touch import TouchControl
+
+    f = np.array([1000.0, 1005.0, 3000.0])
+    overlapping = Overlapping(_plant(f, [[1.0], [1.0], [1.0]], [[1.0, 1.0, 1.0]]))
+    period, w = 154, 2 * np.pi * f[:2]
+    touch, drift = np.array([1.0, 0.1, 0.5], complex), np.array([0.2j, -0.1j, 0.3j])
+
+    def commands(together, drift):
+        self = SimpleNamespace(together=together, _overlapping=overlapping, _playing=lambda: period)
+        return TouchControl._commands(self, touch, drift)
+
+    t = period / 20e3
+    direction = np.exp(-1j * w * t)  # in mode j's frame the pair's commands make direction_j (exp(j w t) . c)
+    for drift_asked in (None, drift):
+        asked = touch if drift_asked is None else touch + drift_asked
+        sent = commands(True, drift_asked)
+        made = direction * np.vdot(direction, sent[:2])  # vdot conjugates direction: exp(j w t) . c
+        projected = direction * np.vdot(direction, asked[:2]) / np.vdot(direction, direction)
+        assert np.allclose(made, projected) and sent[2] == asked[2]
+    each = commands(False, drift)
+    assert np.allclose(each, touch + overlapping(drift, period))
+    assert np.array_equal(commands(False, None), touch)
+    nothing = np.zeros(3, complex)
+    self = SimpleNamespace(together=True, _overlapping=overlapping, _playing=lambda: period)
+    assert TouchControl._commands(self, nothing, None) is nothing
+
+
 def test_the_default_closed_loop_no_longer_overshoots_plate_glass_at_one_percent_drift(tmp_path, capsys):
     """plate-glass (four patches) pushes modes 11 and 12, and 13 and 14, along one direction each; the drift's
     give-back, each mode's sized for itself, gave each pair twice and more: the 30 mm gaussian at (20, 10) mm

@@ -1,4 +1,5 @@
-"""A drift's give-back to modes whose resonances overlap: the commands that make its forces, solved together.
+"""The give-back to modes whose resonances overlap (a drift's, and a touch's): the commands that make its forces,
+solved together.
 
 The drift's give-back (:mod:`modalctl.loops.touch`) asks a force ``f_k = -j dw_k y_k / r_k`` of each kept mode
 in its own carrier's frame, and each loop's command ``c_k`` is played on mode k's carrier through the plan's
@@ -19,12 +20,15 @@ none). A pair the patches push along one direction is given the part of the forc
 pair they keep apart (``b_j . g_k = 0``: the dispatch's weights) is given its forces as asked; modes alone
 likewise.
 
-A touch's give-back is not sent through it. A finger couples the modes it rests on (its force is its damping
-times the velocity there, every mode's), and that give-back, per mode, was measured to give back more of the
-lost peak: plate-glass's 30 mm gaussian under 1 N s/m at its peak, no noise, per mode against solved together
-(with the finger's coupling within each group modelled as well): the touch controller 97% against 87%, the
-default 96% against 90%; at 40 dB the default's margins 0.51-0.53 against 0.48-0.51 (resting, landing, pressing,
-sliding), tau 0.96-0.98 against 0.95-0.97.
+A touch's give-back goes through it too in the default controller (``touch+cluster``: the touch controller's
+``together``), not over PI loops. A finger near mode 11's antinode drains it (phi 13.6 against mode 12's 1.0),
+and mode 11's give-back, sized for it alone, reached mode 12 2.5 times as strongly, 1.2% from its resonance,
+where no finger drains it: the margin's excess under a finger on plate-glass (``benchmarks/finger_causes.py``).
+Solved together, plate-glass's 30 mm gaussian under 1 N s/m at its peak, with no noise: 90% of the lost peak
+given back against 96% per mode, tau 0.966 against 0.974, margin 0.469 against 0.497; at 40 dB over seven noise
+draws 93% (the worst 82%) against 99% (88%), margin 0.486 (0.493) against 0.512 (0.517): the margin holds. Over
+the PI loops, which read the pair's modes each on its own, it was worse with no noise (87%, margin 0.523 against
+97%, 0.510): the touch controller's notes.
 """
 
 from __future__ import annotations

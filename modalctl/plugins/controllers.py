@@ -59,7 +59,7 @@ class TouchCluster(ControllerFactory):
         from modalctl.loops.cluster import ClusterControl
         from modalctl.loops.touch import TouchControl
 
-        return TouchControl(plant, ClusterControl(plant, alone="pi"), **options)
+        return TouchControl(plant, ClusterControl(plant, alone="pi"), **{"together": True, **options})
 
 
 class Cluster(ControllerFactory):
