@@ -131,12 +131,14 @@ def report(data: dict, path) -> None:
              "give-back cancels). What-ifs, patched in for the shot only; see the script's docstring. margin: "
              "measured in one scan (its noise included); field: without the vibrometer's noise.", "",
              "Below each scene, the field's margin with the finger split into what each part adds. On plate-glass "
-             "most of it is the give-back's own: its modes 11 and 12 (6651 and 6731 Hz, 1.2% apart) have parallel "
-             "rows of actuator gains (|cos| 1.00: the four patches push both along one direction; 13 and 14 "
-             "too), so the force given back to mode 11 (the finger near its antinode, phi 13.6 against mode 12's "
-             "1.0) reaches mode 12 2.5 times as strongly, 1.2% from its resonance, where no finger drains it "
-             "(measured on the plan's dispatch weights, `modalctl.plan.dispatch`). A per-mode give-back cannot "
-             "avoid it; a drive re-planned on the touched model could.", "",
+             "its modes 11 and 12 (6651 and 6731 Hz, 1.2% apart) have parallel rows of actuator gains (|cos| 1.00: "
+             "the four patches push both along one direction; 13 and 14 too), so a force given back to mode 11 "
+             "alone (the finger near its antinode, phi 13.6 against mode 12's 1.0) reaches mode 12 2.5 times as "
+             "strongly, 1.2% from its resonance, where no finger drains it (measured on the plan's dispatch "
+             "weights, `modalctl.plan.dispatch`): per mode, the give-back's own part was +0.043 of the resting "
+             "finger's margin and +0.064 of the pressing one's (2026-11-29). The default now sends it as the "
+             "commands that make the pair's forces together (`modalctl.loops.overlap`): what is left of it below.",
+             "",
              f"Wall time {data['seconds']:.0f} s.", ""]
     for case in dict.fromkeys(r["case"] for r in data["rows"]):
         lines += [f"## {case}", "", "| finger | method | recovered | tau | margin (field) |", "|---|---|---|---|---|"]
