@@ -189,8 +189,8 @@ def main() -> None:
         row["recovered"] = (row["peak"] - opened["peak"]) / taken if taken > 0 else None
     sweep = _sweeps()
     settling = _settling()
-    data = {"rows": rows, "sweep": sweep, "settling": settling, "wall_seconds": time.perf_counter() - start, "snr_db": SNR,
-            "focus_time_s": FOCUS}
+    data = {"rows": rows, "sweep": sweep, "settling": settling, "plate_sweep": _plate_sweeps(),
+            "wall_seconds": time.perf_counter() - start, "snr_db": SNR, "focus_time_s": FOCUS}
     report(data, write_json("finger", data))
 
 
@@ -208,6 +208,22 @@ def _sweeps() -> list[dict]:
             out.append({"sweep": kind, "finger": c, "at_mm": 1e3 * at[0], "method": method,
                         **{k: row[k] for k in ("peak", "tau", "margin_ratio", "peak_voltage", "state", "fault",
                                                "estimate")}})
+    return out
+
+
+def _plate_sweeps() -> list[dict]:
+    """The finger's damping 0-3 N s/m on the target's peak of each plate's case, open loop, PI and the default:
+    where the loops would diverge under a heavier finger than the one the cases test."""
+    out = []
+    for case in (c for c in CASES if not CASES[c][0].startswith("thesis")):
+        model, target, peak = _setup(*CASES[case])
+        plans: dict = {}
+        for c in tqdm(SWEEP_DAMPING, desc=f"finger damping, {CASES[case][0]}", unit="damping"):
+            for method in ("open", "pi", "default"):
+                row = _shot(model, target, method, Perturbation(finger=c, finger_at=peak if c else None, snr_db=SNR),
+                            plans)
+                out.append({"case": case, "finger": c, "method": method,
+                            **{k: row[k] for k in ("peak", "tau", "margin_ratio", "peak_voltage", "state", "fault")}})
     return out
 
 
@@ -289,10 +305,15 @@ def report(data: dict, path) -> None:
         est = _sensed(r["estimate"])
         md.append(f"| {r['sweep']} | {r['finger']:g} | {r['at_mm']:g} | {r['method']} | {r['tau']:.3f} | "
                   f"{r['margin_ratio']:.3f} | {r['peak_voltage']:.1f} | {r['state'] or 'open'} | {_fmt(est, '.2f')} |")
+    if data.get("plate_sweep"):
+        md += ["", "## Stability on the plates (finger on the target's peak)", "",
+               "| case | finger (N s/m) | method | tau | margin | peak V | state |", "|---|---|---|---|---|---|---|"]
+        md += [f"| {r['case']} | {r['finger']:g} | {r['method']} | {r['tau']:.3f} | {r['margin_ratio']:.3f} | "
+               f"{r['peak_voltage']:.1f} | {r['state'] or 'open'} |" for r in data["plate_sweep"]]
     if data.get("settling"):
         md += _over_draws(data["settling"])
     write_markdown("finger", md, path)
-    _draw(rows, sweep, data.get("settling") or [])
+    _draw(rows, sweep, data.get("settling") or [], data.get("plate_sweep") or [])
 
 
 def _at_focus(history: list, shot) -> float | None:
@@ -312,7 +333,7 @@ def _fmt(value, spec: str) -> str:
     return "-" if value is None else format(value, spec)
 
 
-def _draw(rows, sweep, draws: list) -> None:
+def _draw(rows, sweep, draws: list, plates: list) -> None:
     fig, axes = plt.subplots(2, 3, figsize=(18, 9.6))
     axes = axes.ravel()
     colors = {"open": "0.6", "pi": "tab:blue", "touch": "tab:red", "default": "tab:purple",
@@ -340,11 +361,15 @@ def _draw(rows, sweep, draws: list) -> None:
     for method in ("open", "pi", "default"):
         got = [r for r in sweep if r["sweep"] == "damping" and r["method"] == method]
         ax.plot([r["finger"] for r in got], [r["tau"] for r in got], "o-", color=colors[method], label=method)
+    for case, style in zip(dict.fromkeys(r["case"] for r in plates), ("s--", "^--", "v--")):
+        got = [r for r in plates if r["case"] == case and r["method"] == "default"]
+        ax.plot([r["finger"] for r in got], [r["tau"] for r in got], style, color=colors["default"], ms=4, lw=1,
+                label=f"default, {CASES[case][0]}")
     ax.axhline(0.95, color="k", ls=":", lw=1)
     ax.set_xlabel("finger damping at the focus (N s/m)")
     ax.set_ylabel("tau")
-    ax.set_title("al-cc bump 25 mm: one shot, finger at the focus")
-    ax.legend()
+    ax.set_title("one shot, finger at the focus\n(al-cc bump 25 mm; the plates' cases dashed)", fontsize=10)
+    ax.legend(fontsize=8)
     handles = {h.get_label(): h for a in axes[:len(CASES)] for h in a.containers}  # one legend: none covers bars
     fig.legend([handles[m] for m in METHODS if m in handles], [m for m in METHODS if m in handles],
                loc="upper center", ncol=len(METHODS), fontsize=9)
