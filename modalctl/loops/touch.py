@@ -13,7 +13,8 @@ A resonance drifted from its carrier by ``dw`` is given back the same way, ``-j 
 estimator reads each clean mode's detuning (:meth:`~.touch_estimator.TouchEstimator.detuning`) and
 every mode is shifted by their median share, unless the shift leaves its carrier nearer another mode
 that its drive moves more (:class:`Drivable`). Both forces are sent as the commands that make them: on modes whose
-resonances overlap, solved together (:class:`~modalctl.loops.overlap.Overlapping`: a pair the patches push along
+resonances overlap, solved together (the touch's over the cluster laws only: ``together``, the class notes;
+:class:`~modalctl.loops.overlap.Overlapping`: a pair the patches push along
 one direction was given twice what it needed, and a finger's give-back to one of them drove the other, which
 it does not drain, past the margin). Untouched and undrifted, it is the inner controller. The commands
 the estimator is told of pass through the lock-in's low-pass, discretized for the board's ramp between periods
