@@ -146,6 +146,7 @@ class Program:
         self.offset_displacement = None if driven is None else driven[0][1][:, self.focus]
         self.seconds = {"tables": _time.perf_counter() - tic, "solve": 0.0, "check": 0.0, "rows": 0.0}
         self.cuts = {}  # every margin row found so far, per unit margin: later solves start from them
+        self._last_top = {}  # plant -> the largest off-target |w| its last check found in this solve (_floor)
         self.cut_offsets = {}  # the offset's part of each, in the same units
         self.limit_cuts = {}  # and every voltage and slew row
         self.limit_offsets = {}
@@ -221,8 +222,10 @@ class Program:
         """Plant ``s`` on ``volts``: its modal velocities (K, N), the level above which its field is
         found exactly, and its largest off-target ``|w|`` at every sample (N,)."""
         velocity = Plant(self.plants[s], self.fs).simulate(volts)
-        floor = self._floor(velocity, self.options.convex.aim * self._margin_bound(s, margin))
-        return velocity, floor, self.off_target(velocity, floor)  # exact where rows may be
+        floor = self._floor(velocity, self.options.convex.aim * self._margin_bound(s, margin), self._last_top.get(s))
+        top = self.off_target(velocity, floor)  # exact where rows may be
+        self._last_top[s] = float(top.max(initial=0.0))
+        return velocity, floor, top
 
     def correction(self, x: np.ndarray) -> np.ndarray:
         """The basis's voltages (a, N) for the columns ``x``: the whole drive, or what the program
@@ -323,6 +326,7 @@ class Program:
         margin = self.margin if margin is None else float(margin)
         start = _time.perf_counter()
         a_eq, b_eq = self.equality()
+        self._last_top = {}  # another drive's checks say nothing of this one's first
         rows = _Rows()
         self._fixed_rows(rows)
         for key in self.cuts if np.isfinite(margin) else ():  # true of every program of this focus:
@@ -375,12 +379,18 @@ class Program:
                 self.seconds["rows"] += _time.perf_counter() - tic
         return self._solution(x, status, history, len(rows), start, played)
 
-    def _floor(self, velocity: np.ndarray, floor: float) -> float:
+    def _floor(self, velocity: np.ndarray, floor: float, last: float | None = None) -> float:
         """Where the check of ``velocity`` needs the field exactly: above ``floor`` (``aim`` of the
         margin: every row lies there); but on a drive far over the margin (the field somewhere
         past :data:`FAR` times the floor), above half of what it reaches there: the rows a round
         adds are the worst (``rows_per_round``), and the search below that level would take the
-        whole grid at every sample (27 s a round on a 254-mode panel)."""
+        whole grid at every sample (27 s a round on a 254-mode panel). ``last``: the largest field the
+        plant's check of the round before found; under half of ``FAR`` times the floor, the drive is taken
+        as near and the search for what it reaches is spared (a round's new rows do not take a drive near
+        the margin far past it; were one to, its check would be slower, not wrong: the field is then
+        exact above ``floor``, as on any drive near the margin)."""
+        if last is not None and last <= 0.5 * FAR * floor:
+            return floor
         reached = self.cover.at_least(velocity)
         return 0.5 * reached if reached > FAR * floor else floor
 
