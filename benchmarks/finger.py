@@ -196,19 +196,11 @@ def main() -> None:
 
 def _sweeps() -> list[dict]:
     """The bump's finger damping 0-3 N s/m at the focus, and its place off the focus, pi and the default."""
-    scene, shape, params = CASES["al-cc bump 25 mm @ 0"]
-    model, target, peak = _setup(scene, shape, params)
+    model, target, _ = _setup(*CASES["al-cc bump 25 mm @ 0"])
     plans: dict = {}
-    out = []
     jobs = [("damping", c, (0.0,)) for c in SWEEP_DAMPING] + [("place", 1.0, (x,)) for x in SWEEP_PLACES]
-    for kind, c, at in tqdm(jobs, desc="finger sweeps", unit="case"):
-        for method in ("open", "pi", "default"):
-            p = Perturbation(finger=c, finger_at=at if c else None, snr_db=SNR)
-            row = _shot(model, target, method, p, plans)
-            out.append({"sweep": kind, "finger": c, "at_mm": 1e3 * at[0], "method": method,
-                        **{k: row[k] for k in ("peak", "tau", "margin_ratio", "peak_voltage", "state", "fault",
-                                               "estimate")}})
-    return out
+    return [{"sweep": kind, "at_mm": 1e3 * at[0], **row} for kind, c, at in tqdm(jobs, desc="finger sweeps", unit="case")
+            for row in _swept(model, target, c, at, plans)]
 
 
 def _plate_sweeps() -> list[dict]:
@@ -219,12 +211,20 @@ def _plate_sweeps() -> list[dict]:
         model, target, peak = _setup(*CASES[case])
         plans: dict = {}
         for c in tqdm(SWEEP_DAMPING, desc=f"finger damping, {CASES[case][0]}", unit="damping"):
-            for method in ("open", "pi", "default"):
-                row = _shot(model, target, method, Perturbation(finger=c, finger_at=peak if c else None, snr_db=SNR),
-                            plans)
-                out.append({"case": case, "finger": c, "method": method,
-                            **{k: row[k] for k in ("peak", "tau", "margin_ratio", "peak_voltage", "state", "fault")}})
+            out += [{"case": case, **row} for row in _swept(model, target, c, peak, plans)]
     return out
+
+
+def _swept(model, target, finger: float, at, plans: dict) -> list[dict]:
+    """One point of a sweep: a finger of ``finger`` N s/m at ``at`` (none when zero), open loop, PI and the
+    default, each shot's row."""
+    rows = []
+    for method in ("open", "pi", "default"):
+        row = _shot(model, target, method, Perturbation(finger=finger, finger_at=at if finger else None, snr_db=SNR),
+                    plans)
+        rows.append({"finger": finger, "method": method,
+                     **{k: row[k] for k in ("peak", "tau", "margin_ratio", "peak_voltage", "state", "fault", "estimate")}})
+    return rows
 
 
 def _settling() -> list[dict]:
@@ -268,7 +268,7 @@ def _over_draws(settling: list[dict]) -> list[str]:
             times = np.array([np.inf if r["settled_s"] is None else r["settled_s"] for r in got])
             back = np.array([np.nan if r.get("recovered") is None else r["recovered"] for r in got])
             tau = np.array([r["tau"] for r in got])
-            margin = np.array([r.get("margin_ratio", np.nan) for r in got])
+            margin = np.array([r["margin_ratio"] for r in got])
             median, most = (_fmt(None if not np.isfinite(v) else 1e3 * v, ".1f") for v in (np.median(times), times.max()))
             md.append(f"| {case} | {scenario} | {median} | {most} | "
                       f"{np.sum(times < 5e-3)}/{times.size} | {np.nanmedian(back):.0%} ({np.nanmin(back):.0%}) | "

@@ -24,11 +24,9 @@ A touch's give-back goes through it too in the default controller (``touch+clust
 ``together``), not over PI loops. A finger near mode 11's antinode drains it (phi 13.6 against mode 12's 1.0),
 and mode 11's give-back, sized for it alone, reached mode 12 2.5 times as strongly, 1.2% from its resonance,
 where no finger drains it: the margin's excess under a finger on plate-glass (``benchmarks/finger_causes.py``).
-Solved together, plate-glass's 30 mm gaussian under 1 N s/m at its peak, with no noise: 90% of the lost peak
-given back against 96% per mode, tau 0.966 against 0.974, margin 0.469 against 0.497; at 40 dB over seven noise
-draws 93% (the worst 82%) against 99% (88%), margin 0.486 (0.493) against 0.512 (0.517): the margin holds. Over
-the PI loops, which read the pair's modes each on its own, it was worse with no noise (87%, margin 0.523 against
-97%, 0.510): the touch controller's notes.
+Solved together, the resting finger's margin holds on every noise draw there, at a few points of the lost peak
+given back; over PI loops, which read the pair's modes each on its own, it was worse: the measurements are in the
+touch controller's notes (:class:`~modalctl.loops.touch.TouchControl`).
 """
 
 from __future__ import annotations

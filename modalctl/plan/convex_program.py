@@ -146,7 +146,6 @@ class Program:
         self.offset_displacement = None if driven is None else driven[0][1][:, self.focus]
         self.seconds = {"tables": _time.perf_counter() - tic, "solve": 0.0, "check": 0.0, "rows": 0.0}
         self.cuts = {}  # every margin row found so far, per unit margin: later solves start from them
-        self._last_top = {}  # plant -> the largest off-target |w| its last check found in this solve (_floor)
         self.cut_offsets = {}  # the offset's part of each, in the same units
         self.limit_cuts = {}  # and every voltage and slew row
         self.limit_offsets = {}
@@ -218,14 +217,13 @@ class Program:
         """The drive's voltages (a, N)."""
         return self.correction(x) if self.offset is None else self.offset + self.correction(x)
 
-    def _check_plant(self, s: int, volts: np.ndarray, margin: float) -> tuple:
+    def _check_plant(self, s: int, volts: np.ndarray, margin: float, last: float | None = None) -> tuple:
         """Plant ``s`` on ``volts``: its modal velocities (K, N), the level above which its field is
-        found exactly, and its largest off-target ``|w|`` at every sample (N,)."""
+        found exactly, and its largest off-target ``|w|`` at every sample (N,). ``last``: the largest its check
+        of the round before found (None in a first round; :meth:`_floor`)."""
         velocity = Plant(self.plants[s], self.fs).simulate(volts)
-        floor = self._floor(velocity, self.options.convex.aim * self._margin_bound(s, margin), self._last_top.get(s))
-        top = self.off_target(velocity, floor)  # exact where rows may be
-        self._last_top[s] = float(top.max(initial=0.0))
-        return velocity, floor, top
+        floor = self._floor(velocity, self.options.convex.aim * self._margin_bound(s, margin), last)
+        return velocity, floor, self.off_target(velocity, floor)  # exact where rows may be
 
     def correction(self, x: np.ndarray) -> np.ndarray:
         """The basis's voltages (a, N) for the columns ``x``: the whole drive, or what the program
@@ -326,7 +324,6 @@ class Program:
         margin = self.margin if margin is None else float(margin)
         start = _time.perf_counter()
         a_eq, b_eq = self.equality()
-        self._last_top = {}  # another drive's checks say nothing of this one's first
         rows = _Rows()
         self._fixed_rows(rows)
         for key in self.cuts if np.isfinite(margin) else ():  # true of every program of this focus:
@@ -339,7 +336,7 @@ class Program:
         if self._multipliers is not None:  # the last solve's active set, row by row
             eq, known = self._multipliers
             duals = np.r_[eq, [known.get(key, 0.0) for key in rows.order]]
-        played = None
+        played, tops = None, None  # tops: the last round's largest |w| per sample, on each plant
         with _PlantPool(len(self.plants)) as plants, tqdm(total=opts.rounds, desc="margin program", unit="round",
                                                          disable=not progress, leave=False) as bar:
             for round_ in range(1, opts.rounds + 1):
@@ -360,8 +357,9 @@ class Program:
                     self._multipliers = (duals[:neq], dict(zip(rows.order, duals[neq:])))
                 tic = _time.perf_counter()
                 volts = self.voltages(x)
+                last = [None] * len(self.plants) if tops is None else [float(top.max()) for top in tops]
                 velocities, floors, tops = (list(a) for a in zip(*plants.map(
-                    lambda s: self._check_plant(s, volts, margin), range(len(self.plants)))))
+                    lambda s: self._check_plant(s, volts, margin, last[s]), range(len(self.plants)))))
                 played = (x, volts, velocities, [top.max() if top.max() > floor else None
                                                  for top, floor in zip(tops, floors)])
                 ratios = [float(top.max()) / self._margin_bound(s, 1.0) for s, top in enumerate(tops)]
