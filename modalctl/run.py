@@ -21,6 +21,7 @@ from modalctl.errors import InputError
 from modalctl.identify.trackers import updated_model
 from modalctl.identify.updating import update
 from modalctl.io.device import Capabilities, Capture, Device, DeviceError, scan_indices
+from modalctl.loops import kernels
 from modalctl.loops.close_modes import clusters_of
 from modalctl.loops.onboard import check_table
 from modalctl.loops.runtime import LoopParts, PhasorBoard, RunResult
@@ -348,6 +349,7 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
                     f"the board at {device.url}")
     elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
         _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
+        kernels.warm_soon()  # the loops' kernels load while the plan is made
     plan_options = options.planned.but(voltage_limit=voltage_limit)
     dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     learning = None

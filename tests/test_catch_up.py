@@ -7,9 +7,11 @@ from scipy.linalg import expm
 from scipy.signal import butter
 
 from modalctl.loops.catch_up import CatchUp
+from modalctl.model.touch import velocity_residues
 
 RATE, BAND, FOCUS = 20e3, 400.0, 5e-3
-F, ZETA, R = 900.0, 0.004, 0.5  # Hz, ratio, the envelope's rate per unit force
+F, ZETA = 900.0, 0.004  # Hz, ratio
+R = complex(velocity_residues([F], [ZETA])[0])  # the envelope's rate per unit force (about 1/2)
 P = -2 * np.pi * F * ZETA
 
 
@@ -33,7 +35,7 @@ def _period():
     its slope. Returns the (n + 3)-square map of (x, filter state, u, du/dt)."""
     af, bf, _ = _lockin()
     n = af.shape[0]
-    big = np.zeros((n + 3, n + 3))
+    big = np.zeros((n + 3, n + 3), complex)
     big[0, 0], big[0, n + 1] = P, R
     big[1:n + 1, 0], big[1:n + 1, 1:n + 1] = bf, af
     big[n + 1, n + 2] = 1.0
@@ -57,7 +59,7 @@ def _closed(deficit: complex, planned: complex = 1.0 + 0j, authority: float = 1.
         plans.append(plan[0])
         references.append(complex(cf @ plan[1:]))
     truth = np.concatenate([[planned - deficit], settled * (planned - deficit)])
-    catch = CatchUp([F], [ZETA], [R], [BAND], RATE, lead, FOCUS, np.array([references]))
+    catch = CatchUp([F], [ZETA], [BAND], RATE, lead, FOCUS, np.array([references]))
     queue, last, forces, miss = [0j] * lead, 0j, [], None
     for period in range(periods):
         playing = queue.pop(0)
@@ -82,7 +84,8 @@ def test_a_deficit_along_the_plan_is_caught_up_by_the_focus_without_overshoot(le
     show yet, the same loop passed the plan (misses -0.004 and -0.007)."""
     miss, forces = _closed(0.1 + 0j, lead=lead)
     assert 0 < miss.real < 0.15 * 0.1 and abs(miss.imag) < 1e-12
-    assert np.all(forces.real >= -1e-12) and np.abs(forces.imag).max() < 1e-12
+    pushes = forces * R  # what each force adds to the envelope's rate: along the plan
+    assert np.all(pushes.real >= -1e-12) and np.abs(pushes.imag).max() < 1e-12
     assert np.abs(forces).max() > 0  # it acted
 
 
@@ -92,7 +95,7 @@ def test_the_deficit_is_read_along_the_plans_phase_whatever_that_phase():
     miss, forces = _closed(0.1 * turn, planned=turn)
     straight, _ = _closed(0.1 + 0j)
     assert abs(miss - straight * turn) < 1e-9
-    assert np.abs(np.angle(forces[np.abs(forces) > 0] / turn)).max() < 1e-9
+    assert np.abs(np.angle(forces[np.abs(forces) > 0] * R / turn)).max() < 1e-9
 
 
 @pytest.mark.parametrize("deficit", [-0.1 + 0j, 0.1j], ids=["surplus", "across"])
@@ -107,7 +110,7 @@ def test_no_force_on_a_loop_without_authority_nor_from_the_focus_on():
     _, forces = _closed(0.1 + 0j, authority=0.0)
     assert np.abs(forces).max() == 0
     late = int(FOCUS * RATE)
-    catch = CatchUp([F], [ZETA], [R], [BAND], RATE, 1, FOCUS, np.ones((1, late + 10), complex))
+    catch = CatchUp([F], [ZETA], [BAND], RATE, 1, FOCUS, np.ones((1, late + 10), complex))
     assert catch.correction(late, np.array([0.1 + 0j]), np.array([1.0]))[0] == 0
 
 

@@ -207,30 +207,3 @@ def test_limits_reject_nonsense():
         Limits(0.0)
     with pytest.raises(ValueError, match="divergence factor"):
         Limits(10.0, divergence=0.5)
-
-
-def test_pi_law_is_the_same_mode_by_mode_and_all_at_once():
-    """The plain-Python evaluation used for few loops gives the numpy law's commands and integrals,
-    through saturation, anti-windup holds, resting loops and loops taking authority back."""
-    from modalctl.loops.controller import LoopDesign
-    from modalctl.loops.pi import PIControl
-
-    rng = np.random.default_rng(3)
-    k = 7
-    design = LoopDesign(rng.uniform(50, 500, k), rng.uniform(1e3, 1e5, k), *np.full((3, k), np.nan))
-    scalar, vector = PIControl(design, 20e3), PIControl(design, 20e3)
-    vector.scalar = False
-    assert scalar.scalar
-    held = rested = 0
-    for n in range(400):
-        error = (rng.standard_normal(k) + 1j * rng.standard_normal(k)) * 1e-3
-        limit = np.where(rng.random(k) < 0.15, 0.0, rng.uniform(0.05, 0.6, k))  # some loops rest
-        odd = rng.random(k)
-        limit[odd < 0.03], limit[odd > 0.97] = -0.2, np.nan  # a limit below zero or not a number: rest too
-        before = scalar.integral.copy()
-        a, b = scalar.update(error, limit), vector.update(error, limit)
-        assert np.allclose(a, b, rtol=1e-12, atol=1e-15) and np.allclose(scalar.integral, vector.integral, 1e-12, 1e-15)
-        assert np.all(np.abs(a) <= np.nan_to_num(np.maximum(limit, 0)) * (1 + 1e-12))
-        held += np.count_nonzero((scalar.integral == before) & (limit > 0) & (error != 0))
-        rested += np.count_nonzero(~(limit > 0))
-    assert held > 20 and rested > 100  # the anti-windup and the rest were both exercised

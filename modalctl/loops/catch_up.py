@@ -43,8 +43,10 @@ from collections import deque
 import numpy as np
 
 from modalctl.model.propagate import hold_coefficients
+from modalctl.model.touch import velocity_residues
 
 from .design import CommandFilter
+from . import kernels
 
 __all__ = ["CatchUp", "TAU_MIN"]
 
@@ -59,10 +61,8 @@ class CatchUp:
     Parameters
     ----------
     frequencies, damping : array_like, shape (k,)
-        The kept modes (Hz, ratios): each envelope's decay ``p = -2 pi f zeta`` in its carrier's frame.
-    residues : array_like, shape (k,)
-        Velocity residues ``r_k``: the envelope's rate per unit modal force
-        (:func:`modalctl.model.touch.velocity_residues`).
+        The kept modes (Hz, ratios): each envelope's decay ``p = -2 pi f zeta`` in its carrier's frame, and
+        its rate per unit modal force, the velocity residue ``r_k`` (:func:`modalctl.model.touch.velocity_residues`).
     bandwidths : array_like, shape (k,)
         Lock-in corners (Hz).
     control_rate : float
@@ -74,14 +74,17 @@ class CatchUp:
     planned : ndarray, shape (k, n)
         The readings' planned envelopes at the end of each period (the loops' references): the direction
         a deficit is read along.
+    modes : array_like of int, shape (k,), optional
+        Where its modes are among the loops' (the errors and limits :meth:`correction` is given); default:
+        the loops are its modes.
     """
 
-    def __init__(self, frequencies, damping, residues, bandwidths, control_rate: float, lead: int,
-                 focus_time: float, planned: np.ndarray):
+    def __init__(self, frequencies, damping, bandwidths, control_rate: float, lead: int, focus_time: float,
+                 planned: np.ndarray, modes=None):
         p = -2 * np.pi * np.asarray(frequencies, float) * np.asarray(damping, float) + 0j
         self.period = 1 / float(control_rate)
         self.a, g0, g1 = hold_coefficients(p, self.period, "foh")
-        residues = np.asarray(residues, complex)
+        residues = velocity_residues(frequencies, damping)
         self._r0, self._r1 = residues * g0, residues * g1
         self.filter = CommandFilter(bandwidths, control_rate)
         self.lead, self.focus_time = max(1, int(lead)), float(focus_time)
@@ -89,9 +92,9 @@ class CatchUp:
         # force per unit share and second of horizon, plan / r (zero where nothing is planned)
         plan = np.asarray(planned, complex).T
         size = np.abs(plan) ** 2
-        self._share = np.ascontiguousarray(np.divide(plan.conj(), size, out=np.zeros(plan.shape, complex),
-                                                     where=size > 0))
-        self._force = np.ascontiguousarray(plan / residues)
+        share = np.divide(plan.conj(), size, out=np.zeros(plan.shape, complex), where=size > 0)
+        self._plan = np.ascontiguousarray(np.stack([share, plan / residues], axis=1))  # (n, 2, k)
+        self.modes = np.arange(self.a.size) if modes is None else np.asarray(modes, np.int64)
         self.reset()
 
     def reset(self) -> None:
@@ -100,30 +103,23 @@ class CatchUp:
         self.state = np.zeros(k, complex)  # what the corrections have added to each envelope, unfiltered
         self._last = np.zeros(k, complex)  # the correction whose ramp ended last period
         self._sent = deque([np.zeros(k, complex)] * self.lead)  # corrections on their way
-        self._lost = np.empty(k, complex)
-        self._along = np.empty(k)
 
     def correction(self, period: int, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
         """The modal force (k,) that catches up by the focus each mode's deficit in ``error`` (reference
-        less reading, (k,)) along its plan, on the loops with authority (``limit > 0``); zero from the
-        focus on. Call once a period, in order."""
+        less reading, on every loop: its ``modes`` are read) along its plan, on the loops with authority
+        (``limit > 0``, on every loop too); zero from the focus on. Call once a period, in order."""
         playing = self._sent.popleft()  # its ramp ends with this period
         state = self.state
-        state *= self.a
-        state += self._r0 * self._last
-        state += self._r1 * playing
+        kernels.catch_up_state(state, self.a, self._r0, self._last, self._r1, playing)
         self._last = playing
         left = self.focus_time - (period + self.lead) * self.period  # from when this correction plays
-        lost = np.subtract(error, state, out=self._lost)
-        lost += self.filter.step(state)  # what the readings will still show, less what is on its way
-        if not left > 0:
-            force = np.zeros_like(state)
+        filtered = self.filter.step(state)  # what the readings will still show of what is on its way
+        if left > 0:  # the deficit's share of the plan, caught up over the time left
+            force = np.empty_like(state)
+            plan = self._plan[min(period, self._plan.shape[0] - 1)]
+            kernels.catch_up_force(error, state, filtered, plan, np.asarray(limit, float), 1 / max(left, TAU_MIN),
+                                   self.modes, force)
         else:
-            n = min(period, self._share.shape[0] - 1)
-            along = np.multiply(lost, self._share[n], out=lost).real  # the deficit's share of the plan
-            np.maximum(along, 0.0, out=self._along)
-            np.multiply(self._along, limit > 0, out=self._along)
-            force = self._force[n] * self._along
-            force *= 1 / max(left, TAU_MIN)
+            force = np.zeros_like(state)
         self._sent.append(force)
         return force

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .schedule import noise_bandwidth
 
 __all__ = ["EnvelopeNoise", "NoiseSums"]
@@ -93,9 +94,7 @@ class NoiseSums:
         self._lam2, self._rho_lam = lam ** 2, self.rho * lam
         m, k = self._turn.shape
         self._carried, self._crossed = np.zeros((m, k)), np.zeros((m, k), complex)  # A and B
-        self._d, self._w, self._products = np.empty((m, k), complex), np.empty((m, k), complex), np.empty((m, k, 2))
-        self._pairs = self._d.view(float).reshape(m, k, 2), self._crossed.view(float).reshape(m, k, 2)
-        self._last, self._spare = None, np.empty(k, complex)
+        self._last, self._started = np.zeros(k, complex), False  # the last period's h, once there is one
 
     def reset(self) -> None:
         self._carried.fill(0.0)
@@ -104,31 +103,20 @@ class NoiseSums:
 
     def restart(self) -> None:
         """A period was lost: the next ``h`` starts the pairs anew (the sums are kept)."""
-        if self._last is not None:
-            self._last, self._spare = None, self._last
+        self._started = False
 
     def carry(self, h: np.ndarray) -> None:
         """Move the sums on by one period, its regressor ``h`` (k,) known (in place: every period)."""
-        last = self._last
-        if last is not None:
-            d, w = self._d, self._w
-            np.multiply(self._turn, h, out=d)
-            np.subtract(last, d, out=d)  # d
-            np.multiply(self._stationary, d, out=w)
-            w += self._crossed  # B + C d
-            self._crossed += w  # 2 B + C d, for A's step
-            np.multiply(*self._pairs, out=self._products)
-            self._carried += self._products.sum(axis=-1)  # Re(d* (2 B + C d)) = 2 Re(d* B) + C |d|^2
-            self._carried *= self._lam2
-            np.multiply(self._rho_lam, w, out=self._crossed)
-            self._last, self._spare = self._spare, last
+        if self._started:
+            kernels.noise_carry(self._turn, self._stationary, self._lam2, self._rho_lam, self._last, h, self._carried,
+                                self._crossed)
         else:
-            self._last, self._spare = self._spare, np.empty_like(self._spare)
-        self._last[:] = h
+            self._last[:] = h
+            self._started = True
 
     def variance(self) -> np.ndarray:
         """The variance the noise makes in each memory's and mode's sum (m, k), and in its imaginary part."""
-        h = self._last if self._last is not None else np.zeros(self._turn.shape[1], complex)
+        h = self._last if self._started else np.zeros(self._turn.shape[1], complex)
         spread = 2 * (np.conj(h) * self._crossed).real
         spread += self._carried
         spread *= self._innovation

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import kernels
 from .controller import LoopPlant
 from .lockin import PeriodTurns
 
@@ -63,7 +64,7 @@ class Overlapping:
     """Called with the forces asked of the kept modes (k,) complex and the control period at whose start they are
     reached (``t = period / control_rate`` gives the carriers' phases), the commands (k,) that make them (the
     module's doc); the forces themselves where the plant has no model (its actuator gains and the plan's
-    weights) or no bands overlap. A call costs 6 us on panel-rounded's 9 groups (21 modes).
+    weights) or no bands overlap. A call costs 5 us on panel-rounded's 9 groups (21 modes).
 
     Parameters
     ----------
@@ -77,7 +78,7 @@ class Overlapping:
         self.groups = groups
         if not groups:
             return
-        self._index = np.concatenate(groups)
+        self._index = np.concatenate(groups).astype(np.int64)
         coupling = plant.model.actuator_gains[np.asarray(plant.modes)] @ np.asarray(plant.schedule.weights)  # (k, k)
         inverse = np.zeros((self._index.size, self._index.size), complex)  # block-diagonal: one product a call
         start = 0
@@ -91,7 +92,6 @@ class Overlapping:
     def __call__(self, forces: np.ndarray, period: int) -> np.ndarray:
         if not self.groups:
             return forces
-        turn = self._turn(period)  # D
-        commands = np.array(forces, complex)
-        commands[self._index] = turn.conj() * (self._inverse @ (turn * commands[self._index]))
-        return commands
+        commands = np.empty(forces.size, complex)
+        kernels.overlap_commands(np.asarray(forces, complex), self._index, self._turn(period), self._inverse, commands)
+        return commands  # D^* inverse D on the overlapping modes, the forces elsewhere

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import kernels
 from .controller import Controller, LoopDesign
 from .lockin import hold_gain
 from .onboard import BoardLog, BoardLoop
@@ -182,7 +183,7 @@ class Runtime:
                  recorder: Recorder | None = None, tracker=None):
         schedule = parts.schedule
         self.board, self.schedule, self.controller, self.supervisor = board, schedule, parts.controller, supervisor
-        self.leak = np.asarray(parts.leak)
+        self.leak = np.asarray(parts.leak, complex)
         # one contiguous row per period: the loop reads them period by period
         self._reference, self._authority = (np.ascontiguousarray(np.asarray(x).T)
                                             for x in (schedule.reference, parts.authority))
@@ -206,7 +207,10 @@ class Runtime:
             raise LifecycleError(f"cannot {to} from state {self.state.name.lower()}")
 
     def configure(self) -> None:
+        """The board given the shot, and the loops' kernels loaded (compiled on a machine's first shot):
+        not in the first periods' time."""
         self._expect(State.UNCONFIGURED, State.INACTIVE, to="configure")
+        kernels.warm()
         self.board.configure(self.schedule)
         self.state = State.INACTIVE
 
@@ -251,10 +255,10 @@ class Runtime:
             self._record(None, 1.0, time.perf_counter() - tic)
             self.period += 1
             return self.state
-        reference, leaked = self._reference[n], self.leak * self.command
-        error = reference - measured + leaked
+        error, own = np.empty_like(self.command), np.empty_like(self.command)  # own: the mode's own answer,
+        kernels.loop_errors(self._reference[n], np.asarray(measured, complex), self.leak, self.command, self._own[n],
+                            error, own)  # measured - (reference - own) - leaked
         if self.tracker is not None or self.controller.observes:
-            own = self._own[n] - error  # the mode's own answer: measured - (reference - own) - leaked
             if self.tracker is not None:
                 drive = (self.schedule.drive[:, n] + self.command) * self.held
                 self.tracker.update(own[:, None], drive[:, None])

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import kernels
 from .schedule import ramp_in
 
 __all__ = ["Limits", "Supervisor", "envelope_bound", "BOUND_FLOOR"]
@@ -145,7 +146,7 @@ class Supervisor:
 
     def diverging(self, measured: np.ndarray) -> str | None:
         """A reason to stop when a mode's envelope grew beyond what the plan can explain."""
-        if np.count_nonzero(np.abs(measured) > self.bound):
+        if kernels.over_any(measured, self.bound):
             k = int(np.argmax(np.abs(measured) / self.bound))
             return (f"divergence: mode slot {k} reads {abs(measured[k]):.3g}, more than "
                     f"{self.limits.divergence:g} x its planned envelope")
@@ -159,9 +160,9 @@ class Supervisor:
         if self.unlimited:
             return 1.0
         played = period + self.lead
-        size_new = np.abs(new)
-        bound = self.quick @ np.maximum(self._size_old, size_new)
-        if not np.count_nonzero(bound > self.room[min(played, self.room.shape[0] - 1)]):
+        size_new = np.empty(new.size)
+        if kernels.quick_bound_within(self.quick, self._size_old, new, self.room[min(played, self.room.shape[0] - 1)],
+                                      size_new):
             self._size_old = size_new
             return 1.0
         s = self._largest(old, new, played)

@@ -30,6 +30,7 @@ memories) and the give-back meanwhile pumps the modes no longer damped.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -195,8 +196,8 @@ class TouchControl(Controller):
         self._nothing = np.zeros(plant.frequencies.size, complex)
         self.points, self.rate = plant.points, float(plant.control_rate)
         self.catch_up = None if self.estimator is None or s.focus_time is None else CatchUp(
-            np.asarray(plant.frequencies)[use], np.asarray(plant.damping)[use], self.residues[use],
-            np.asarray(plant.bandwidths)[use], plant.control_rate, self.lead, s.focus_time, np.asarray(s.reference)[use])
+            np.asarray(plant.frequencies)[use], np.asarray(plant.damping)[use], np.asarray(plant.bandwidths)[use],
+            plant.control_rate, self.lead, s.focus_time, np.asarray(s.reference)[use], self.learned)
         self._read_every = max(1, int(round(READ_EVERY * self.rate)))  # periods
         # one contiguous row per period, read period by period: the planned drive of the modes learned
         # from, and the force per unit of added decay on the planned motion when the command plays
@@ -250,7 +251,9 @@ class TouchControl(Controller):
             self._estimate, self._read_at = self.estimator.estimate, period  # the next reading by no more)
         self.history.append(self._estimate)
         if self.lift is not None:  # every period: a lift told a period earlier is a tenth less of the margin
-            self.lift.observe(period, *self.estimator.dampings(), self._estimate.sure > 0)
+            sure = self._estimate.sure > 0
+            dampings = self.estimator.dampings() if self.lift.listens(period, sure) else (math.nan, math.nan)
+            self.lift.observe(period, *dampings, sure)
 
     def _skip(self, periods: int, held: np.ndarray) -> None:
         """``periods`` periods without a reading: the runtime held its command ``held`` through them,
@@ -277,7 +280,7 @@ class TouchControl(Controller):
         if self.catch_up is not None:  # what the touch took before it was read, caught up by the focus on the
             self._catching = True  # loops it learns from (clean readings), from the first period anything is given
             feedback = feedback.copy()  # back to the shot's end (its doc)
-            feedback[self._use] += self.catch_up.correction(self.period, error[self._use], limit[self._use])
+            feedback[self._use] += self.catch_up.correction(self.period, error, limit)
         if not np.count_nonzero(limit):  # no loop has authority (a shot played open through the loops):
             return feedback  # nothing given back either
         # to every mode, a resting loop's too: the give-back is a feed-forward on the planned motion, and

@@ -47,6 +47,7 @@ from modalctl.model.propagate import hold_coefficients
 from modalctl.model.touch import velocity_residues
 
 from .envelope_noise import EnvelopeNoise, NoiseSums
+from . import kernels
 
 __all__ = ["TouchEstimate", "TouchEstimator", "candidate_places", "planned_residuals", "CANDIDATES", "SURE", "SHRINK",
            "TOUCH_MAX", "TOUCH_MIN",
@@ -212,11 +213,7 @@ class TouchEstimator:
         self._weights[:, 2] = -1j * self._weights[:, 0]  # -j e: Re(h* (-j e)) = Im(h* e), a detuning's work
         self._weights[0, 0, 0, k] = self._weights[1, 0, 2, k] = 1  # e = this period's z = 1
         self._reads, self._read = float(np.count_nonzero(self.readable)), read  # read: 1 where it learns
-        self._keep = self.forget[:, None, None, None]
         self._memory = self.memories.tolist()
-        m = self.memories.size  # where each memory's sums at a place land in (m, 2, 3, 4), flattened
-        self._picks = np.concatenate([np.ravel_multi_index((np.arange(m), a, b, np.full(m, c)), (m, 2, 3, 4))
-                                      for a, b, c in ((0, 1, 0), (1, 1, 1), (0, 0, 2), (0, 0, 3))])
         self.reset()
 
     def reset(self) -> None:
@@ -224,7 +221,6 @@ class TouchEstimator:
         # per memory and mode, the forgotten sums of the products of (e, h) and of h with -j e:
         # [[|e|^2, Re(h* e), .], [., |h|^2, Im(h* e)]]; the last column's |e|^2: the weighted count of periods
         self._sums = np.zeros((m, 2, 3, k + 1))
-        self._table = self._sums.reshape(-1, k + 1)  # the same, a row per memory and product
         self._losses = [self._sums[j, :, 1, :k] for j in range(m)]  # Re(h* e), |h|^2: (2, k) views
         self._ratio = np.empty((m, k))  # Re(h* e) / |h|^2 per memory and mode, and Re(h* e) and its losing part
         self._rr = np.empty((2, m, k))
@@ -233,14 +229,12 @@ class TouchEstimator:
         x[4] = 0  # and the residual the plan predicts for this one
         self._slots = [(x[0, :k], x[1, :k]), (x[2, :k], x[3, :k])]
         self._eh = np.empty((3, k + 1), complex)  # this period's (e, h, -j e)
-        self._parts = self._eh.view(float).reshape(3, k + 1, 2)  # their real and imaginary parts
-        self._products = np.empty((2, 3, k + 1))
         self._slot = 1  # this period's
         self._started = False
         self._best = None
         self._row = None  # the place's pattern q over the modes (k,)
         self._chosen = 0  # the memory the last estimate was read with
-        self._place = None  # (grid index, q, the weights of the per-memory sums at it (k + 1, 4))
+        self._place = None  # (grid index, q: its pattern over the modes (k,))
         if self._noise is not None:
             self._noise.reset()
 
@@ -261,13 +255,9 @@ class TouchEstimator:
         z[:], u[:] = envelope, drive
         if self._started:
             self._inputs[4, :-1] = 0.0 if expected is None else expected
-            np.einsum("rjk,jk->rk", self._weights[slot], self._inputs, out=self._eh)  # (e, h, -j e), (3, k + 1)
+            kernels.regression_step(self._weights[slot], self._inputs, self._eh, self._sums, self.forget)  # e, h, -j e
             if self._noise is not None:
                 self._noise.carry(self._eh[1, :-1])
-            parts = self._parts
-            np.einsum("ikc,jkc->ijk", parts[:2], parts, out=self._products)
-            self._sums *= self._keep
-            self._sums += self._products
             self._periods += 1
             self._best = None
         self._started = True
@@ -327,15 +317,16 @@ class TouchEstimator:
         if self._place is None:
             return math.nan, math.nan
         nums, dens = self._at(self._place)[:2]
-        return tuple(-n / d if d > 0 else math.nan for n, d in ((nums[0], dens[0]), (nums[-1], dens[-1])))
+        short = -nums[0] / dens[0] if dens[0] > 0 else math.nan
+        return short, -nums[-1] / dens[-1] if dens[-1] > 0 else math.nan
 
     def _at(self, place) -> tuple[list, list, list, list]:
         """Per memory at ``place``: the sums against its pattern (``sum_k q_k Re(h_k* e_k)``,
         ``sum_k q_k^2 |h_k|^2``), the residual energy ``sum_k |e_k|^2`` and the weighted count of
         complex residuals, as lists of floats (a few memories: plain floats from here on)."""
-        per = (self._table @ place[2]).take(self._picks).tolist()
-        m = self.memories.size
-        return per[:m], per[m:2 * m], per[2 * m:3 * m], per[3 * m:]
+        out = np.empty((4, self.memories.size))
+        kernels.place_sums(self._sums, place[1], self._reads, out)
+        return tuple(out.tolist())
 
     def _each(self) -> tuple[list, list]:
         """Per memory, what a decay of each mode's own would take out of its residual energy:
@@ -353,7 +344,7 @@ class TouchEstimator:
         return every, losses
 
     def _locate(self, j: int, last, held: float, energy: float, count: float):
-        """The place, ``(grid index, q, weights)``, read with memory ``j``; None before any data.
+        """The place, ``(grid index, q)``, read with memory ``j``; None before any data.
         ``last``: the place so far, explaining ``held`` of memory ``j``'s residual ``energy`` over
         ``count`` weighted samples.
 
@@ -363,7 +354,6 @@ class TouchEstimator:
         likelihood ratio): a beam's points either side of a symmetric focus differ only in the modes
         the scene leaves still, whose noise would otherwise move the place, and with it the damping,
         period by period."""
-        k = self.a.size
         losses = self._losses[j]
         num, den = np.matmul(self._qq, losses[:, :, None])[:, :, 0]  # q @ rr, q^2 @ s (p,): one product
         if last is None and not den.max() > 0:
@@ -380,10 +370,7 @@ class TouchEstimator:
                 return last
             if top > 0 and top - held <= PLACE_EVIDENCE * _variance(energy, count, top):
                 return last
-        q = self.shapes[:, index] ** 2 / 2
-        weights = np.zeros((k + 1, 4))  # q, q^2, the modes, the count (times the modes read)
-        weights[:-1, 0], weights[:-1, 1], weights[:-1, 2], weights[-1, 3] = q, q ** 2, 1.0, self._reads
-        self._place = index, q, weights
+        self._place = index, np.ascontiguousarray(self.shapes[:, index] ** 2 / 2)
         return self._place
 
     def _refine(self, row: int, losses: np.ndarray, explained: float) -> tuple[int, float]:

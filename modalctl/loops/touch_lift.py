@@ -143,10 +143,15 @@ class LiftRelease:
         self._pulse = None  # (last period, force per period (k,))
         self.lifts: list = []  # (period told, period dated) per lift told
 
+    def listens(self, period: int, sure: bool) -> bool:
+        """Whether the detector learns this period: a sure touch being given back, no lift told holding it
+        (else :meth:`observe` needs no dampings)."""
+        return sure and period > self._held_until
+
     def observe(self, period: int, short: float, long: float, sure: bool) -> None:
         """Each period: the dampings at the place on the shortest and longest memories, and whether a
-        sure touch is being given back (the detector learns only then)."""
-        if not sure or period <= self._held_until:
+        sure touch is being given back (the detector learns only then: :meth:`listens`)."""
+        if not self.listens(period, sure):
             self.detector.reset()
             return
         since = self.detector.update(period, short, long)

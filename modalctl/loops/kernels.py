@@ -1,0 +1,267 @@
+"""The loops' per-period arithmetic, compiled (numba): what a loop update does on every mode, each
+period, at 20 kHz.
+
+Each step below was a dozen to twenty numpy calls on arrays of a few tens of modes, and a numpy
+call costs 1-2 us whatever its size: the touch controller's update on panel-rounded took 180 us
+(``benchmarks/plate_speed.py``), where a period at 20 kHz lasts 50. Compiled, a step is one call
+over plain loops, and the update takes 78-83 us (2026-11-30; the rest is the controllers' Python
+around the kernels). The arrays are the callers' own, updated in place; the laws are documented where
+they are used (:mod:`.pi`, :mod:`.design`, :mod:`.touch_estimator`, :mod:`.envelope_noise`,
+:mod:`.catch_up`, :mod:`.overlap`, :mod:`.supervisor`, :mod:`.runtime`), and each is tested against the
+numpy it replaced (``tests/test_kernels.py``).
+
+Each is compiled when first called, numba imported then (an open-loop shot never pays for it), and
+cached beside this file (numba's ``cache=True``; in numba's user-wide cache when the folder is
+read-only): a process loads them in 0.4 s (numba's import 0.13 s, its first kernel 0.25 s, each next
+3 ms: :func:`warm`, which a closed-loop run starts while it plans), a machine compiles them once (a
+few seconds). Call them as attributes of this module (``kernels.pi_update(...)``): the first call puts
+the compiled kernel in the stub's place.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+KERNELS = ("pi_update", "filter_step", "regression_step", "noise_carry", "catch_up_state", "catch_up_force",
+           "overlap_commands", "loop_errors", "over_any", "quick_bound_within", "place_sums")
+__all__ = [*KERNELS, "warm", "warm_soon"]
+
+
+class _Kernel:
+    """A stub for ``source``, compiled (numba ``njit``) at its first call, which it hands on; the compiled
+    kernel then stands in the module in the stub's place."""
+
+    def __init__(self, source):
+        self.source = source
+
+    def __call__(self, *args):
+        import numba
+
+        kernel = numba.njit(cache=True, nogil=True)(self.source)
+        globals()[self.source.__name__] = kernel
+        return kernel(*args)
+
+
+@_Kernel
+def pi_update(kp, ki_period, integral, error, limit, command):
+    """The PI law (:class:`~modalctl.loops.pi.PIControl`) on each mode: ``command`` (k,) complex written,
+    ``integral`` (k,) moved on. A loop whose limit is not positive (or not a number) rests, its integral
+    emptied; one over its limit and pushing further holds its integral (anti-windup), then is brought
+    to its limit."""
+    for k in range(error.size):
+        cap = limit[k]
+        if not cap > 0:
+            integral[k] = 0j
+            command[k] = 0j
+            continue
+        e = error[k]
+        proportional = kp[k] * e
+        trial = integral[k] + ki_period[k] * e
+        c = proportional + trial
+        size = abs(c)
+        if size > cap:
+            if (c.conjugate() * e).real > 0:
+                trial = integral[k]
+                c = proportional + trial
+                size = abs(c)
+            if size > cap:
+                c = c * (cap / size)
+        integral[k] = trial
+        command[k] = c
+
+
+@_Kernel
+def filter_step(step, io, out):
+    """One sample of each mode's filter in state space (:class:`~modalctl.loops.design.CommandFilter`):
+    ``io`` (k, o + 1) complex holds each mode's input then its state; ``step`` (k, o + 1, o + 1) real,
+    ``[[D, C], [B, A]]``. Writes the outputs in ``out`` (k,) and the next states in ``io``."""
+    k, n = io.shape
+    nxt = np.empty(n, np.complex128)
+    for i in range(k):
+        for r in range(n):
+            acc = 0j
+            for c in range(n):
+                acc += step[i, r, c] * io[i, c]
+            nxt[r] = acc
+        out[i] = nxt[0]
+        for r in range(1, n):
+            io[i, r] = nxt[r]
+
+
+@_Kernel
+def regression_step(weights, inputs, eh, sums, keep):
+    """One period of the touch estimator's forgotten sums (:meth:`TouchEstimator.update
+    <modalctl.loops.touch_estimator.TouchEstimator.update>`): ``eh[r] = sum_j weights[r, j] inputs[j]``
+    per mode ((3, k + 1): e, h, -j e), then per memory ``m`` ``sums[m] = keep[m] sums[m] + P``, with
+    ``P[i, j] = Re(conj(eh[i]) eh[j])`` for i in (e, h), j in (e, h, -j e), shape (m, 2, 3, k + 1)."""
+    rows, terms, k = weights.shape
+    for r in range(rows):
+        for i in range(k):
+            acc = 0j
+            for j in range(terms):
+                acc += weights[r, j, i] * inputs[j, i]
+            eh[r, i] = acc
+    products = np.empty((2, 3))
+    for i in range(k):
+        for a in range(2):
+            x = eh[a, i]
+            for b in range(3):
+                y = eh[b, i]
+                products[a, b] = x.real * y.real + x.imag * y.imag
+        for m in range(keep.size):
+            w = keep[m]
+            for a in range(2):
+                for b in range(3):
+                    sums[m, a, b, i] = sums[m, a, b, i] * w + products[a, b]
+
+
+@_Kernel
+def noise_carry(turn, stationary, lam2, rho_lam, last, h, carried, crossed):
+    """One period of :class:`~modalctl.loops.envelope_noise.NoiseSums`' sums A (``carried``) and B
+    (``crossed``), (m, k) each, from last period's regressor ``last`` and this one's ``h`` (k,):
+    ``d = last - turn h``, ``A <- lam^2 (A + Re(d* (2 B + C d)))``, ``B <- rho lam (B + C d)``; then
+    ``h`` copied into ``last`` for the next."""
+    m, k = turn.shape
+    for i in range(k):
+        for j in range(m):
+            d = last[i] - turn[j, i] * h[i]
+            w = stationary[i] * d + crossed[j, i]
+            twice = w + crossed[j, i]
+            carried[j, i] = (carried[j, i] + d.real * twice.real + d.imag * twice.imag) * lam2[j, 0]
+            crossed[j, i] = rho_lam[j, i] * w
+        last[i] = h[i]
+
+
+@_Kernel
+def catch_up_state(state, a, r0, last, r1, playing):
+    """Each envelope's answer to the corrections sent (:class:`~modalctl.loops.catch_up.CatchUp`), one
+    period on: ``state <- a state + r0 last + r1 playing`` (k,), in place."""
+    for i in range(state.size):
+        state[i] = a[i] * state[i] + r0[i] * last[i] + r1[i] * playing[i]
+
+
+@_Kernel
+def catch_up_force(error, state, filtered, plan, limit, scale, modes, out):
+    """The force that catches up each mode's deficit by the focus (:class:`~modalctl.loops.catch_up.CatchUp`),
+    on its modes ``modes`` (k,) of the loops' ``error`` and ``limit``: the deficit the readings will still
+    show, ``lost = error[modes] - state + filtered`` (k,), its share of the plan ``max(Re(lost plan[0]), 0)``
+    (``plan[0]``: conj(plan) / |plan|^2), times ``plan[1] * scale`` (the force per unit share and second) on
+    the loops with authority (``limit > 0``), zero elsewhere; written in ``out`` (k,)."""
+    for i in range(modes.size):
+        k = modes[i]
+        along = ((error[k] - state[i] + filtered[i]) * plan[0, i]).real
+        if along > 0 and limit[k] > 0:
+            out[i] = plan[1, i] * along * scale
+        else:
+            out[i] = 0j
+
+
+@_Kernel
+def overlap_commands(forces, index, turn, inverse, out):
+    """The commands that make ``forces`` (k,) on modes whose resonances overlap
+    (:class:`~modalctl.loops.overlap.Overlapping`): ``out = forces`` (k,), then on the modes ``index`` (g,)
+    ``out[index] = conj(turn) * (inverse @ (turn * forces[index]))`` (``turn`` (g,), ``inverse`` (g, g))."""
+    for i in range(forces.size):
+        out[i] = forces[i]
+    g = index.size
+    turned = np.empty(g, np.complex128)
+    for i in range(g):
+        turned[i] = turn[i] * forces[index[i]]
+    for r in range(g):
+        acc = 0j
+        for c in range(g):
+            acc += inverse[r, c] * turned[c]
+        out[index[r]] = turn[r].conjugate() * acc
+
+
+@_Kernel
+def loop_errors(reference, measured, leak, command, own_plan, error, own):
+    """A period's errors (:meth:`Runtime.update <modalctl.loops.runtime.Runtime.update>`), (k,) each:
+    ``error = reference - measured + leak command`` and each mode's own answer ``own = own_plan - error``
+    (the measured less what its reading holds of the others' and the leak)."""
+    for i in range(error.size):
+        e = reference[i] - measured[i] + leak[i] * command[i]
+        error[i] = e
+        own[i] = own_plan[i] - e
+
+
+@_Kernel
+def over_any(values, bound):
+    """Whether any ``|values[i]|`` (k,) exceeds ``bound[i]``."""
+    for i in range(values.size):
+        if abs(values[i]) > bound[i]:
+            return True
+    return False
+
+
+@_Kernel
+def quick_bound_within(quick, size_old, new, room, size_new):
+    """The supervisor's quick bound (:meth:`~modalctl.loops.supervisor.Supervisor.limit`): ``size_new =
+    |new|`` (k,) written, and whether ``quick @ max(size_old, size_new)`` ((2 a, k) @ (k,)) is within
+    ``room`` (2 a,) on every channel."""
+    for i in range(new.size):
+        size_new[i] = abs(new[i])
+    within = True
+    for r in range(quick.shape[0]):
+        acc = 0.0
+        for i in range(new.size):
+            acc += quick[r, i] * max(size_old[i], size_new[i])
+        if acc > room[r]:
+            within = False
+    return within
+
+
+@_Kernel
+def place_sums(sums, q, reads, out):
+    """The touch estimator's sums at a place of pattern ``q`` (k,) (:meth:`TouchEstimator._at
+    <modalctl.loops.touch_estimator.TouchEstimator._at>`), per memory m of ``sums`` (m, 2, 3, k + 1):
+    ``sum_k q_k Re(h_k* e_k)``, ``sum_k q_k^2 |h_k|^2``, ``sum_k |e_k|^2`` and the weighted count of
+    complex residuals (the last column's ``|e|^2`` times ``reads``), written in ``out`` (4, m)."""
+    k = q.size
+    for m in range(sums.shape[0]):
+        num = den = energy = 0.0
+        for i in range(k):
+            num += q[i] * sums[m, 0, 1, i]
+            den += q[i] * q[i] * sums[m, 1, 1, i]
+            energy += sums[m, 0, 0, i]
+        out[0, m], out[1, m], out[2, m], out[3, m] = num, den, energy, sums[m, 0, 0, k] * reads
+
+
+_warming: list = []  # the thread warm_soon started, while it runs
+
+
+def warm_soon() -> None:
+    """:func:`warm` in a daemon thread, so that the kernels load while the caller does other work (a closed
+    loop's plan); :func:`warm` then waits for it."""
+    thread = threading.Thread(target=_load, name="modalctl-kernels", daemon=True)
+    _warming.append(thread)
+    thread.start()
+
+
+def warm() -> None:
+    """Load (or compile, the first time on a machine) every kernel on arrays of the types the loops pass,
+    so that a shot's first periods do not pay for it; when :func:`warm_soon` is loading them, wait for it."""
+    while _warming:
+        _warming.pop().join()
+    _load()
+
+
+def _load() -> None:
+    """Every kernel called once on arrays of the types and layouts the loops pass (numba compiles one
+    version per type signature)."""
+    c, r, r2 = np.zeros(1, complex), np.zeros(1), np.zeros((1, 1))
+    kernel = globals()
+    kernel["pi_update"](r, r, c.copy(), c, r, c.copy())
+    kernel["filter_step"](np.zeros((1, 2, 2)), np.zeros((1, 2), complex), c.copy())
+    kernel["regression_step"](np.zeros((3, 5, 2), complex), np.zeros((5, 2), complex), np.zeros((3, 2), complex),
+                              np.zeros((1, 2, 3, 2)), r)
+    kernel["noise_carry"](np.zeros((1, 1), complex), r, r2, r2, c, c, r2.copy(), np.zeros((1, 1), complex))
+    kernel["catch_up_state"](c.copy(), c, c, c, c, c)
+    kernel["catch_up_force"](c, c, c, np.zeros((2, 1), complex), r, 1.0, np.zeros(1, np.int64), c.copy())
+    kernel["overlap_commands"](c, np.zeros(1, np.int64), c, np.zeros((1, 1), complex), c.copy())
+    kernel["loop_errors"](c, c, c, c, c, c.copy(), c.copy())
+    kernel["over_any"](c, r)
+    kernel["quick_bound_within"](r2, r, c, r, r.copy())
+    kernel["place_sums"](np.zeros((1, 2, 3, 2)), r, 1.0, np.zeros((4, 1)))

@@ -1,0 +1,145 @@
+"""The loops' compiled kernels (modalctl.loops.kernels) against the numpy each replaced, written out here
+as it was: the same commands, sums and forces to round-off, through the branches (saturation, anti-windup,
+resting loops, deficits and surpluses, the quick bound passed and failed)."""
+
+import numpy as np
+import pytest
+
+from modalctl.loops import kernels
+
+RNG = np.random.default_rng(11)
+
+
+def _complex(*shape):
+    return RNG.standard_normal(shape) + 1j * RNG.standard_normal(shape)
+
+
+def _numpy_pi(kp, ki_period, integral, error, limit):
+    """The vector PI law as numpy evaluated it: (command, next integral)."""
+    proportional = kp * error
+    trial = integral + ki_period * error
+    command = proportional + trial
+    outside = ~(np.abs(command) <= limit)
+    held = ((np.conj(command) * error).real > 0) & outside
+    trial = np.where(held, integral, trial)
+    command = proportional + trial
+    command = command * np.fmin(limit / (np.abs(command) + 1e-300), 1.0)
+    live = limit > 0
+    return command * live, trial * live
+
+
+def test_pi_law_is_numpy_s_through_saturation_anti_windup_and_rest():
+    k = 9
+    kp, ki_period = RNG.uniform(50, 500, k), RNG.uniform(1e3, 1e5, k) / 20e3
+    integral, reference = np.zeros(k, complex), np.zeros(k, complex)
+    held = rested = clipped = 0
+    for _ in range(400):
+        error = _complex(k) * 1e-3
+        limit = np.where(RNG.random(k) < 0.15, 0.0, RNG.uniform(0.05, 0.6, k))
+        odd = RNG.random(k)
+        limit[odd < 0.03], limit[odd > 0.97] = -0.2, np.nan  # a limit below zero or not a number: rest too
+        expected, reference_next = _numpy_pi(kp, ki_period, reference, error, limit)
+        command, before = np.empty(k, complex), integral.copy()
+        kernels.pi_update(kp, ki_period, integral, error, limit, command)
+        assert np.allclose(command, expected, rtol=1e-12, atol=1e-15)
+        assert np.allclose(integral, reference_next, rtol=1e-12, atol=1e-15)
+        held += np.count_nonzero((integral == before) & (limit > 0) & (error != 0))
+        rested += np.count_nonzero(~(limit > 0))
+        clipped += np.count_nonzero(np.isclose(np.abs(command), limit))
+        reference = reference_next
+    assert held > 20 and rested > 100 and clipped > 100  # every branch was exercised
+
+
+def test_filter_step_is_the_state_space_product():
+    k, o = 7, 4
+    step = RNG.standard_normal((k, o + 1, o + 1))
+    io = _complex(k, o + 1)
+    expected = np.einsum("krc,kc->kr", step, io)  # [y; x'] = [[D, C], [B, A]] [u; x]
+    out = np.empty(k, complex)
+    kernels.filter_step(step, io, out)
+    assert np.allclose(out, expected[:, 0], rtol=1e-13) and np.allclose(io[:, 1:], expected[:, 1:], rtol=1e-13)
+
+
+def test_regression_step_is_the_estimator_s_einsums():
+    k, m = 12, 6
+    weights, inputs = _complex(3, 5, k + 1), _complex(5, k + 1)
+    sums, keep = RNG.standard_normal((m, 2, 3, k + 1)), RNG.uniform(0.5, 1, m)
+    eh_expected = np.einsum("rjk,jk->rk", weights, inputs)
+    parts = eh_expected.view(float).reshape(3, k + 1, 2)
+    sums_expected = sums * keep[:, None, None, None] + np.einsum("ikc,jkc->ijk", parts[:2], parts)
+    eh = np.empty((3, k + 1), complex)
+    kernels.regression_step(weights, inputs, eh, sums, keep)
+    assert np.allclose(eh, eh_expected, rtol=1e-13) and np.allclose(sums, sums_expected, rtol=1e-13)
+
+
+def test_noise_carry_is_the_numpy_recursion():
+    m, k = 4, 10
+    turn, stationary = _complex(m, k), RNG.uniform(1, 3, k)
+    lam = RNG.uniform(0.8, 1, (m, 1))
+    rho_lam = RNG.uniform(0, 1, k) * lam
+    carried, crossed, last, h = RNG.random((m, k)), _complex(m, k), _complex(k), _complex(k)
+    d = last - turn * h
+    w = stationary * d + crossed
+    carried_expected = (carried + (d.conj() * (w + crossed)).real) * lam ** 2
+    crossed_expected = rho_lam * w
+    kernels.noise_carry(turn, stationary, lam ** 2, rho_lam, last, h, carried, crossed)
+    assert np.allclose(carried, carried_expected, rtol=1e-13) and np.allclose(crossed, crossed_expected, rtol=1e-13)
+    assert np.array_equal(last, h)
+
+
+def test_catch_up_takes_the_deficit_along_the_plan_on_loops_with_authority():
+    loops, k = 11, 7
+    modes = np.sort(RNG.choice(loops, k, replace=False)).astype(np.int64)
+    error, limit = _complex(loops), np.where(RNG.random(loops) < 0.3, 0.0, 1.0)
+    state, filtered, plan, scale = _complex(k), _complex(k), _complex(2, k), 37.0
+    lost = error[modes] - state + filtered
+    along = np.maximum((lost * plan[0]).real, 0) * (limit[modes] > 0)
+    out = np.empty(k, complex)
+    kernels.catch_up_force(error, state, filtered, plan, limit, scale, modes, out)
+    assert np.allclose(out, plan[1] * along * scale, rtol=1e-13)
+    assert 0 < np.count_nonzero(out) < k  # some deficits caught up, some surpluses or resting loops not
+
+    a, r0, r1, last, playing = _complex(k), _complex(k), _complex(k), _complex(k), _complex(k)
+    expected = a * state + r0 * last + r1 * playing
+    kernels.catch_up_state(state, a, r0, last, r1, playing)
+    assert np.allclose(state, expected, rtol=1e-13)
+
+
+def test_overlap_commands_solve_the_groups_and_pass_the_rest():
+    k, index = 9, np.array([6, 1, 4], np.int64)
+    forces, turn, inverse = _complex(k), np.exp(1j * RNG.uniform(0, 6, 3)), _complex(3, 3)
+    expected = forces.copy()
+    expected[index] = turn.conj() * (inverse @ (turn * forces[index]))
+    out = np.empty(k, complex)
+    kernels.overlap_commands(forces, index, turn, inverse, out)
+    assert np.allclose(out, expected, rtol=1e-13)
+
+
+@pytest.mark.parametrize("room_scale", [0.5, 2.0, 1e3])
+def test_quick_bound_and_divergence_are_numpy_s(room_scale):
+    k, a = 8, 3
+    quick, size_old, new = RNG.random((2 * a, k)), RNG.random(k), _complex(k)
+    bound = quick @ np.maximum(size_old, np.abs(new))
+    room = bound * room_scale * RNG.uniform(0.9, 1.1, 2 * a)
+    size_new = np.empty(k)
+    within = kernels.quick_bound_within(quick, size_old, new, room, size_new)
+    assert within == (not np.count_nonzero(bound > room)) and np.allclose(size_new, np.abs(new))
+    level = np.abs(new) * room_scale
+    assert kernels.over_any(new, level) == bool(np.count_nonzero(np.abs(new) > level))
+
+
+def test_place_sums_are_the_estimator_s_weighted_sums():
+    m, k, reads = 5, 9, 7.0
+    sums, q = RNG.standard_normal((m, 2, 3, k + 1)), RNG.random(k)
+    weights = np.zeros((k + 1, 4))  # q, q^2, the modes, the count (times the modes read): as it was
+    weights[:-1, 0], weights[:-1, 1], weights[:-1, 2], weights[-1, 3] = q, q ** 2, 1.0, reads
+    table = (sums.reshape(-1, k + 1) @ weights).reshape(m, 2, 3, 4)
+    expected = [table[:, 0, 1, 0], table[:, 1, 1, 1], table[:, 0, 0, 2], table[:, 0, 0, 3]]
+    out = np.empty((4, m))
+    kernels.place_sums(sums, q, reads, out)
+    assert np.allclose(out, expected, rtol=1e-12)
+
+
+def test_warm_loads_every_kernel():
+    kernels.warm()
+    assert all(not isinstance(getattr(kernels, name), kernels._Kernel) for name in kernels.KERNELS)
