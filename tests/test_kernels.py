@@ -60,15 +60,19 @@ def test_filter_step_is_the_state_space_product():
     assert np.allclose(out, expected[:, 0], rtol=1e-13) and np.allclose(io[:, 1:], expected[:, 1:], rtol=1e-13)
 
 
-def test_regression_step_is_the_estimator_s_einsums():
+@pytest.mark.parametrize("first", [0, 2])
+def test_regression_step_is_the_estimator_s_einsums(first):
     k, m = 12, 6
-    weights, inputs = _complex(3, 5, k + 1), _complex(5, k + 1)
+    weights, inputs, new = _complex(3, 5, k + 1), _complex(5, k + 1), _complex(3, k)
     sums, keep = RNG.standard_normal((m, 2, 3, k + 1)), RNG.uniform(0.5, 1, m)
-    eh_expected = np.einsum("rjk,jk->rk", weights, inputs)
+    written = inputs.copy()
+    written[[first, first + 1, 4], :k] = new  # this period's envelope, drive and expected residual
+    eh_expected = np.einsum("rjk,jk->rk", weights, written)
     parts = eh_expected.view(float).reshape(3, k + 1, 2)
     sums_expected = sums * keep[:, None, None, None] + np.einsum("ikc,jkc->ijk", parts[:2], parts)
     eh = np.empty((3, k + 1), complex)
-    kernels.regression_step(weights, inputs, eh, sums, keep)
+    kernels.regression_step(weights, inputs, first, tuple(new), eh, sums, keep)
+    assert np.array_equal(inputs, written)
     assert np.allclose(eh, eh_expected, rtol=1e-13) and np.allclose(sums, sums_expected, rtol=1e-13)
 
 
@@ -138,6 +142,19 @@ def test_place_sums_are_the_estimator_s_weighted_sums():
     out = np.empty((4, m))
     kernels.place_sums(sums, q, reads, out)
     assert np.allclose(out, expected, rtol=1e-12)
+    for memory in range(m):
+        damping = kernels.place_damping(sums, q, memory)
+        num, den = expected[0][memory], expected[1][memory]
+        assert damping == pytest.approx(-num / den, rel=1e-12) if den > 0 else np.isnan(damping)
+    assert np.isnan(kernels.place_damping(np.zeros_like(sums), q, 0))  # nothing driven: no damping read
+
+
+def test_add_at_adds_at_the_index():
+    target, index, values = _complex(9), np.array([7, 0, 3], np.int64), _complex(3)
+    expected = target.copy()
+    expected[index] += values
+    kernels.add_at(target, index, values)
+    assert np.array_equal(target, expected)
 
 
 def test_warm_loads_every_kernel():

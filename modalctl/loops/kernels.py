@@ -25,7 +25,8 @@ import threading
 import numpy as np
 
 KERNELS = ("pi_update", "filter_step", "regression_step", "noise_carry", "catch_up_state", "catch_up_force",
-           "overlap_commands", "loop_errors", "over_any", "quick_bound_within", "place_sums")
+           "overlap_commands", "loop_errors", "over_any", "quick_bound_within", "place_sums",
+           "place_damping", "add_at")
 __all__ = [*KERNELS, "warm", "warm_soon"]
 
 
@@ -91,11 +92,16 @@ def filter_step(step, io, out):
 
 
 @_Kernel
-def regression_step(weights, inputs, eh, sums, keep):
+def regression_step(weights, inputs, first, new, eh, sums, keep):
     """One period of the touch estimator's forgotten sums (:meth:`TouchEstimator.update
-    <modalctl.loops.touch_estimator.TouchEstimator.update>`): ``eh[r] = sum_j weights[r, j] inputs[j]``
-    per mode ((3, k + 1): e, h, -j e), then per memory ``m`` ``sums[m] = keep[m] sums[m] + P``, with
-    ``P[i, j] = Re(conj(eh[i]) eh[j])`` for i in (e, h), j in (e, h, -j e), shape (m, 2, 3, k + 1)."""
+    <modalctl.loops.touch_estimator.TouchEstimator.update>`): this period's envelope, drive and expected
+    residual ``new`` (three (k,)) written in ``inputs`` (5, k + 1) rows ``first``, ``first + 1`` and 4;
+    then ``eh[r] = sum_j weights[r, j] inputs[j]`` per mode ((3, k + 1): e, h, -j e), and per memory
+    ``m`` ``sums[m] = keep[m] sums[m] + P``, with ``P[i, j] = Re(conj(eh[i]) eh[j])`` for i in (e, h),
+    j in (e, h, -j e), shape (m, 2, 3, k + 1)."""
+    envelope, drive, expected = new
+    for i in range(envelope.size):
+        inputs[first, i], inputs[first + 1, i], inputs[4, i] = envelope[i], drive[i], expected[i]
     rows, terms, k = weights.shape
     for r in range(rows):
         for i in range(k):
@@ -229,6 +235,25 @@ def place_sums(sums, q, reads, out):
         out[0, m], out[1, m], out[2, m], out[3, m] = num, den, energy, sums[m, 0, 0, k] * reads
 
 
+@_Kernel
+def place_damping(sums, q, m):
+    """The damping at a place of pattern ``q`` (k,) on memory ``m`` of the touch estimator's ``sums``
+    (:meth:`TouchEstimator.dampings <modalctl.loops.touch_estimator.TouchEstimator.dampings>`):
+    ``-sum_k q_k Re(h_k* e_k) / sum_k q_k^2 |h_k|^2``, nan where the denominator is not positive."""
+    num = den = 0.0
+    for i in range(q.size):
+        num += q[i] * sums[m, 0, 1, i]
+        den += q[i] * q[i] * sums[m, 1, 1, i]
+    return -num / den if den > 0 else np.nan
+
+
+@_Kernel
+def add_at(target, index, values):
+    """``target[index] += values`` (index (k,) without repeats)."""
+    for i in range(index.size):
+        target[index[i]] += values[i]
+
+
 _warming: list = []  # the thread warm_soon started, while it runs
 
 
@@ -255,8 +280,8 @@ def _load() -> None:
     kernel = globals()
     kernel["pi_update"](r, r, c.copy(), c, r, c.copy())
     kernel["filter_step"](np.zeros((1, 2, 2)), np.zeros((1, 2), complex), c.copy())
-    kernel["regression_step"](np.zeros((3, 5, 2), complex), np.zeros((5, 2), complex), np.zeros((3, 2), complex),
-                              np.zeros((1, 2, 3, 2)), r)
+    kernel["regression_step"](np.zeros((3, 5, 2), complex), np.zeros((5, 2), complex), 0, (c, c, c),
+                              np.zeros((3, 2), complex), np.zeros((1, 2, 3, 2)), r)
     kernel["noise_carry"](np.zeros((1, 1), complex), r, r2, r2, c, c, r2.copy(), np.zeros((1, 1), complex))
     kernel["catch_up_state"](c.copy(), c, c, c, c, c)
     kernel["catch_up_force"](c, c, c, np.zeros((2, 1), complex), r, 1.0, np.zeros(1, np.int64), c.copy())
@@ -265,3 +290,5 @@ def _load() -> None:
     kernel["over_any"](c, r)
     kernel["quick_bound_within"](r2, r, c, r, r.copy())
     kernel["place_sums"](np.zeros((1, 2, 3, 2)), r, 1.0, np.zeros((4, 1)))
+    kernel["place_damping"](np.zeros((1, 2, 3, 2)), r, 0)
+    kernel["add_at"](c.copy(), np.zeros(1, np.int64), c)

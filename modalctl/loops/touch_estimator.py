@@ -227,7 +227,8 @@ class TouchEstimator:
         self._periods = 0
         x = self._inputs = np.ones((5, k + 1), complex)  # two slots of (z, U): the last period's and this one's,
         x[4] = 0  # and the residual the plan predicts for this one
-        self._slots = [(x[0, :k], x[1, :k]), (x[2, :k], x[3, :k])]
+        self._slots = [(x[0, :k], x[1, :k]), (x[2, :k], x[3, :k])]  # rows 2 slot and 2 slot + 1
+        self._none = np.zeros(k, complex)  # no residual expected
         self._eh = np.empty((3, k + 1), complex)  # this period's (e, h, -j e)
         self._slot = 1  # this period's
         self._started = False
@@ -251,11 +252,12 @@ class TouchEstimator:
         the plan predicts for this period without a touch, on the modes it reads
         (:func:`planned_residuals`), taken away."""
         slot = self._slot
-        z, u = self._slots[slot]
-        z[:], u[:] = envelope, drive
-        if self._started:
-            self._inputs[4, :-1] = 0.0 if expected is None else expected
-            kernels.regression_step(self._weights[slot], self._inputs, self._eh, self._sums, self.forget)  # e, h, -j e
+        if not self._started:
+            z, u = self._slots[slot]
+            z[:], u[:] = envelope, drive
+        else:
+            new = envelope, drive, self._none if expected is None else expected
+            kernels.regression_step(self._weights[slot], self._inputs, 2 * slot, new, self._eh, self._sums, self.forget)
             if self._noise is not None:
                 self._noise.carry(self._eh[1, :-1])
             self._periods += 1
@@ -316,9 +318,8 @@ class TouchEstimator:
         (:mod:`modalctl.loops.touch_lift`); no search, a product of the sums with the place's weights."""
         if self._place is None:
             return math.nan, math.nan
-        nums, dens = self._at(self._place)[:2]
-        short = -nums[0] / dens[0] if dens[0] > 0 else math.nan
-        return short, -nums[-1] / dens[-1] if dens[-1] > 0 else math.nan
+        q = self._place[1]
+        return kernels.place_damping(self._sums, q, 0), kernels.place_damping(self._sums, q, self.memories.size - 1)
 
     def _at(self, place) -> tuple[list, list, list, list]:
         """Per memory at ``place``: the sums against its pattern (``sum_k q_k Re(h_k* e_k)``,
