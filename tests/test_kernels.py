@@ -160,3 +160,31 @@ def test_add_at_adds_at_the_index():
 def test_warm_loads_every_kernel():
     kernels.warm()
     assert all(not isinstance(getattr(kernels, name), kernels._Kernel) for name in kernels.KERNELS)
+
+
+def test_csr_times_is_scipy_s_product():
+    from scipy import sparse
+
+    matrix = sparse.random_array((40, 30), density=0.1, format="csr", random_state=np.random.default_rng(2))
+    x, out = RNG.standard_normal(30), np.empty(40)
+    kernels.csr_times(matrix.data, matrix.indices, matrix.indptr, x, out)
+    assert np.allclose(out, matrix @ x, rtol=1e-13)
+
+
+def test_cluster_limit_is_the_numpy_law():
+    """Commands over their limit brought to it with their integrals held, the others' integrals moved on,
+    a loop without authority (a limit zero, below zero or not a number) resting as numpy had it."""
+    loops, k = 12, 8
+    index = np.sort(RNG.choice(loops, k, replace=False)).astype(np.int64)
+    limit = RNG.uniform(0.2, 1.0, loops)
+    limit[index[:3]] = 0.0, -0.1, np.nan
+    out, integral, z = _complex(k), _complex(k), _complex(k)
+    size, cap = np.abs(out), limit[index]
+    over = size > cap
+    expected_out = out.copy()
+    expected_out[over] *= cap[over] / np.maximum(size[over], 1e-300)
+    expected_integral = np.where(over, integral, integral + z)
+    expected_integral[cap <= 0] = 0
+    kernels.cluster_limit(out, limit, index, integral, z)
+    assert np.allclose(out, expected_out, rtol=1e-13) and np.allclose(integral, expected_integral, rtol=1e-13)
+    assert 0 < np.count_nonzero(over) < k  # both branches

@@ -44,6 +44,7 @@ from modalctl.forked import beside
 from modalctl.model.modes import drift_cases
 from modalctl.threads import serial_blas
 
+from . import kernels
 from .close_modes import Clusters, find_clusters
 from .controller import Controller, LoopDesign, LoopPlant
 from .design import _real, _series, cluster_model, design_loops, pi_controller
@@ -57,9 +58,10 @@ INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the
 PROCESS = 1.0  # the process noise, in units of lqg's
 ALONE = {"lqg": LQGControl, "pi": pi_controller}  # the loops of the modes in no cluster (ClusterControl's alone)
 BESIDE = 4  # clusters from which half their laws are designed in a forked child (its fork and answer: ~20 ms)
-DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update sparse / dense,
-# 22.5 / 17.8 us on thesis-al-cc's one law (60 states), 27.8 / 24.8 on plate-glass's (192), 37 / 60 on panel-rounded's
-# 18 (654)
+DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update sparse / dense with scipy's
+# sparse product, 22.5 / 17.8 us on thesis-al-cc's one law (60 states), 27.8 / 24.8 on plate-glass's (192), 37 / 60 on
+# panel-rounded's 18 (654); with the compiled one (kernels.csr_times) sparse and dense are within 1.5 us below 256
+# states (the default's whole update replayed, 2026-11-30: 93.7 / 95.2 us on thesis-al-cc, 118.8 / 120.2 on plate-glass)
 # a law is kept where, at its worst over the drift band, it grows at most this much over the shot's periods (a
 # radius of 1.00001 at +1% is x1.005 over a 25 ms shot's 500, and kept: refused at radius 1, plate-glass's tracked
 # shot lost its 40 Hz pair's law to per-mode loops, tau 0.967 -> 0.944, margin 0.527 -> 0.604; the tablet's
@@ -363,6 +365,15 @@ class ClusterControl(Controller):
         ka = stack([self._K, self._A])
         self._CKA, self._KAM = kind(stack([self._C, ka])), kind(ka @ self._M)
 
+    def _times(self, matrix, x: np.ndarray) -> np.ndarray:
+        """``matrix @ x`` (a stacked law's product), a sparse one compiled (:func:`~modalctl.loops.kernels.csr_times`:
+        scipy's checks cost ~10 us a call, three calls a period)."""
+        if not self._sparse:
+            return matrix @ x
+        out = np.empty(matrix.shape[0])
+        kernels.csr_times(matrix.data, matrix.indices, matrix.indptr, x, out)
+        return out
+
     def reset(self) -> None:
         if self.inner is not None:
             self.inner.reset()
@@ -416,21 +427,14 @@ class ClusterControl(Controller):
         if self._sent is not None:  # the command in flight last sent, as the supervisor let it through
             x[self._slot] = (self._sent[idx] * now * self._sent_ahead).view(float)
         z = -error[idx]  # the measured deviation from the plan, in each loop's frame
-        predicted = self._CKA @ x  # C x, K x, A x of the prediction
+        predicted = self._times(self._CKA, x)  # C x, K x, A x of the prediction
         k2 = idx.size * 2
         surprise = (z * now).view(float) - predicted[:k2]
         self.innovation = surprise.view(complex) / now  # what the model did not predict
-        joined = predicted[k2:] + self._KAM @ surprise  # K x, A x of the corrected state x + M surprise
+        joined = predicted[k2:] + self._times(self._KAM, surprise)  # K x, A x of the corrected state x + M surprise
         feedback, ahead = joined[:k2], joined[k2:]
-        out = (-feedback - self._Ki @ (self._integral * now).view(float)).view(complex) / played
-        size, cap = np.abs(out), limit[idx]
-        over = size > cap
-        if np.count_nonzero(over) or not cap.min() > 0:  # (a count and a min: the usual case in two numpy calls)
-            out[over] *= cap[over] / np.maximum(size[over], 1e-300)
-            self._integral = np.where(over, self._integral, self._integral + z)  # anti-windup
-            self._integral[cap <= 0] = 0  # a loop with no authority rests
-        else:
-            self._integral = self._integral + z
+        out = (-feedback - self._times(self._Ki, (self._integral * now).view(float))).view(complex) / played
+        kernels.cluster_limit(out, np.asarray(limit, float), idx, self._integral, z)  # authority, anti-windup
         ahead[self._slot] += (out * played).view(float)  # B: the command enters the delay line's first slot
         self._x = ahead
         self._n += 1  # the next period's, unless observe says otherwise (a lost reading)

@@ -25,7 +25,7 @@ import threading
 import numpy as np
 
 KERNELS = ("pi_update", "filter_step", "regression_step", "noise_carry", "catch_up_state", "catch_up_force",
-           "overlap_commands", "loop_errors", "over_any", "quick_bound_within", "place_sums",
+           "overlap_commands", "csr_times", "cluster_limit", "loop_errors", "over_any", "quick_bound_within", "place_sums",
            "place_damping", "add_at")
 __all__ = [*KERNELS, "warm", "warm_soon"]
 
@@ -194,6 +194,35 @@ def loop_errors(reference, measured, leak, command, own_plan, error, own):
 
 
 @_Kernel
+def csr_times(data, indices, indptr, x, out):
+    """``out = M @ x`` for ``M`` in compressed sparse rows (``data``, ``indices``, ``indptr``: scipy's CSR
+    arrays), ``x`` (n,) real: the cluster laws' block-diagonal products
+    (:class:`~modalctl.loops.cluster.ClusterControl`), where scipy's own spends ~10 us a call on checks."""
+    for r in range(indptr.size - 1):
+        acc = 0.0
+        for j in range(indptr[r], indptr[r + 1]):
+            acc += data[j] * x[indices[j]]
+        out[r] = acc
+
+
+@_Kernel
+def cluster_limit(out, limit, index, integral, z):
+    """The cluster laws' authority (:meth:`ClusterControl.update <modalctl.loops.cluster.ClusterControl.update>`),
+    per loop ``i`` of theirs (``index[i]`` among all the loops' ``limit``): a command ``out[i]`` over its
+    limit is brought to it and its integral held (anti-windup), else the integral takes ``z[i]``; a loop
+    whose limit is not above zero rests its integral."""
+    for i in range(out.size):
+        cap = limit[index[i]]
+        size = abs(out[i])
+        if size > cap:
+            out[i] = out[i] * (cap / max(size, 1e-300))
+        else:
+            integral[i] += z[i]
+        if cap <= 0:
+            integral[i] = 0j
+
+
+@_Kernel
 def over_any(values, bound):
     """Whether any ``|values[i]|`` (k,) exceeds ``bound[i]``."""
     for i in range(values.size):
@@ -287,6 +316,8 @@ def _load() -> None:
     kernel["catch_up_force"](c, c, c, np.zeros((2, 1), complex), r, 1.0, np.zeros(1, np.int64), c.copy())
     kernel["overlap_commands"](c, np.zeros(1, np.int64), c, np.zeros((1, 1), complex), c.copy())
     kernel["loop_errors"](c, c, c, c, c, c.copy(), c.copy())
+    kernel["csr_times"](r, np.zeros(1, np.int32), np.array([0, 1], np.int32), r, r.copy())
+    kernel["cluster_limit"](c.copy(), r, np.zeros(1, np.int64), c.copy(), c)
     kernel["over_any"](c, r)
     kernel["quick_bound_within"](r2, r, c, r, r.copy())
     kernel["place_sums"](np.zeros((1, 2, 3, 2)), r, 1.0, np.zeros((4, 1)))
