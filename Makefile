@@ -31,7 +31,7 @@ test: $(STAMP)
 
 BENCHMARKS := modes_needed decompose_speed plant_speed margin_case margin_planner thesis_table focus_time \
 	identify_accuracy identify_limits identify_cycle tracking closed_loop closed_maps authority saturation stability \
-	control_rate control_step protocol_speed link_rates startup plate_speed identify_speed
+	control_rate control_step protocol_speed link_rates startup plate_speed loop_update identify_speed
 
 bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet -e '.[bench]'
