@@ -91,22 +91,28 @@ def test_noise_carry_is_the_numpy_recursion():
     assert np.array_equal(last, h)
 
 
-def test_catch_up_takes_the_deficit_along_the_plan_on_loops_with_authority():
-    loops, k = 11, 7
+@pytest.mark.parametrize("scale", [37.0, 0.0], ids=["before the focus", "from the focus on"])
+def test_catch_up_period_is_its_numpy_steps(scale):
+    """The envelopes' answer to the corrections, through the lock-in's filter, and the deficit along the plan
+    caught up on the loops with authority, added to their commands; nothing from the focus on."""
+    loops, k, o = 11, 7, 4
     modes = np.sort(RNG.choice(loops, k, replace=False)).astype(np.int64)
-    error, limit = _complex(loops), np.where(RNG.random(loops) < 0.3, 0.0, 1.0)
-    state, filtered, plan, scale = _complex(k), _complex(k), _complex(2, k), 37.0
-    lost = error[modes] - state + filtered
+    error, limit, feedback = _complex(loops), np.where(RNG.random(loops) < 0.3, 0.0, 1.0), _complex(loops)
+    model, state, last, playing = _complex(3, k), _complex(k), _complex(k), _complex(k)
+    step, io, plan = RNG.standard_normal((k, o + 1, o + 1)), _complex(k, o + 1), _complex(2, k)
+    moved = model[0] * state + model[1] * last + model[2] * playing
+    through = np.einsum("krc,kc->kr", step, np.column_stack([moved, io[:, 1:]]))
+    lost = error[modes] - moved + through[:, 0]
     along = np.maximum((lost * plan[0]).real, 0) * (limit[modes] > 0)
+    expected_force = plan[1] * along * scale
+    expected_feedback = feedback.copy()
+    expected_feedback[modes] += expected_force
     out = np.empty(k, complex)
-    kernels.catch_up_force(error, state, filtered, plan, limit, scale, modes, out)
-    assert np.allclose(out, plan[1] * along * scale, rtol=1e-13)
-    assert 0 < np.count_nonzero(out) < k  # some deficits caught up, some surpluses or resting loops not
-
-    a, r0, r1, last, playing = _complex(k), _complex(k), _complex(k), _complex(k), _complex(k)
-    expected = a * state + r0 * last + r1 * playing
-    kernels.catch_up_state(state, a, r0, last, r1, playing)
-    assert np.allclose(state, expected, rtol=1e-13)
+    kernels.catch_up_period((model, state, last, playing), (step, io), (error, limit, modes, feedback), plan, scale,
+                            out)
+    assert np.allclose(state, moved, rtol=1e-13) and np.allclose(io[:, 1:], through[:, 1:], rtol=1e-13)
+    assert np.allclose(out, expected_force, rtol=1e-13) and np.allclose(feedback, expected_feedback, rtol=1e-13)
+    assert (0 < np.count_nonzero(out) < k) if scale else not out.any()
 
 
 def test_overlap_commands_solve_the_groups_and_pass_the_rest():
@@ -142,19 +148,12 @@ def test_place_sums_are_the_estimator_s_weighted_sums():
     out = np.empty((4, m))
     kernels.place_sums(sums, q, reads, out)
     assert np.allclose(out, expected, rtol=1e-12)
-    for memory in range(m):
-        damping = kernels.place_damping(sums, q, memory)
-        num, den = expected[0][memory], expected[1][memory]
-        assert damping == pytest.approx(-num / den, rel=1e-12) if den > 0 else np.isnan(damping)
-    assert np.isnan(kernels.place_damping(np.zeros_like(sums), q, 0))  # nothing driven: no damping read
-
-
-def test_add_at_adds_at_the_index():
-    target, index, values = _complex(9), np.array([7, 0, 3], np.int64), _complex(3)
-    expected = target.copy()
-    expected[index] += values
-    kernels.add_at(target, index, values)
-    assert np.array_equal(target, expected)
+    sums[0, 1, 1] = np.abs(sums[0, 1, 1])  # |h|^2 sums: positive on the shortest memory,
+    sums[-1, 1, 1] = -np.abs(sums[-1, 1, 1])  # not on the longest (no damping read there)
+    expected = [np.einsum("k,mk->m", q, sums[:, 0, 1, :k]), np.einsum("k,mk->m", q ** 2, sums[:, 1, 1, :k])]
+    short, long = kernels.place_dampings(sums, q)
+    assert short == pytest.approx(-expected[0][0] / expected[1][0], rel=1e-12) and expected[1][0] > 0
+    assert np.isnan(long) and not expected[1][-1] > 0
 
 
 def test_warm_loads_every_kernel():
@@ -188,3 +187,54 @@ def test_cluster_limit_is_the_numpy_law():
     kernels.cluster_limit(out, limit, index, integral, z)
     assert np.allclose(out, expected_out, rtol=1e-13) and np.allclose(integral, expected_integral, rtol=1e-13)
     assert 0 < np.count_nonzero(over) < k  # both branches
+
+
+class _PythonLiftDetector:
+    """LiftDetector's test as plain Python evaluated it, before it was compiled."""
+
+    def __init__(self, keep, arm, observed, drop_min, clip):
+        self.keep, self.arm, self.observed, self.drop_min, self.clip = keep, arm, observed, drop_min, clip
+        self.reset()
+
+    def reset(self):
+        self.mean = self.var = self.weight = 0.0
+        self.seen, self.normal = 0, -1
+
+    def update(self, period, short, long):
+        if not (long > 0 and np.isfinite(short)):
+            self.reset()
+            return None
+        s = 1 - short / long
+        spread = np.sqrt(self.var)
+        if self.seen >= self.arm and s > self.drop_min and s > self.mean + self.observed * spread:
+            since = self.normal + 1 if self.normal >= 0 else period
+            self.reset()
+            return since
+        if s <= self.mean + spread or self.seen < self.arm:
+            self.normal = period
+        self.seen += 1
+        if self.seen > self.arm:
+            s = min(s, self.mean + self.clip * spread)
+        self.weight = self.keep * self.weight + 1
+        step = (s - self.mean) / self.weight
+        self.var = (1 - 1 / self.weight) * (self.var + step * (s - self.mean))
+        self.mean += step
+        return None
+
+
+def test_lift_statistics_tell_the_lifts_python_told():
+    """A damping steady with noise, unread now and then (nan), then falling: the same lifts told, dated alike, and
+    the same statistics every period."""
+    keep, arm, limits = np.exp(-1 / 80), 80.0, (6.0, 0.05, 2.0)
+    python, stats, told = _PythonLiftDetector(keep, arm, *limits), np.array([0.0, 0.0, 0.0, 0.0, -1.0]), []
+    for period in range(900):
+        long = 1.0 + 0.02 * RNG.standard_normal()
+        short = long * (1 + 0.03 * RNG.standard_normal()) * (0.3 if period % 400 > 320 else 1.0)
+        if period in (430, 440):  # not read: the statistics start again
+            short = np.nan
+        expected = python.update(period, short, long)
+        since = kernels.lift_statistics(stats, period, short, long, keep, arm, limits)
+        assert (None if since < 0 else since) == expected
+        assert np.allclose(stats, [python.mean, python.var, python.weight, python.seen, python.normal], rtol=1e-12)
+        told += [since] if since >= 0 else []
+    assert len(told) >= 2  # lifts were told

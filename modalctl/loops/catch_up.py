@@ -85,7 +85,7 @@ class CatchUp:
         self.period = 1 / float(control_rate)
         self.a, g0, g1 = hold_coefficients(p, self.period, "foh")
         residues = velocity_residues(frequencies, damping)
-        self._r0, self._r1 = residues * g0, residues * g1
+        self._model = np.stack([self.a, residues * g0, residues * g1])  # each envelope: z <- a z + r0 u0 + r1 u1
         self.filter = CommandFilter(bandwidths, control_rate)
         self.lead, self.focus_time = max(1, int(lead)), float(focus_time)
         # per period, a row each: conj(plan) / |plan|^2 (a deficit's share of the plan: Re(e * that)) and the
@@ -104,22 +104,20 @@ class CatchUp:
         self._last = np.zeros(k, complex)  # the correction whose ramp ended last period
         self._sent = deque([np.zeros(k, complex)] * self.lead)  # corrections on their way
 
-    def correction(self, period: int, error: np.ndarray, limit: np.ndarray) -> np.ndarray:
+    def correction(self, period: int, error: np.ndarray, limit: np.ndarray,
+                   into: np.ndarray | None = None) -> np.ndarray:
         """The modal force (k,) that catches up by the focus each mode's deficit in ``error`` (reference
         less reading, on every loop: its ``modes`` are read) along its plan, on the loops with authority
-        (``limit > 0``, on every loop too); zero from the focus on. Call once a period, in order."""
+        (``limit > 0``, on every loop too); zero from the focus on; added to ``into`` (every loop's commands)
+        when given. Call once a period, in order."""
         playing = self._sent.popleft()  # its ramp ends with this period
-        state = self.state
-        kernels.catch_up_state(state, self.a, self._r0, self._last, self._r1, playing)
-        self._last = playing
         left = self.focus_time - (period + self.lead) * self.period  # from when this correction plays
-        filtered = self.filter.step(state)  # what the readings will still show of what is on its way
-        if left > 0:  # the deficit's share of the plan, caught up over the time left
-            force = np.empty_like(state)
-            plan = self._plan[min(period, self._plan.shape[0] - 1)]
-            kernels.catch_up_force(error, state, filtered, plan, np.asarray(limit, float), 1 / max(left, TAU_MIN),
-                                   self.modes, force)
-        else:
-            force = np.zeros_like(state)
+        plan = self._plan[min(period, self._plan.shape[0] - 1)]
+        force = np.empty_like(self.state)
+        into = np.zeros(np.size(error), complex) if into is None else into
+        kernels.catch_up_period((self._model, self.state, self._last, playing), self.filter.arrays,
+                                (error, np.asarray(limit, float), self.modes, into), plan,
+                                1 / max(left, TAU_MIN) if left > 0 else 0.0, force)
+        self._last = playing
         self._sent.append(force)
         return force

@@ -79,6 +79,12 @@ class CommandFilter:
         """Each mode's filter state (k, o), complex."""
         return self._io[:, 1:]
 
+    @property
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(step, io)``: each mode's ``[[D, C], [B, A]]`` (k, o + 1, o + 1) and its (input, state) (k, o + 1),
+        for a kernel that steps the filter in place (:func:`~modalctl.loops.kernels.catch_up_period`)."""
+        return self._step, self._io
+
     def reset(self) -> None:
         k, o = self.B.shape
         self._io = np.zeros((k, o + 1), complex)  # (input, state) per mode

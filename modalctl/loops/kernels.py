@@ -4,11 +4,12 @@ period, at 20 kHz.
 Each step below was a dozen to twenty numpy calls on arrays of a few tens of modes, and a numpy
 call costs 1-2 us whatever its size: the touch controller's update on panel-rounded took 180 us
 (``benchmarks/plate_speed.py``), where a period at 20 kHz lasts 50. Compiled, a step is one call
-over plain loops, and the update takes 78-83 us (2026-11-30; the rest is the controllers' Python
-around the kernels). The arrays are the callers' own, updated in place; the laws are documented where
-they are used (:mod:`.pi`, :mod:`.design`, :mod:`.touch_estimator`, :mod:`.envelope_noise`,
-:mod:`.catch_up`, :mod:`.overlap`, :mod:`.supervisor`, :mod:`.runtime`), and each is tested against the
-numpy it replaced (``tests/test_kernels.py``).
+over plain loops, and the update takes 70-77 us in the shot, 51-56 us replayed (2026-11-30,
+``benchmarks/loop_update.py``; the rest is the controllers' Python around the kernels). The arrays are the
+callers' own, updated in place; the laws are documented where they are used (:mod:`.pi`, :mod:`.design`,
+:mod:`.touch_estimator`, :mod:`.envelope_noise`, :mod:`.touch_lift`, :mod:`.catch_up`, :mod:`.overlap`,
+:mod:`.cluster`, :mod:`.supervisor`, :mod:`.runtime`), and each is tested against the numpy (or the Python)
+it replaced (``tests/test_kernels.py``).
 
 Each is compiled when first called, numba imported then (an open-loop shot never pays for it), and
 cached beside this file (numba's ``cache=True``; in numba's user-wide cache when the folder is
@@ -24,9 +25,9 @@ import threading
 
 import numpy as np
 
-KERNELS = ("pi_update", "filter_step", "regression_step", "noise_carry", "catch_up_state", "catch_up_force",
-           "overlap_commands", "csr_times", "cluster_limit", "loop_errors", "over_any", "quick_bound_within", "place_sums",
-           "place_damping", "add_at")
+KERNELS = ("pi_update", "filter_step", "regression_step", "noise_carry", "catch_up_period", "overlap_commands",
+           "csr_times", "cluster_limit", "loop_errors", "over_any", "quick_bound_within", "place_sums",
+           "place_dampings", "lift_statistics")
 __all__ = [*KERNELS, "warm", "warm_soon"]
 
 
@@ -141,25 +142,39 @@ def noise_carry(turn, stationary, lam2, rho_lam, last, h, carried, crossed):
 
 
 @_Kernel
-def catch_up_state(state, a, r0, last, r1, playing):
-    """Each envelope's answer to the corrections sent (:class:`~modalctl.loops.catch_up.CatchUp`), one
-    period on: ``state <- a state + r0 last + r1 playing`` (k,), in place."""
+def catch_up_period(motion, lockin, loops, plan, scale, out):
+    """One period of :class:`~modalctl.loops.catch_up.CatchUp` on its k modes, in place:
+
+    - ``motion`` = (``model`` (3, k): each envelope's pole over a period ``a`` and its answers ``r0``, ``r1`` to
+      the last and the playing correction; ``state``, ``last``, ``playing`` (k,)): ``state <- a state + r0 last
+      + r1 playing``, what the corrections have added to each envelope;
+    - ``lockin`` = (``step`` (k, o + 1, o + 1), ``io`` (k, o + 1)): the state through the lock-in's filter
+      (as :func:`filter_step`), what the readings will still show of it;
+    - ``loops`` = (``error``, ``limit`` (K,) of every loop, ``modes`` (k,) its among them, ``feedback`` (K,)):
+      the deficit ``lost = error - state + filtered``, its share of the plan ``max(Re(lost plan[0]), 0)`` times
+      ``plan[1] * scale`` on the loops with authority (``limit > 0``) is the force ``out`` (k,), added to
+      ``feedback``; ``scale`` 0 (the focus passed): no force."""
+    model, state, last, playing = motion
+    step, io = lockin
+    error, limit, modes, feedback = loops
+    n = io.shape[1]
+    nxt = np.empty(n, np.complex128)
     for i in range(state.size):
-        state[i] = a[i] * state[i] + r0[i] * last[i] + r1[i] * playing[i]
-
-
-@_Kernel
-def catch_up_force(error, state, filtered, plan, limit, scale, modes, out):
-    """The force that catches up each mode's deficit by the focus (:class:`~modalctl.loops.catch_up.CatchUp`),
-    on its modes ``modes`` (k,) of the loops' ``error`` and ``limit``: the deficit the readings will still
-    show, ``lost = error[modes] - state + filtered`` (k,), its share of the plan ``max(Re(lost plan[0]), 0)``
-    (``plan[0]``: conj(plan) / |plan|^2), times ``plan[1] * scale`` (the force per unit share and second) on
-    the loops with authority (``limit > 0``), zero elsewhere; written in ``out`` (k,)."""
-    for i in range(modes.size):
+        s = model[0, i] * state[i] + model[1, i] * last[i] + model[2, i] * playing[i]
+        state[i] = s
+        io[i, 0] = s
+        for r in range(n):
+            acc = 0j
+            for c in range(n):
+                acc += step[i, r, c] * io[i, c]
+            nxt[r] = acc
+        for r in range(1, n):
+            io[i, r] = nxt[r]
         k = modes[i]
-        along = ((error[k] - state[i] + filtered[i]) * plan[0, i]).real
-        if along > 0 and limit[k] > 0:
+        along = ((error[k] - s + nxt[0]) * plan[0, i]).real
+        if scale > 0 and along > 0 and limit[k] > 0:
             out[i] = plan[1, i] * along * scale
+            feedback[k] += out[i]
         else:
             out[i] = 0j
 
@@ -265,22 +280,48 @@ def place_sums(sums, q, reads, out):
 
 
 @_Kernel
-def place_damping(sums, q, m):
-    """The damping at a place of pattern ``q`` (k,) on memory ``m`` of the touch estimator's ``sums``
-    (:meth:`TouchEstimator.dampings <modalctl.loops.touch_estimator.TouchEstimator.dampings>`):
-    ``-sum_k q_k Re(h_k* e_k) / sum_k q_k^2 |h_k|^2``, nan where the denominator is not positive."""
-    num = den = 0.0
-    for i in range(q.size):
-        num += q[i] * sums[m, 0, 1, i]
-        den += q[i] * q[i] * sums[m, 1, 1, i]
-    return -num / den if den > 0 else np.nan
+def place_dampings(sums, q):
+    """The damping at a place of pattern ``q`` (k,) on the shortest and the longest memory of the touch
+    estimator's ``sums`` (:meth:`TouchEstimator.dampings <modalctl.loops.touch_estimator.TouchEstimator.dampings>`):
+    ``-sum_k q_k Re(h_k* e_k) / sum_k q_k^2 |h_k|^2`` on each, nan where the denominator is not positive."""
+    found = np.empty(2)
+    for slot, m in enumerate((0, sums.shape[0] - 1)):
+        num = den = 0.0
+        for i in range(q.size):
+            num += q[i] * sums[m, 0, 1, i]
+            den += q[i] * q[i] * sums[m, 1, 1, i]
+        found[slot] = -num / den if den > 0 else np.nan
+    return found[0], found[1]
 
 
 @_Kernel
-def add_at(target, index, values):
-    """``target[index] += values`` (index (k,) without repeats)."""
-    for i in range(index.size):
-        target[index[i]] += values[i]
+def lift_statistics(stats, period, short, long, keep, arm, limits):
+    """One period of :class:`~modalctl.loops.touch_lift.LiftDetector`: ``stats`` (5,) = the observed mean and
+    variance of ``s = 1 - short / long``, their weight, the periods seen and the last period ``s`` lay within
+    one deviation of its mean, moved on in place; ``limits`` = (OBSERVED, DROP_MIN, CLIP). Returns the period a
+    lift is dated to when one is told now (``stats`` then reset), else -1; a damping not read resets them."""
+    observed, drop_min, clip = limits
+    if not (long > 0 and np.isfinite(short)):
+        stats[:] = 0.0
+        stats[4] = -1.0
+        return -1
+    mean, var, weight, seen, normal = stats[0], stats[1], stats[2], stats[3], stats[4]
+    s = 1 - short / long
+    spread = np.sqrt(var)
+    if seen >= arm and s > drop_min and s > mean + observed * spread:
+        stats[:] = 0.0
+        stats[4] = -1.0
+        return int(normal) + 1 if normal >= 0 else period
+    if s <= mean + spread or seen < arm:
+        normal = period
+    seen += 1
+    if seen > arm:  # a change coming in must not widen the spread it is told against (Huber's clip)
+        s = min(s, mean + clip * spread)
+    weight = keep * weight + 1
+    step = (s - mean) / weight  # exponentially weighted mean and variance (West 1979)
+    var = (1 - 1 / weight) * (var + step * (s - mean))
+    stats[0], stats[1], stats[2], stats[3], stats[4] = mean + step, var, weight, seen, normal
+    return -1
 
 
 _warming: list = []  # the thread warm_soon started, while it runs
@@ -312,8 +353,9 @@ def _load() -> None:
     kernel["regression_step"](np.zeros((3, 5, 2), complex), np.zeros((5, 2), complex), 0, (c, c, c),
                               np.zeros((3, 2), complex), np.zeros((1, 2, 3, 2)), r)
     kernel["noise_carry"](np.zeros((1, 1), complex), r, r2, r2, c, c, r2.copy(), np.zeros((1, 1), complex))
-    kernel["catch_up_state"](c.copy(), c, c, c, c, c)
-    kernel["catch_up_force"](c, c, c, np.zeros((2, 1), complex), r, 1.0, np.zeros(1, np.int64), c.copy())
+    kernel["catch_up_period"]((np.zeros((3, 1), complex), c.copy(), c, c),
+                              (np.zeros((1, 2, 2)), np.zeros((1, 2), complex)), (c, r, np.zeros(1, np.int64), c.copy()),
+                              np.zeros((2, 1), complex), 1.0, c.copy())
     kernel["overlap_commands"](c, np.zeros(1, np.int64), c, np.zeros((1, 1), complex), c.copy())
     kernel["loop_errors"](c, c, c, c, c, c.copy(), c.copy())
     kernel["csr_times"](r, np.zeros(1, np.int32), np.array([0, 1], np.int32), r, r.copy())
@@ -321,5 +363,5 @@ def _load() -> None:
     kernel["over_any"](c, r)
     kernel["quick_bound_within"](r2, r, c, r, r.copy())
     kernel["place_sums"](np.zeros((1, 2, 3, 2)), r, 1.0, np.zeros((4, 1)))
-    kernel["place_damping"](np.zeros((1, 2, 3, 2)), r, 0)
-    kernel["add_at"](c.copy(), np.zeros(1, np.int64), c)
+    kernel["place_dampings"](np.zeros((1, 2, 3, 2)), r)
+    kernel["lift_statistics"](np.zeros(5), 0, 1.0, 1.0, 0.5, 1.0, (6.0, 0.05, 2.0))

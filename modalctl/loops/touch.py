@@ -38,7 +38,6 @@ import numpy as np
 from modalctl.model.touch import velocity_residues
 from modalctl.plan.dispatch import mobility
 
-from . import kernels
 from .catch_up import CatchUp
 from .controller import Controller, LoopPlant
 from .design import CommandFilter
@@ -281,7 +280,7 @@ class TouchControl(Controller):
         if self.catch_up is not None:  # what the touch took before it was read, caught up by the focus on the
             self._catching = True  # loops it learns from (clean readings), from the first period anything is given
             feedback = feedback.copy()  # back to the shot's end (its doc)
-            kernels.add_at(feedback, self.catch_up.modes, self.catch_up.correction(self.period, error, limit))
+            self.catch_up.correction(self.period, error, limit, into=feedback)
         if not np.count_nonzero(limit):  # no loop has authority (a shot played open through the loops):
             return feedback  # nothing given back either
         # to every mode, a resting loop's too: the give-back is a feed-forward on the planned motion, and

@@ -318,8 +318,7 @@ class TouchEstimator:
         (:mod:`modalctl.loops.touch_lift`); no search, a product of the sums with the place's weights."""
         if self._place is None:
             return math.nan, math.nan
-        q = self._place[1]
-        return kernels.place_damping(self._sums, q, 0), kernels.place_damping(self._sums, q, self.memories.size - 1)
+        return kernels.place_dampings(self._sums, self._place[1])
 
     def _at(self, place) -> tuple[list, list, list, list]:
         """Per memory at ``place``: the sums against its pattern (``sum_k q_k Re(h_k* e_k)``,

@@ -38,6 +38,8 @@ from collections import deque
 
 import numpy as np
 
+from . import kernels
+
 __all__ = ["LiftDetector", "LiftRelease", "settling_time", "group_delay", "OBSERVED", "CLIP", "DROP_MIN",
            "CALIBRATION", "ARM", "TAKE_BACK", "WINDOW_MAX"]
 
@@ -50,6 +52,7 @@ ARM = CALIBRATION  # s of a sure touch's statistics before a lift can be told: a
 # told a lift in 2 of 300 draws of 25 ms; after 4 ms in none)
 TAKE_BACK = 1e-3  # s over which what was given since the lift is taken back
 WINDOW_MAX = 5e-3  # s: the give-back a lift's take-back reaches back to at most
+LIMITS = (OBSERVED, DROP_MIN, CLIP)  # as the compiled test takes them
 
 
 def settling_time(bandwidths) -> float:
@@ -83,33 +86,15 @@ class LiftDetector:
 
     def reset(self) -> None:
         """Forget the statistics (a touch no longer sure, or a lift told)."""
-        self._mean = self._var = self._weight = 0.0
-        self._seen = 0
-        self._normal = -1  # the last period whose s lay within one standard deviation of its mean
-        self.share = 0.0  # the last period's s
+        self._stats = np.array([0.0, 0.0, 0.0, 0.0, -1.0])  # mean and variance of s, their weight, periods seen,
+        # the last period s lay within one standard deviation of its mean (-1: none)
 
     def update(self, period: int, short: float, long: float) -> int | None:
         """One period's dampings at the touch's place, on the shortest and the longest memory (N s/m).
-        Returns the period the lift is dated to when one is told now, else None."""
-        if not (long > 0 and math.isfinite(short)):
-            self.reset()
-            return None
-        s = self.share = 1 - short / long
-        spread = math.sqrt(self._var)
-        if self._seen >= self._arm and s > DROP_MIN and s > self._mean + OBSERVED * spread:
-            since = self._normal + 1 if self._normal >= 0 else period
-            self.reset()
-            return since
-        if s <= self._mean + spread or self._seen < self._arm:
-            self._normal = period
-        self._seen += 1
-        if self._seen > self._arm:  # a change coming in must not widen the spread it is told against: past
-            s = min(s, self._mean + CLIP * spread)  # CLIP deviations, a period counts as CLIP (Huber's clip)
-        self._weight = self._keep * self._weight + 1
-        step = (s - self._mean) / self._weight  # exponentially weighted mean and variance (West 1979)
-        self._var = (1 - 1 / self._weight) * (self._var + step * (s - self._mean))
-        self._mean += step
-        return None
+        Returns the period the lift is dated to when one is told now, else None (the statistics moved on
+        by :func:`~modalctl.loops.kernels.lift_statistics`: the class notes' test, compiled)."""
+        since = kernels.lift_statistics(self._stats, period, short, long, self._keep, self._arm, LIMITS)
+        return None if since < 0 else since
 
 
 class LiftRelease:
@@ -180,7 +165,7 @@ class LiftRelease:
         if self.holding(period):
             touch = np.zeros_like(touch)
         else:
-            self._given.append((period, np.array(touch)))
+            self._given.append((period, touch))  # the caller's, not written after (TouchControl.update's)
         if self._pulse is not None:
             if period <= self._pulse[0]:
                 return touch + self._pulse[1]
