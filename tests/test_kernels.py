@@ -117,12 +117,12 @@ def test_catch_up_period_is_its_numpy_steps(scale):
 
 def test_overlap_commands_solve_the_groups_and_pass_the_rest():
     k, index = 9, np.array([6, 1, 4], np.int64)
-    forces, turn, inverse = _complex(k), np.exp(1j * RNG.uniform(0, 6, 3)), _complex(3, 3)
+    forces, base, turn, inverse = _complex(k), _complex(k), np.exp(1j * RNG.uniform(0, 6, 3)), _complex(3, 3)
     expected = forces.copy()
     expected[index] = turn.conj() * (inverse @ (turn * forces[index]))
     out = np.empty(k, complex)
-    kernels.overlap_commands(forces, index, turn, inverse, out)
-    assert np.allclose(out, expected, rtol=1e-13)
+    kernels.overlap_commands(forces, base, index, turn, inverse, out)
+    assert np.allclose(out, base + expected, rtol=1e-13)
 
 
 @pytest.mark.parametrize("room_scale", [0.5, 2.0, 1e3])

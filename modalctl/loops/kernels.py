@@ -180,12 +180,13 @@ def catch_up_period(motion, lockin, loops, plan, scale, out):
 
 
 @_Kernel
-def overlap_commands(forces, index, turn, inverse, out):
-    """The commands that make ``forces`` (k,) on modes whose resonances overlap
-    (:class:`~modalctl.loops.overlap.Overlapping`): ``out = forces`` (k,), then on the modes ``index`` (g,)
-    ``out[index] = conj(turn) * (inverse @ (turn * forces[index]))`` (``turn`` (g,), ``inverse`` (g, g))."""
+def overlap_commands(forces, base, index, turn, inverse, out):
+    """``base`` plus the commands that make ``forces`` (k,) on modes whose resonances overlap
+    (:class:`~modalctl.loops.overlap.Overlapping`): ``out = base + forces`` (k,), but on the modes ``index``
+    (g,) ``out[index] = base[index] + conj(turn) * (inverse @ (turn * forces[index]))`` (``turn`` (g,),
+    ``inverse`` (g, g))."""
     for i in range(forces.size):
-        out[i] = forces[i]
+        out[i] = base[i] + forces[i]
     g = index.size
     turned = np.empty(g, np.complex128)
     for i in range(g):
@@ -194,7 +195,7 @@ def overlap_commands(forces, index, turn, inverse, out):
         acc = 0j
         for c in range(g):
             acc += inverse[r, c] * turned[c]
-        out[index[r]] = turn[r].conjugate() * acc
+        out[index[r]] = base[index[r]] + turn[r].conjugate() * acc
 
 
 @_Kernel
@@ -356,7 +357,7 @@ def _load() -> None:
     kernel["catch_up_period"]((np.zeros((3, 1), complex), c.copy(), c, c),
                               (np.zeros((1, 2, 2)), np.zeros((1, 2), complex)), (c, r, np.zeros(1, np.int64), c.copy()),
                               np.zeros((2, 1), complex), 1.0, c.copy())
-    kernel["overlap_commands"](c, np.zeros(1, np.int64), c, np.zeros((1, 1), complex), c.copy())
+    kernel["overlap_commands"](c, c, np.zeros(1, np.int64), c, np.zeros((1, 1), complex), c.copy())
     kernel["loop_errors"](c, c, c, c, c, c.copy(), c.copy())
     kernel["csr_times"](r, np.zeros(1, np.int32), np.array([0, 1], np.int32), r, r.copy())
     kernel["cluster_limit"](c.copy(), r, np.zeros(1, np.int64), c.copy(), c)

@@ -79,6 +79,7 @@ class Overlapping:
         if not groups:
             return
         self._index = np.concatenate(groups).astype(np.int64)
+        self._zero = np.zeros(plant.frequencies.size, complex)  # no base
         coupling = plant.model.actuator_gains[np.asarray(plant.modes)] @ np.asarray(plant.schedule.weights)  # (k, k)
         inverse = np.zeros((self._index.size, self._index.size), complex)  # block-diagonal: one product a call
         start = 0
@@ -89,9 +90,11 @@ class Overlapping:
         self._turn = PeriodTurns(2 * np.pi * np.asarray(plant.schedule.carriers, float)[self._index]
                                  / plant.control_rate)  # D's diagonal at a period's start
 
-    def __call__(self, forces: np.ndarray, period: int) -> np.ndarray:
+    def __call__(self, forces: np.ndarray, period: int, base: np.ndarray | None = None) -> np.ndarray:
+        """The commands (k,) that make ``forces``, plus ``base`` (k,) when given (commands made otherwise)."""
         if not self.groups:
-            return forces
+            return forces if base is None else base + forces
         commands = np.empty(forces.size, complex)
-        kernels.overlap_commands(np.asarray(forces, complex), self._index, self._turn(period), self._inverse, commands)
+        kernels.overlap_commands(np.asarray(forces, complex), self._zero if base is None else base, self._index,
+                                 self._turn(period), self._inverse, commands)
         return commands  # D^* inverse D on the overlapping modes, the forces elsewhere

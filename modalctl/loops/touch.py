@@ -219,7 +219,7 @@ class TouchControl(Controller):
             self.catch_up.reset()
         self._catching = False  # from the first period something is given back (see update)
         self._sent = deque([np.zeros(self.learned.size, complex)] * (self.lead - 1))  # commands on their way
-        self._pattern = (None, None)  # (grid index, q over every kept mode there)
+        self._pattern = (None, None)  # (the estimate, its sure damping times q over every kept mode at its place)
         self._detuned = np.zeros(self.residues.size, complex)  # -j times each mode's sure detuning (rad/s)
         self._shared = 0.0  # the relative shift of every resonance it is sure of
         self._shift = np.zeros(self.residues.size)  # and the share of it each mode is given back (Drivable)
@@ -288,7 +288,7 @@ class TouchControl(Controller):
         # a mode's planned drive at the focus; only to loops with authority: plate-glass's landing finger
         # given back 80 -> 77%, the panel's 76 -> 72%)
         row = self._give_row()
-        touch = estimate.sure * self._pattern_at(estimate.index) * row if estimate.sure > 0 else self._nothing
+        touch = self._sure_pattern(estimate) * row if estimate.sure > 0 else self._nothing
         if self.lift is not None:  # stopped by a lift, and what was given since taken back
             touch = self.lift.given(self.period, touch)
         given = self._commands(touch, self._detuned * row if self._shared else None)
@@ -301,7 +301,7 @@ class TouchControl(Controller):
         whose resonances overlap, solved together (:class:`~modalctl.loops.overlap.Overlapping`), the touch's
         only when :attr:`together` says so (the class notes)."""
         if not self.together:
-            return touch if drift is None else touch + self._overlapping(drift, self._playing())
+            return touch if drift is None else self._overlapping(drift, self._playing(), base=touch)
         forces = touch if drift is None else touch + drift
         return self._overlapping(forces, self._playing()) if forces.any() else forces
 
@@ -346,11 +346,12 @@ class TouchControl(Controller):
         rows = self._give_rows
         return rows[min(self.period + self.lead, rows.shape[0] - 1)]
 
-    def _pattern_at(self, index: int) -> np.ndarray:
-        """``q_k = phi_k(x0)^2 / 2`` over every kept mode at grid point ``index`` (k,): the touch drains
-        the modes the estimator does not learn from as well."""
-        if self._pattern[0] != index:
-            self._pattern = index, self.shapes[:, index] ** 2 / 2
+    def _sure_pattern(self, estimate) -> np.ndarray:
+        """``sure * q_k``, ``q_k = phi_k(x0)^2 / 2`` over every kept mode at the estimate's place (k,): the touch
+        drains the modes the estimator does not learn from as well. Made again when the estimate is (every
+        :data:`READ_EVERY`), not every period."""
+        if self._pattern[0] is not estimate:
+            self._pattern = estimate, estimate.sure * (self.shapes[:, estimate.index] ** 2 / 2)
         return self._pattern[1]
 
     def summary(self) -> dict | None:
