@@ -25,25 +25,61 @@ import threading
 
 import numpy as np
 
-KERNELS = ("pi_update", "filter_step", "regression_step", "noise_carry", "catch_up_period", "overlap_commands",
-           "csr_times", "cluster_limit", "loop_errors", "over_any", "quick_bound_within", "place_sums",
-           "place_dampings", "lift_statistics")
-__all__ = [*KERNELS, "warm", "warm_soon"]
+KERNELS: list = []  # every kernel's name, as defined below
+_HELPERS: list = []  # the plain functions kernels call, compiled before the first kernel is
+_COMPILING = threading.Lock()
 
 
 class _Kernel:
     """A stub for ``source``, compiled (numba ``njit``) at its first call, which it hands on; the compiled
-    kernel then stands in the module in the stub's place."""
+    kernel then stands in the module in the stub's place (the helpers it calls compiled first)."""
 
     def __init__(self, source):
         self.source = source
+        KERNELS.append(source.__name__)
 
     def __call__(self, *args):
         import numba
 
+        with _COMPILING:  # warm_soon's thread and the caller's may both get here first
+            while _HELPERS:
+                name = _HELPERS.pop()
+                globals()[name] = numba.njit(cache=True, nogil=True)(globals()[name])
         kernel = numba.njit(cache=True, nogil=True)(self.source)
         globals()[self.source.__name__] = kernel
         return kernel(*args)
+
+
+def _helper(function):
+    """A function kernels call: compiled (and in their place) before the first kernel is."""
+    _HELPERS.append(function.__name__)
+    return function
+
+
+@_helper
+def _filtered(step, io, i, nxt):
+    """Mode ``i``'s filter one sample on (``step``, ``io``: as :func:`filter_step`'s, its input in ``io[i, 0]``):
+    its output, the next state written in ``io[i, 1:]`` (``nxt``: scratch, (o + 1,))."""
+    n = io.shape[1]
+    for r in range(n):
+        acc = 0j
+        for c in range(n):
+            acc += step[i, r, c] * io[i, c]
+        nxt[r] = acc
+    for r in range(1, n):
+        io[i, r] = nxt[r]
+    return nxt[0]
+
+
+@_helper
+def _place_terms(sums, q, m):
+    """The touch estimator's fit at a place of pattern ``q`` (k,) on memory ``m`` of its ``sums``:
+    ``sum_k q_k Re(h_k* e_k)`` and ``sum_k q_k^2 |h_k|^2``."""
+    num = den = 0.0
+    for i in range(q.size):
+        num += q[i] * sums[m, 0, 1, i]
+        den += q[i] * q[i] * sums[m, 1, 1, i]
+    return num, den
 
 
 @_Kernel
@@ -79,17 +115,9 @@ def filter_step(step, io, out):
     """One sample of each mode's filter in state space (:class:`~modalctl.loops.design.CommandFilter`):
     ``io`` (k, o + 1) complex holds each mode's input then its state; ``step`` (k, o + 1, o + 1) real,
     ``[[D, C], [B, A]]``. Writes the outputs in ``out`` (k,) and the next states in ``io``."""
-    k, n = io.shape
-    nxt = np.empty(n, np.complex128)
-    for i in range(k):
-        for r in range(n):
-            acc = 0j
-            for c in range(n):
-                acc += step[i, r, c] * io[i, c]
-            nxt[r] = acc
-        out[i] = nxt[0]
-        for r in range(1, n):
-            io[i, r] = nxt[r]
+    nxt = np.empty(io.shape[1], np.complex128)
+    for i in range(io.shape[0]):
+        out[i] = _filtered(step, io, i, nxt)
 
 
 @_Kernel
@@ -157,21 +185,14 @@ def catch_up_period(motion, lockin, loops, plan, scale, out):
     model, state, last, playing = motion
     step, io = lockin
     error, limit, modes, feedback = loops
-    n = io.shape[1]
-    nxt = np.empty(n, np.complex128)
+    nxt = np.empty(io.shape[1], np.complex128)
     for i in range(state.size):
         s = model[0, i] * state[i] + model[1, i] * last[i] + model[2, i] * playing[i]
         state[i] = s
         io[i, 0] = s
-        for r in range(n):
-            acc = 0j
-            for c in range(n):
-                acc += step[i, r, c] * io[i, c]
-            nxt[r] = acc
-        for r in range(1, n):
-            io[i, r] = nxt[r]
+        filtered = _filtered(step, io, i, nxt)
         k = modes[i]
-        along = ((error[k] - s + nxt[0]) * plan[0, i]).real
+        along = ((error[k] - s + filtered) * plan[0, i]).real
         if scale > 0 and along > 0 and limit[k] > 0:
             out[i] = plan[1, i] * along * scale
             feedback[k] += out[i]
@@ -272,10 +293,9 @@ def place_sums(sums, q, reads, out):
     complex residuals (the last column's ``|e|^2`` times ``reads``), written in ``out`` (4, m)."""
     k = q.size
     for m in range(sums.shape[0]):
-        num = den = energy = 0.0
+        num, den = _place_terms(sums, q, m)
+        energy = 0.0
         for i in range(k):
-            num += q[i] * sums[m, 0, 1, i]
-            den += q[i] * q[i] * sums[m, 1, 1, i]
             energy += sums[m, 0, 0, i]
         out[0, m], out[1, m], out[2, m], out[3, m] = num, den, energy, sums[m, 0, 0, k] * reads
 
@@ -287,10 +307,7 @@ def place_dampings(sums, q):
     ``-sum_k q_k Re(h_k* e_k) / sum_k q_k^2 |h_k|^2`` on each, nan where the denominator is not positive."""
     found = np.empty(2)
     for slot, m in enumerate((0, sums.shape[0] - 1)):
-        num = den = 0.0
-        for i in range(q.size):
-            num += q[i] * sums[m, 0, 1, i]
-            den += q[i] * q[i] * sums[m, 1, 1, i]
+        num, den = _place_terms(sums, q, m)
         found[slot] = -num / den if den > 0 else np.nan
     return found[0], found[1]
 
@@ -366,3 +383,6 @@ def _load() -> None:
     kernel["place_sums"](np.zeros((1, 2, 3, 2)), r, 1.0, np.zeros((4, 1)))
     kernel["place_dampings"](np.zeros((1, 2, 3, 2)), r)
     kernel["lift_statistics"](np.zeros(5), 0, 1.0, 1.0, 0.5, 1.0, (6.0, 0.05, 2.0))
+
+
+__all__ = [*KERNELS, "warm", "warm_soon"]
