@@ -83,6 +83,10 @@ def replay(arguments: list[str], repeats: int) -> dict:
             raise
     finally:
         rt.Runtime.update = update
+    if "runtime" not in seen:
+        print("loop_update.py: error: the shot ran no loop on the host (open loop, or loops on the board): give "
+              "--loop closed", file=sys.stderr)
+        sys.exit(2)
     runtime, reads = seen["runtime"], seen["reads"]
     shot = np.array(runtime._costs) * 1e6
     board = runtime.board
@@ -205,8 +209,22 @@ def _draw(rows: dict) -> None:
     save_figure(fig, "loop_update")
 
 
+def _one(text: str) -> list[str]:
+    """The internal ``--one`` runner's argument: ``modalctl run``'s arguments as a JSON list of strings
+    (what :func:`measured` passes); anything else exits 2 with what was wrong."""
+    try:
+        arguments = json.loads(text)
+    except ValueError:
+        arguments = None
+    if not (isinstance(arguments, list) and arguments and all(isinstance(a, str) for a in arguments)):
+        print(f"loop_update.py: error: --one takes modalctl run's arguments as a JSON list of strings, got "
+              f"{text[:200]!r}", file=sys.stderr)
+        sys.exit(2)
+    return arguments
+
+
 if __name__ == "__main__":
-    if len(sys.argv) == 3 and sys.argv[1] == "--one":
-        print(json.dumps(replay(json.loads(sys.argv[2]), REPEATS)))
+    if len(sys.argv) >= 2 and sys.argv[1] == "--one":
+        print(json.dumps(replay(_one(" ".join(sys.argv[2:])), REPEATS)))
     else:
         main_or_report("loop_update", main, report)
