@@ -4,7 +4,7 @@ period, at 20 kHz.
 Each step below was a dozen to twenty numpy calls on arrays of a few tens of modes, and a numpy
 call costs 1-2 us whatever its size: the touch controller's update on panel-rounded took 180 us
 (``benchmarks/plate_speed.py``), where a period at 20 kHz lasts 50. Compiled, a step is one call
-over plain loops, and the update takes 69-75 us in the shot, 49 us replayed (2026-11-30,
+over plain loops, and the update takes 67-75 us in the shot, 48-49 us replayed (2026-11-30,
 ``benchmarks/loop_update.py``; the rest is the controllers' Python around the kernels). The arrays are the
 callers' own, updated in place; the laws are documented where they are used (:mod:`.pi`, :mod:`.design`,
 :mod:`.touch_estimator`, :mod:`.envelope_noise`, :mod:`.touch_lift`, :mod:`.catch_up`, :mod:`.overlap`,
