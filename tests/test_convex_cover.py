@@ -13,7 +13,7 @@ from modalctl.model.scenes import load_scene
 from modalctl.model.shape import parse_params
 from modalctl.options import PlanOptions
 from modalctl.plan.convex import Program
-from modalctl.plan.convex_cover import LEAF, SPLITS, Cover
+from modalctl.plan.convex_cover import COMPONENTS, LEAF, SPLITS, Cover
 from modalctl.plan.decompose import decompose
 from modalctl.plan.planner import plan
 from modalctl.plugin.manager import get_shape
@@ -168,16 +168,20 @@ def test_on_random_drives_of_a_beam_the_bound_holds_every_grid_point_at_every_sa
         check_every_box(program.cover, velocity[:, ::11])
 
 
-@pytest.mark.parametrize("leaf, splits", [(8, 1), (16, 3), (LEAF, SPLITS), (64, 6)])
-def test_the_boxes_size_and_fan_out_change_the_work_not_the_answer(leaf, splits):
-    """How small the boxes get and how many children each has (``benchmarks/margin_check.py`` picks
-    them for speed): on the beam's random drives the search is the whole grid's largest |w| wherever
-    that exceeds the floor, at most the floor elsewhere, and every box's bound holds its points."""
+@pytest.mark.parametrize("leaf, splits, components", [(8, 1, 0), (16, 3, 2), (LEAF, SPLITS, COMPONENTS), (64, 6, 0),
+                                                      (32, 4, 40)])
+def test_the_boxes_size_and_fan_out_change_the_work_not_the_answer(leaf, splits, components):
+    """How small the boxes get, how many children each has and how many of their residuals' components
+    they keep apart (``benchmarks/margin_check.py`` picks them for speed; 40, more than the beam's
+    modes or a leaf's points: rows of zeros): on the beam's random drives the search is the whole
+    grid's largest |w| wherever that exceeds the floor, at most the floor elsewhere, and every box's
+    bound holds its points."""
     model = load_scene("thesis-al-cc")
     shape = target(model, "sinc", width="18mm", center="24mm")
     dec = decompose(model, shape, 9)
     program, (velocity,) = random_drives(model, shape, dec, 1, seed=17)
-    cover = Cover(model.shapes[:, program.outside], model.grid.points[program.outside], leaf=leaf, splits=splits)
+    cover = Cover(model.shapes[:, program.outside], model.grid.points[program.outside], leaf=leaf, splits=splits,
+                  components=components)
     true = whole_grid_top(model, program.outside, velocity)
     floor = 0.4 * true.max()
     top = cover.top(velocity, floor)

@@ -30,9 +30,10 @@ focus at the target's peak.
 
 **The check on every point**: the off-target points are nested boxes (:class:`~.convex_cover.Cover`),
 each with a bound on ``|w|`` over its points at any modal state: every mode fitted affinely over the
-box's points, ``phi_k(x_i) = a_k + b_k . (x_i - x_B) + r_ik``, so that ``|w(x_i)| <= max over the
-box's span of |A + B . d| + sum_k max_i |r_ik| |eta'_k|`` (``A``, ``B`` the fits times the modal
-velocities). The residuals are the points' own: the bound holds on every grid point at every
+box's points and the residuals' few leading components kept apart, ``phi_k(x_i) = a_k + b_k . (x_i -
+x_B) + sum_j u_ij v_jk + r_ik``, so that ``|w(x_i)| <= max over the box's span of |A + B . d| + sum_j
+max_i |u_ij| |V_j| + sum_k max_i |r_ik| |eta'_k|`` (``A``, ``B``, ``V_j`` the fits and components
+times the modal velocities). The residuals are the points' own: the bound holds on every grid point at every
 sample, whatever the modes' smoothness, and says nothing between grid points (where the model
 says nothing either). The field is computed, by blocks, only on the smallest boxes whose bound
 exceeds the level at stake, at the samples where it does: on panel-rounded a few per cent of the

@@ -10,8 +10,9 @@ import numpy as np
 
 __all__ = ["Cover"]
 
-LEAF = 32  # points in a cover's smallest boxes at most: where the bound is not enough, their field, exactly
-SPLITS = 5  # halvings from a box to its children (32 children: benchmarks/margin_check.py)
+LEAF = 64  # points in a cover's smallest boxes at most: where the bound is not enough, their field, exactly
+SPLITS = 5  # halvings from a box to its children (32 children)
+COMPONENTS = 6  # the leading components of what a box's affine fit leaves, bounded apart (benchmarks/margin_check.py)
 CHUNK = 4096  # samples of the field's bound at once (its memory: the boxes' few rows times this)
 SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |phi_k(x_i)| |eta'_k|
 
@@ -19,15 +20,17 @@ SLACK = 1e-10  # the bound's allowance for round-off, relative to sum_k max_i |p
 @dataclass(eq=False)
 class _Box:
     """Points ``start:stop`` of a :class:`Cover`'s order, and what bounds the field on each of its
-    children: the affine fits' rows ``fit`` ((1 + d) c, K: every child's value at the centre of its
-    points' span, then its slope along each axis times the span's half-width) and their largest
-    residuals ``residual`` (c, K)."""
+    children: the rows ``fit`` ((1 + d + J) c, K: every child's affine fit's value at the centre of its
+    points' span, then its slope along each axis times the span's half-width, then the J leading
+    components of what the fit leaves, each times its largest size on the points) and the largest
+    residuals left ``residual`` (c, K)."""
 
     start: int
     stop: int
     children: tuple = ()
     fit: np.ndarray | None = None
     residual: np.ndarray | None = None
+    affine: int = 0  # the affine fit's rows (1 + d) among a child's first rows
 
     def __post_init__(self):
         if self.fit is not None:  # the search's single-precision copies, a column per row of fit
@@ -36,23 +39,27 @@ class _Box:
 
     def bounds(self, velocity: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """Each child's bound on ``|w|`` over its points at each sample of ``velocity`` (s, K: a row per
-        sample) (``speed``: its absolute value), shape (s, c): ``|A| + sum_d |B_d| h_d + R . speed``, the
-        affine part's largest size over the span (centre ``A``, each axis's slope times half-width ``B_d
-        h_d``: one product and an absolute value, the rows folded so when the box was built). In single
+        sample) (``speed``: its absolute value), shape (s, c): ``|A| + sum_d |B_d| h_d + sum_j |C_j| + R .
+        speed``, the affine part's largest size over the span (centre ``A``, each axis's slope times
+        half-width ``B_d h_d``), the residuals' leading components' ``C_j`` and the rest's: one product and
+        an absolute value, the rows folded so when the box was built. In single
         precision for single-precision samples (what :class:`Cover`'s search adds for it: its notes)."""
         single = velocity.dtype == np.float32
         fit, residual = (self._fit32, self._residual32) if single else (self.fit.T, self.residual.T)
         return self._summed(velocity @ fit, speed @ residual)
 
     def rough(self, velocity: np.ndarray) -> np.ndarray:
-        """The largest of the children's bounds at each column of ``velocity`` (K, s), shape (s,): a
-        ranking of the columns, in single precision (a copy of them: twice as fast as the double
-        product on the panel's 32 children, and the columns it ranks first are then computed exactly)."""
+        """The largest of the children's affine parts' sizes over their spans (``|A| + sum_d |B_d| h_d``)
+        at each column of ``velocity`` (K, s), shape (s,): not a bound (their residuals left out) but a
+        ranking of the columns by the field's size, in single precision (a copy of them: twice as fast
+        as the double product; the columns it ranks first are then computed exactly)."""
         single = np.ascontiguousarray(velocity.T, np.float32)
-        return self.bounds(single, np.abs(single)).max(axis=1)
+        c = len(self.children)
+        return self._summed(single @ self._fit32[:, c:self.affine * c], np.abs(single @ self._fit32[:, :c])).max(axis=1)
 
     def _summed(self, affine: np.ndarray, residual: np.ndarray) -> np.ndarray:
-        """:meth:`bounds` from the fit's products (s, (1 + d) c) and the residuals' (s, c)."""
+        """:meth:`bounds` from the rows' products (s, r c) and the residuals' (s, c): the latter (in place)
+        with the size of each of the r rows' added."""
         c = len(self.children)
         size = np.abs(affine)
         for first in range(0, size.shape[1], c):  # the rows' blocks added in place: numpy's sum over a middle
@@ -71,15 +78,21 @@ class Cover:
     that is proven, not sampled.
 
     A box (its points halved at the median along its longer side, five times over to its 32
-    children, down to :data:`LEAF` points) fits every mode affinely over its own points,
-    ``phi_k(x_i) = a_k + b_k . (x_i - x_B) + r_ik``, and keeps ``R_k = max_i |r_ik|`` over them
-    and the span ``[low, high]`` of ``x_i - x_B``. At a sample with modal velocities ``eta'_k``,
-    with ``A = sum_k a_k eta'_k`` and ``B = sum_k b_k eta'_k``, every point ``i`` of the box has
+    children, down to :data:`LEAF` points) fits every mode affinely over its own points and keeps
+    the leading :data:`COMPONENTS` of what the fits leave (the singular value decomposition of the
+    residuals, points by modes),
+    ``phi_k(x_i) = a_k + b_k . (x_i - x_B) + sum_j u_ij v_jk + r_ik``, then ``R_k = max_i |r_ik|``
+    over the points, ``U_j = max_i |u_ij|`` and the span ``[low, high]`` of ``x_i - x_B``. At a
+    sample with modal velocities ``eta'_k``, with ``A = sum_k a_k eta'_k``, ``B = sum_k b_k eta'_k``
+    and ``V_j = sum_k v_jk eta'_k``, every point ``i`` of the box has
 
-        ``|w(x_i)| = |A + B . (x_i - x_B) + sum_k r_ik eta'_k|
-                   <= max(A + max_d B . d, -(A + min_d B . d)) + sum_k R_k |eta'_k|``
+        ``|w(x_i)| = |A + B . (x_i - x_B) + sum_j u_ij V_j + sum_k r_ik eta'_k|
+                   <= max(A + max_d B . d, -(A + min_d B . d)) + sum_j U_j |V_j| + sum_k R_k |eta'_k|``
 
-    (``d`` over the span: the affine part's extremes are at its corners). The whole set's bound
+    (``d`` over the span: the affine part's extremes are at its corners). Summed mode by mode, the
+    residuals' bound was most of a box's (on the panel's closed-loop check, 2.3 times the box's
+    largest field, where the affine part's bound is 0.86 of it); the components, a few shapes the
+    modes' residuals share, are summed J times instead of K times. The whole set's bound
     is ``sum_k max_i |phi_k(x_i)| |eta'_k|``. **What it guarantees**: for every off-target grid
     point and every sample, ``|w(x_i, t_n)|`` is at most the bound of every box that holds the
     point (the residuals and spans are the points' own, so nothing is assumed about the modes'
@@ -100,12 +113,15 @@ class Cover:
         Points in the smallest boxes at most.
     splits : int
         Halvings from a box to its children (``2 ** splits`` children).
+    components : int
+        The residuals' leading components each box's bound keeps apart (J).
     """
 
-    def __init__(self, shapes: np.ndarray, points: np.ndarray, leaf: int = LEAF, splits: int = SPLITS):
+    def __init__(self, shapes: np.ndarray, points: np.ndarray, leaf: int = LEAF, splits: int = SPLITS,
+                 components: int = COMPONENTS):
         shapes, points = np.asarray(shapes, float), np.asarray(points, float)
         points = points[:, None] if points.ndim == 1 else points
-        self.leaf, self.splits = int(leaf), int(splits)
+        self.leaf, self.splits, self.components = int(leaf), int(splits), int(components)
         self.reach = np.abs(shapes).max(axis=1) if shapes.size else np.zeros(shapes.shape[0])  # (K,)
         order = []
         self.root = self._build(np.arange(shapes.shape[1]), shapes, points, order)
@@ -127,10 +143,9 @@ class Cover:
         for _ in range(self.splits):
             parts = [half for p in parts for half in (_halves(p, points) if p.size > self.leaf else (p,))]
         children = tuple(self._build(p, shapes, points, order) for p in parts)
-        fits = [_affine(shapes[:, p], points[p]) for p in parts]
-        folded = [_folded(fit, low, high) for fit, _, low, high in fits]
-        fit = np.concatenate([np.stack([f[j] for f in folded]) for j in range(points.shape[1] + 1)])
-        return _Box(start, start + idx.size, children, fit, np.stack([f[1] for f in fits]))
+        fits = [_bounding_rows(shapes[:, p], points[p], self.components) for p in parts]
+        fit = np.concatenate([np.stack([f[0][j] for f in fits]) for j in range(fits[0][0].shape[0])])
+        return _Box(start, start + idx.size, children, fit, np.stack([f[1] for f in fits]), 1 + points.shape[1])
 
     def _descend(self, box: _Box, state, slack, cols, floor: float, leaf, pruned, exact) -> None:
         """Down from ``box`` at the samples ``cols`` whose bound on it exceeds ``floor``: ``leaf(box,
@@ -250,12 +265,13 @@ class Cover:
 
 def _single_rounding(root: _Box, reach: np.ndarray) -> float:
     """The most :meth:`_Box.bounds` in single precision may lose to round-off, relative to the whole set's
-    bound ``sum_k reach_k |eta'_k|``: each of its sums of n = K + 8 terms (the products, the inputs'
-    rounding, the absolute values' and the residual's sums) is within ``gamma_n = n u / (1 - n u)`` of its
-    terms' sizes (u = 2^-24; Higham, Accuracy and Stability of Numerical Algorithms, 3.1), and the terms
-    of a box's bound are ``terms_k |eta'_k|`` (:meth:`_Box.terms`), at most the largest ``terms_k /
-    reach_k`` of any box times the whole set's."""
-    n = reach.size + 8
+    bound ``sum_k reach_k |eta'_k|``: each of its sums of n = K + 5 + r terms (the products, the inputs'
+    rounding, the absolute values' of its r rows and the residual's sums) is within ``gamma_n = n u / (1 -
+    n u)`` of its terms' sizes (u = 2^-24; Higham, Accuracy and Stability of Numerical Algorithms, 3.1), and
+    the terms of a box's bound are ``terms_k |eta'_k|`` (:meth:`_Box.terms`), at most the largest ``terms_k
+    / reach_k`` of any box times the whole set's."""
+    rows = root.fit.shape[0] // len(root.children) if root.children else 0
+    n = reach.size + 5 + rows
     u = float(np.finfo(np.float32).eps) / 2
     largest, stack = 0.0, [root]
     while stack:
@@ -304,15 +320,30 @@ def _folded(fit: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     return np.vstack([fit[0] + centre @ fit[1:], half[:, None] * fit[1:]])
 
 
+def _bounding_rows(shapes: np.ndarray, points: np.ndarray, components: int) -> tuple[np.ndarray, np.ndarray]:
+    """A box's rows for its bound (:class:`Cover`'s notes) of every mode (K, m) over ``points`` (m, d):
+    the affine fit folded over the span (:func:`_folded`), then the ``components`` leading components of
+    its residuals (their singular value decomposition, each row ``U_j s_j v_j``; rows of zeros where the
+    residuals have fewer), shape (1 + d + components, K), and the largest residual they leave on the
+    points (K,)."""
+    fit, left, low, high = _affine(shapes, points)
+    u, s, vt = np.linalg.svd(left, full_matrices=False)
+    kept = min(components, s.size)
+    lead = (np.abs(u[:, :kept]).max(axis=0) * s[:kept])[:, None] * vt[:kept]
+    residual = np.abs(left - (u[:, :kept] * s[:kept]) @ vt[:kept]).max(axis=0)  # whatever the SVD, a bound
+    rows = np.vstack([_folded(fit, low, high), lead, np.zeros((components - kept, shapes.shape[0]))])
+    return rows, residual
+
+
 def _affine(shapes: np.ndarray, points: np.ndarray):
     """Every mode (K, m) fitted affinely over ``points`` (m, d) about their box's centre: the fit
-    (1 + d, K), its largest residual on them (K,), and the points' span about the centre, low and
+    (1 + d, K), its residuals on them (m, K), and the points' span about the centre, low and
     high (d,)."""
     centre = 0.5 * (points.max(axis=0) + points.min(axis=0))
     offset = points - centre
     reach = np.where(np.ptp(points, axis=0) > 0, 0.5 * np.ptp(points, axis=0), 1.0)
     design = np.hstack([np.ones((points.shape[0], 1)), offset / reach])  # within [-1, 1]: well conditioned
     fit = np.linalg.lstsq(design.T @ design, design.T @ shapes.T, rcond=None)[0]  # (1 + d, K)
-    residual = np.abs(shapes.T - design @ fit).max(axis=0)  # whatever the fit, this makes it a bound
+    left = shapes.T - design @ fit  # whatever the fit, its largest is a bound
     fit[1:] /= reach[:, None]
-    return fit, residual, offset.min(axis=0), offset.max(axis=0)
+    return fit, left, offset.min(axis=0), offset.max(axis=0)
