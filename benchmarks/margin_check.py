@@ -128,10 +128,10 @@ def report(data: dict, json_path) -> None:
                       None)
         fastest = min(row["shapes"], key=lambda s: s["top_s"])
         if default and before:
-            lines += [f"{case}: the default's search {1e3 * default['top_s']:.1f} ms against {1e3 * before['top_s']:.1f} "
-                      f"ms for the cover before its components (32 points, 32 children: x{before['top_s'] / default['top_s']:.2f}); "
-                      f"the fastest here {fastest['leaf']} / {fastest['children']} / {fastest.get('components', 0)}, "
-                      f"{1e3 * fastest['top_s']:.1f} ms.", ""]
+            lines += [f"{case}: the default's search {1e3 * default['top_s']:.1f} ms against "
+                      f"{1e3 * before['top_s']:.1f} ms for the cover before its components (32 points, 32 children: "
+                      f"x{before['top_s'] / default['top_s']:.2f}); the fastest here {fastest['leaf']} / "
+                      f"{fastest['children']} / {fastest.get('components', 0)}, {1e3 * fastest['top_s']:.1f} ms.", ""]
         lines += [f"## {case}: {row['modes']} modes, {row['points']:,} off-target points, {row['samples']:,} samples "
                   f"({row['above']:,} above the level)", "",
                   f"The whole grid's field (peer): {row['peer_s']:.2f} s a plant.", "",

@@ -65,18 +65,25 @@ def test_the_plans_field_on_the_plant_is_its_prediction(case, margin_plan):
                                                                             abs=1e-9)
 
 
-def test_the_rows_at_points_are_the_shapes_times_the_modal_velocities(case):
+def test_the_rows_at_points_are_the_shapes_times_the_modal_velocities(case, monkeypatch):
     """The margin rows, contracted over the modes before they are spread over the columns, are the
     points' shapes times every mode's velocity per column, to round-off: on the nominal model and a
-    drifted copy, before, within and after the late bumps' and the hats' support."""
+    drifted copy, before, within and after the late bumps' and the hats' support; and so are a
+    round's rows made in one call, each at its own sample (in chunks, when they are many)."""
     model, shape, dec = case
     program = Program(model, dec.modes_used, dec.coefficients[dec.modes_used], shape.target_mask, TF,
                       convex(robust_drift=0.01))
     points = program.model.shapes[:, program.outside[[0, 17, 90]]].T  # (3, K)
+    samples = (0, 100, 6000, program.focus - 37, program.focus, program.focus + 211, program.samples - 1)
     for responses in (program.responses[0], program.responses[-1]):
-        for n in (0, 100, 6000, program.focus - 37, program.focus, program.focus + 211, program.samples - 1):
+        for n in samples:
             want = points @ responses.velocity(n)
             got = responses.rows(n, points)
+            assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
+        want = np.vstack([points @ responses.velocity(n) for n in samples])
+        for entries in (2**21, 2000):  # 2000: a few rows, and a few lags within the support, at a time
+            monkeypatch.setattr("modalctl.plan.convex_basis.ROW_ENTRIES", entries)
+            got = responses.rows(np.repeat(samples, 3), np.tile(points, (len(samples), 1)))
             assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
 
 

@@ -20,6 +20,7 @@ __all__ = ["Basis", "Responses", "hat_spacing", "HAT_SLACK"]
 
 STRIDE = 32  # lags between the states a response table keeps, at least
 TABLE_BYTES = 2**27  # a response table's states, at most (the stride doubles until they fit)
+ROW_ENTRIES = 2**21  # margin rows made at once: their modes' decays (K, rows, lags), complex, at most (32 MB)
 
 
 HAT_SLACK = 1.5  # the hats' Nyquist frequency may pass the model's highest mode by this factor (hat_spacing)
@@ -185,53 +186,55 @@ class _Table:
                 self.kept[part, b + 1] = self.powers[:, stride, None] * self.kept[part, b] + step
 
     def at(self, lag: np.ndarray) -> list:
-        """The states at lags ``lag`` (j,), zero before the first: two arrays (K, C, j)."""
-        lag = np.asarray(lag, int)
-        shape = (self.e.size, self.kept.shape[3], lag.size)
-        out = [np.zeros(shape, complex), np.zeros(shape, complex)]
-        after = np.flatnonzero(lag >= self.end)
-        if after.size:
-            decay = self._decay(lag[after])
+        """The states at lags ``lag`` (j,), zero before the first: two arrays (K, C, j) (:meth:`contracted`
+        of each mode alone)."""
+        return self.contracted(lag, np.eye(self.e.size), np.ones((self.e.size, self.kept.shape[3])))
+
+    def contracted(self, lag: np.ndarray, weights: np.ndarray, gain: np.ndarray) -> list:
+        """``sum_k weights[l, k] gain[k, c] z_kc(lag_lj)`` for each part: two arrays (l, c, j), the
+        states of :meth:`at` contracted over the modes before they are spread over the lags (not the
+        ``K C j`` array :meth:`at` makes, which a margin row at one point and sample took a
+        millisecond to fill). ``lag`` (j,), or (l, j): each row's own (a round's margin rows, each
+        at its own sample). Past the support, each row's weights times its lags' free decay (K, l j)
+        go through one product by BLAS with the last states kept times the gains: made a row at a
+        time, the panel's closed-loop rows took 0.8 s of its 6 s plan. ``gain`` (K, c): c = C, or
+        any with one prototype (C = 1)."""
+        lag = np.broadcast_to(np.asarray(lag, int), (weights.shape[0], np.shape(lag)[-1]))
+        (rows, lags), k = lag.shape, self.e.size
+        out = [np.zeros((rows, gain.shape[1], lags), complex) for _ in range(2)]
+        after = lag >= self.end
+        if after.any():
+            decay = np.exp(self.log_e[:, None, None] * np.where(after, lag - self.end, 0)[None])  # (K, l, j)
+            decay *= weights.T[:, :, None] * after[None]
             for part in range(2):
-                out[part][:, :, after] = self.kept[part, -1][:, :, None] * decay[:, None, :]
-        for j in np.flatnonzero((lag >= 0) & (lag < self.end)):
-            for part in range(2):
-                out[part][:, :, j] = self._within(part, int(lag[j]))
+                spread = (gain * self.kept[part, -1]).T @ decay.reshape(k, rows * lags)  # (c, l j)
+                out[part] += spread.reshape(-1, rows, lags).transpose(1, 0, 2)
+        at, lagged = np.nonzero((lag >= 0) & (lag < self.end))
+        pairs = max(1, ROW_ENTRIES // (k * self.stride))  # at once: their powers (K, pairs, stride)
+        for first in range(0, at.size, pairs):
+            row, column = at[first:first + pairs], lagged[first:first + pairs]
+            for part, within in enumerate(self._contracted_within(lag[row, column], weights[row], gain)):
+                out[part][row, :, column] = within
         return out
 
-    def contracted(self, lag: np.ndarray, coefficients: np.ndarray) -> list:
-        """``sum_k coefficients[l, k, c] z_kc(lag_j)`` for each part: two arrays (l, c, j), the
-        states of :meth:`at` contracted over the modes before they are spread over the lags (the
-        free decay's as one product by BLAS: ``l c K j`` operations, not the ``K C j`` array
-        :meth:`at` makes, which a margin row at one point and sample took a millisecond to fill).
-        ``coefficients`` (l, K, c): c = C, or any with one prototype (C = 1)."""
-        lag = np.asarray(lag, int)
-        shape = (coefficients.shape[0], coefficients.shape[2], lag.size)
-        out = [np.zeros(shape, complex), np.zeros(shape, complex)]
-        after = np.flatnonzero(lag >= self.end)
-        if after.size:
-            decay = self._decay(lag[after])
-            for part in range(2):
-                out[part][:, :, after] = (coefficients * self.kept[part, -1]).transpose(0, 2, 1) @ decay
-        for j in np.flatnonzero((lag >= 0) & (lag < self.end)):
-            for part in range(2):
-                out[part][:, :, j] = (coefficients * self._within(part, int(lag[j]))).sum(axis=1)
+    def _contracted_within(self, lag: np.ndarray, weights: np.ndarray, gain: np.ndarray) -> list:
+        """``sum_k weights[p, k] gain[k, c] z_kc(lag_p)`` at lags ``lag`` (p,) within the support, for
+        each part: two arrays (p, c). The table's recursion from the last state kept,
+        ``l0 = lag - r``: ``z(l) = e^r z(l0) + g0 sum_{s<r} e^(r-1-s) P(l0 + s)``, the inputs' share
+        contracted as one product by BLAS, the weighted powers (p stride, K) by the gains (a product a
+        lag took twice the time)."""
+        block, r = np.divmod(lag, self.stride)
+        steps = np.arange(self.stride)
+        back = r[:, None] - 1 - steps[None, :]  # (p, stride): the power on each input since l0, < 0 past r
+        powers = np.where(back >= 0, self.powers[:, np.maximum(back, 0)], 0)  # (K, p, stride)
+        powers *= (self.g0[:, None] * weights.T)[:, :, None]
+        spread = (powers.reshape(self.e.size, -1).T @ gain).reshape(lag.size, self.stride, -1)  # (p, stride, c)
+        decayed = weights * self.powers[:, r].T  # (p, K): the weights on e^r z(l0)
+        out = []
+        for part in range(2):
+            inputs = self.inputs[part][block[:, None] * self.stride + steps[None, :]]  # (p, stride, C)
+            out.append((spread * inputs).sum(axis=1) + np.einsum("pk,pkc->pc", decayed, self.kept[part, block] * gain))
         return out
-
-    def _decay(self, lag: np.ndarray) -> np.ndarray:
-        """``e^(lag - end)`` (K, j): the states' free decay after the prototypes' support (as an
-        exponential: numpy's complex power took a third of the rows' time)."""
-        return np.exp(self.log_e[:, None] * (lag - self.end)[None, :])
-
-    def _within(self, part: int, lag: int) -> np.ndarray:
-        """The states (K, C) at ``lag`` within the support: from the last kept, one short product."""
-        block, r = divmod(lag, self.stride)
-        z = self.powers[:, r, None] * self.kept[part, block]
-        if r:
-            inputs = self.inputs[part, block * self.stride:block * self.stride + r]  # (r, C)
-            z = z + self.g0[:, None] * (self.powers[:, r - 1::-1] @ inputs)
-        return z
-
 
 class Responses:
     """Every mode's exact response to the basis, on one model (the zero-order hold's recursion).
@@ -294,13 +297,19 @@ class Responses:
         ``2 Re(r z)`` of :meth:`states`, made family by family into one array."""
         return self.rows(n, None)
 
-    def rows(self, n: int, weights: np.ndarray | None) -> np.ndarray:
+    def rows(self, n, weights: np.ndarray | None) -> np.ndarray:
         """``weights @ velocity(n)``, shape (l, columns), for ``weights`` (l, K) (the mode shapes at
-        l points: the margin rows there, per unit of each column); None: :meth:`velocity`. The
-        states are contracted over the modes before they are spread over the columns
-        (:meth:`_Table.contracted`): the panel's rows, a point or two at each sample, 1.1 -> 0.1 ms
-        a sample."""
+        l points: the margin rows there, per unit of each column), ``n`` a sample or each row's own
+        (l,); None: :meth:`velocity`. The states are contracted over the modes before they are
+        spread over the columns (:meth:`_Table.contracted`): the panel's rows, a point or two at each
+        sample, 1.1 -> 0.1 ms a sample."""
+        at_once = max(1, ROW_ENTRIES // (self.e.size * max(len(f.offsets) for f, _, _ in self.tables)))
+        if weights is not None and weights.shape[0] > at_once:
+            n = np.broadcast_to(np.asarray(n, int), weights.shape[:1])
+            return np.vstack([self.rows(n[i:i + at_once], weights[i:i + at_once])
+                              for i in range(0, weights.shape[0], at_once)])
         out = np.empty((self.e.size if weights is None else weights.shape[0], self.basis.size))
+        n = np.asarray(n, int)[..., None]  # a sample against each column's offset, per row when given per row
         first = 0
         for family, phase, table in self.tables:
             z_re, z_im = _contracted(table, n - family.offsets, self._rgain, weights)  # (l, m, j)
@@ -328,4 +337,4 @@ def _contracted(table: _Table, lag: np.ndarray, gain: np.ndarray, weights: np.nd
     column of ``gain`` (the hats: one per channel)."""
     if weights is None:
         return [gain[:, :, None] * z for z in table.at(lag)]
-    return table.contracted(lag, np.asarray(weights, float)[:, :, None] * gain[None])
+    return table.contracted(lag, np.asarray(weights, float), gain)

@@ -266,26 +266,26 @@ class Program:
                               not in rows.keys]
         limit = self.options.convex.rows_per_round
         found = sorted(found, reverse=True)[:limit] if limit is not None and len(found) > limit else found
-        places = {}
-        for _, s, i, n in found:
-            places.setdefault((s, n), []).append(i)
-        return sum(self._cuts(rows, s, np.array(points), n, margin) for (s, n), points in sorted(places.items()))
+        return self._cuts(rows, sorted(((s, n, i) for _, s, i, n in found), key=lambda p: p[:2]), margin)
 
-    def _cuts(self, rows: _Rows, s: int, points: np.ndarray, n: int, margin: float) -> int:
-        """The rows ``|w| <= aim * bound`` of plant ``s`` at off-target ``points`` (positions in
-        :attr:`outside`) and sample ``n`` the program does not have yet; returns how many."""
-        new = [int(i) for i in points if (s, int(i), n) not in rows.keys]
-        if not new:
-            return 0
-        shapes = self.model.shapes[:, self.outside[new]]  # (K, l)
-        cuts = self.responses[s].rows(n, shapes.T) / self._margin_bound(s, 1.0)
-        for i, weights, cut in zip(new, shapes.T, cuts):
-            key = (s, i, n)
-            if key not in self.cuts:
-                self.cuts[key] = cut
-                self.cut_offsets[key] = self._offset(s, weights, n) / self._margin_bound(s, 1.0)
-            self._add_margin_row(rows, key, margin)
-        return len(new)
+    def _cuts(self, rows: _Rows, places: list, margin: float) -> int:
+        """The rows ``|w| <= aim * bound`` at ``places`` ``(plant, sample, point)`` (points: positions in
+        :attr:`outside`) the program does not have yet, added in that order (each plant's made in one
+        call: :meth:`Responses.rows <.convex_basis.Responses.rows>`); returns how many."""
+        new = {}  # plant: its new keys (plant, point, sample), in order
+        for s, n, i in places:
+            if (s, i, n) not in rows.keys:
+                new.setdefault(s, {})[(s, i, n)] = None
+        for s, keys in new.items():
+            points, samples = np.array([[i, n] for _, i, n in keys]).T
+            shapes = self.model.shapes[:, self.outside[points]]  # (K, l)
+            cuts = self.responses[s].rows(samples, shapes.T) / self._margin_bound(s, 1.0)
+            for key, weights, cut in zip(keys, shapes.T, cuts):
+                if key not in self.cuts:
+                    self.cuts[key] = cut
+                    self.cut_offsets[key] = self._offset(s, weights, key[2]) / self._margin_bound(s, 1.0)
+                self._add_margin_row(rows, key, margin)
+        return sum(len(keys) for keys in new.values())
 
     def _new_limit_rows(self, rows: _Rows, volts: np.ndarray) -> int:
         """Voltage and slew rows at each channel's time-local peaks that break the limits (each
