@@ -347,3 +347,20 @@ def test_a_time_budget_is_none_or_zero_or_more_seconds(name):
     for bad in (-1.0, float("nan")):
         with pytest.raises(InputError, match=name):
             ConvexOptions(**{name: bad})
+
+
+@pytest.mark.parametrize("m, k", [(62, 255), (1000, 53), (5, 9)])
+def test_the_boxes_residual_components_are_about_the_leading_singular_ones(m, k):
+    """The components a box bounds apart (a seeded randomized range finder) leave about what the
+    truncated SVD leaves (numpy's, computed independently), on a matrix of a few strong directions and
+    noise; and no more than its rank."""
+    from modalctl.plan.convex_cover import _leading
+
+    rng = np.random.default_rng(5)
+    rank = min(3, m, k)
+    left = rng.standard_normal((m, rank)) @ (10 * rng.standard_normal((rank, k))) + 0.01 * rng.standard_normal((m, k))
+    a, b = _leading(left, 4)
+    assert a.shape == (m, min(4, m, k)) and b.shape == (k, min(4, m, k))
+    s = np.linalg.svd(left, compute_uv=False)
+    best = np.sqrt(np.sum(s[a.shape[1]:] ** 2))  # what the truncated SVD of that rank leaves (Frobenius)
+    assert np.linalg.norm(left - a @ b.T) <= 1.05 * best
