@@ -186,9 +186,19 @@ class _Table:
                 self.kept[part, b + 1] = self.powers[:, stride, None] * self.kept[part, b] + step
 
     def at(self, lag: np.ndarray) -> list:
-        """The states at lags ``lag`` (j,), zero before the first: two arrays (K, C, j) (:meth:`contracted`
-        of each mode alone)."""
-        return self.contracted(lag, np.eye(self.e.size), np.ones((self.e.size, self.kept.shape[3])))
+        """The states at lags ``lag`` (j,), zero before the first: two arrays (K, C, j)."""
+        lag = np.asarray(lag, int)
+        shape = (self.e.size, self.kept.shape[3], lag.size)
+        out = [np.zeros(shape, complex), np.zeros(shape, complex)]
+        after = np.flatnonzero(lag >= self.end)
+        if after.size:
+            decay = self._decay(lag[after])
+            for part in range(2):
+                out[part][:, :, after] = self.kept[part, -1][:, :, None] * decay[:, None, :]
+        for j in np.flatnonzero((lag >= 0) & (lag < self.end)):
+            for part in range(2):
+                out[part][:, :, j] = self._within(part, int(lag[j]))
+        return out
 
     def contracted(self, lag: np.ndarray, weights: np.ndarray, gain: np.ndarray) -> list:
         """``sum_k weights[l, k] gain[k, c] z_kc(lag_lj)`` for each part: two arrays (l, c, j), the
@@ -219,7 +229,7 @@ class _Table:
 
     def _contracted_within(self, lag: np.ndarray, weights: np.ndarray, gain: np.ndarray) -> list:
         """``sum_k weights[p, k] gain[k, c] z_kc(lag_p)`` at lags ``lag`` (p,) within the support, for
-        each part: two arrays (p, c). The table's recursion from the last state kept,
+        each part: two arrays (p, c). The recursion of :meth:`_within` from the last state kept,
         ``l0 = lag - r``: ``z(l) = e^r z(l0) + g0 sum_{s<r} e^(r-1-s) P(l0 + s)``, the inputs' share
         contracted as one product by BLAS, the weighted powers (p stride, K) by the gains (a product a
         lag took twice the time)."""
@@ -235,6 +245,21 @@ class _Table:
             inputs = self.inputs[part][block[:, None] * self.stride + steps[None, :]]  # (p, stride, C)
             out.append((spread * inputs).sum(axis=1) + np.einsum("pk,pkc->pc", decayed, self.kept[part, block] * gain))
         return out
+
+    def _decay(self, lag: np.ndarray) -> np.ndarray:
+        """``e^(lag - end)`` (K, j): the states' free decay after the prototypes' support (as an
+        exponential: numpy's complex power took a third of the rows' time)."""
+        return np.exp(self.log_e[:, None] * (lag - self.end)[None, :])
+
+    def _within(self, part: int, lag: int) -> np.ndarray:
+        """The states (K, C) at ``lag`` within the support: from the last kept, one short product."""
+        block, r = divmod(lag, self.stride)
+        z = self.powers[:, r, None] * self.kept[part, block]
+        if r:
+            inputs = self.inputs[part, block * self.stride:block * self.stride + r]  # (r, C)
+            z = z + self.g0[:, None] * (self.powers[:, r - 1::-1] @ inputs)
+        return z
+
 
 class Responses:
     """Every mode's exact response to the basis, on one model (the zero-order hold's recursion).
