@@ -195,9 +195,10 @@ class _Table:
             decay = self._decay(lag[after])
             for part in range(2):
                 out[part][:, :, after] = self.kept[part, -1][:, :, None] * decay[:, None, :]
-        for j in np.flatnonzero((lag >= 0) & (lag < self.end)):
-            for part in range(2):
-                out[part][:, :, j] = self._within(part, int(lag[j]))
+        within = np.flatnonzero((lag >= 0) & (lag < self.end))
+        for part in range(2):
+            if within.size:
+                out[part][:, :, within] = self._within(part, lag[within]).transpose(1, 2, 0)
         return out
 
     def contracted(self, lag: np.ndarray, weights: np.ndarray, gain: np.ndarray) -> list:
@@ -229,36 +230,39 @@ class _Table:
 
     def _contracted_within(self, lag: np.ndarray, weights: np.ndarray, gain: np.ndarray) -> list:
         """``sum_k weights[p, k] gain[k, c] z_kc(lag_p)`` at lags ``lag`` (p,) within the support, for
-        each part: two arrays (p, c). The recursion of :meth:`_within` from the last state kept,
-        ``l0 = lag - r``: ``z(l) = e^r z(l0) + g0 sum_{s<r} e^(r-1-s) P(l0 + s)``, the inputs' share
-        contracted as one product by BLAS, the weighted powers (p stride, K) by the gains (a product a
-        lag took twice the time)."""
+        each part: two arrays (p, c). The recursion of :meth:`_within`, the inputs' share contracted as
+        one product by BLAS, the weighted powers (p stride, K) by the gains (a product a lag took twice
+        the time)."""
+        block, decay, powers, since = self._since_kept(lag)
+        powers *= (self.g0[:, None] * weights.T)[:, :, None]
+        spread = (powers.reshape(self.e.size, -1).T @ gain).reshape(lag.size, self.stride, -1)  # (p, stride, c)
+        decayed = weights * decay  # (p, K): the weights on e^r z(l0)
+        return [(spread * self.inputs[part][since]).sum(axis=1)
+                + np.einsum("pk,pkc->pc", decayed, self.kept[part, block] * gain) for part in range(2)]
+
+    def _since_kept(self, lag: np.ndarray) -> tuple:
+        """What the states at lags ``lag`` (p,) within the support take from the last state kept before
+        each, ``l0 = lag - r`` (:meth:`_within`): its block (p,), ``e^r`` (p, K), the powers
+        ``e^(r-1-s)`` on the inputs since it (K, p, stride; zero from ``s = r``) and those inputs' lags
+        (p, stride)."""
         block, r = np.divmod(lag, self.stride)
         steps = np.arange(self.stride)
         back = r[:, None] - 1 - steps[None, :]  # (p, stride): the power on each input since l0, < 0 past r
-        powers = np.where(back >= 0, self.powers[:, np.maximum(back, 0)], 0)  # (K, p, stride)
-        powers *= (self.g0[:, None] * weights.T)[:, :, None]
-        spread = (powers.reshape(self.e.size, -1).T @ gain).reshape(lag.size, self.stride, -1)  # (p, stride, c)
-        decayed = weights * self.powers[:, r].T  # (p, K): the weights on e^r z(l0)
-        out = []
-        for part in range(2):
-            inputs = self.inputs[part][block[:, None] * self.stride + steps[None, :]]  # (p, stride, C)
-            out.append((spread * inputs).sum(axis=1) + np.einsum("pk,pkc->pc", decayed, self.kept[part, block] * gain))
-        return out
+        powers = np.where(back >= 0, self.powers[:, np.maximum(back, 0)], 0)
+        return block, self.powers[:, r].T, powers, block[:, None] * self.stride + steps[None, :]
 
     def _decay(self, lag: np.ndarray) -> np.ndarray:
         """``e^(lag - end)`` (K, j): the states' free decay after the prototypes' support (as an
         exponential: numpy's complex power took a third of the rows' time)."""
         return np.exp(self.log_e[:, None] * (lag - self.end)[None, :])
 
-    def _within(self, part: int, lag: int) -> np.ndarray:
-        """The states (K, C) at ``lag`` within the support: from the last kept, one short product."""
-        block, r = divmod(lag, self.stride)
-        z = self.powers[:, r, None] * self.kept[part, block]
-        if r:
-            inputs = self.inputs[part, block * self.stride:block * self.stride + r]  # (r, C)
-            z = z + self.g0[:, None] * (self.powers[:, r - 1::-1] @ inputs)
-        return z
+    def _within(self, part: int, lag: np.ndarray) -> np.ndarray:
+        """The states (p, K, C) at lags ``lag`` (p,) within the support, from the last state kept before
+        each, ``l0 = lag - r``: ``z(l) = e^r z(l0) + g0 sum_{s<r} e^(r-1-s) P(l0 + s)``, one short
+        product each (:meth:`_since_kept`)."""
+        block, decay, powers, since = self._since_kept(lag)
+        return decay[:, :, None] * self.kept[part, block] + self.g0[:, None] * (powers.transpose(1, 0, 2)
+                                                                               @ self.inputs[part][since])
 
 
 class Responses:
