@@ -349,7 +349,7 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
                     f"the board at {device.url}")
     elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
         _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
-        kernels.warm_soon()  # the loops' kernels load while the plan is made
+        kernels.warm_soon()  # the loops' kernels load while the plan's solver leaves a core free
     plan_options = options.planned.but(voltage_limit=voltage_limit)
     dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     learning = None

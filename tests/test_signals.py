@@ -143,3 +143,34 @@ def test_heard_at_once_returns_the_jobs_answer_and_raises_its_error():
     assert heard_at_once(lambda: 6 * 7) == 42
     with pytest.raises(ZeroDivisionError):
         heard_at_once(lambda: 1 / 0)
+
+
+def test_idle_work_begins_while_a_long_call_lets_go_of_the_interpreter():
+    """IdleWork's steps wait until heard_at_once waits on a call that has lasted IDLE_AFTER (a short one
+    is not idle time), run then in order, and the rest at once after finish."""
+    import threading
+    import time
+
+    from modalctl.threads import IDLE_AFTER, IdleWork, heard_at_once
+
+    done, release = [], threading.Event()
+    work = IdleWork([lambda: done.append("first"), release.wait, lambda: done.append("third")], "test-idle")
+    time.sleep(0.05)
+    heard_at_once(lambda: None)  # too short to be idle time
+    time.sleep(0.05)
+    assert done == []
+    heard_at_once(lambda: time.sleep(IDLE_AFTER + 0.1))  # the step begins within it
+    assert done == ["first"]
+    release.set()  # the second step ends; the third waits for idle time again, or for finish
+    time.sleep(0.05)
+    assert done == ["first"]
+    work.finish()
+    assert done == ["first", "third"]
+
+
+def test_idle_work_raises_what_a_step_raised_at_finish():
+    from modalctl.threads import IdleWork
+
+    work = IdleWork([lambda: 1 / 0, lambda: pytest.fail("a step after a failed one ran")], "test-idle")
+    with pytest.raises(ZeroDivisionError):
+        work.finish()

@@ -25,6 +25,8 @@ import threading
 
 import numpy as np
 
+from modalctl.threads import IdleWork
+
 KERNELS: list = []  # every kernel's name, as defined below
 _HELPERS: list = []  # the plain functions kernels call, compiled before the first kernel is
 _COMPILING = threading.Lock()
@@ -342,23 +344,26 @@ def lift_statistics(stats, period, short, long, keep, arm, limits):
     return -1
 
 
-_warming: list = []  # the thread warm_soon started, while it runs
+_warming: list = []  # the work warm_soon started, while it runs
 
 
 def warm_soon() -> None:
-    """:func:`warm` in a daemon thread, so that the kernels load while the caller does other work (a closed
-    loop's plan); :func:`warm` then waits for it."""
-    thread = threading.Thread(target=_load, name="modalctl-kernels", daemon=True)
-    _warming.append(thread)
-    thread.start()
+    """:func:`warm` in a daemon thread, numba's import and then the kernels each begun while the caller
+    waits on a call that lets go of the interpreter (a closed loop's plan's DAQP solves:
+    :class:`modalctl.threads.IdleWork`); :func:`warm` then waits for it."""
+    _warming.append(IdleWork([_import_numba, _load], "modalctl-kernels"))
 
 
 def warm() -> None:
     """Load (or compile, the first time on a machine) every kernel on arrays of the types the loops pass,
     so that a shot's first periods do not pay for it; when :func:`warm_soon` is loading them, wait for it."""
     while _warming:
-        _warming.pop().join()
+        _warming.pop().finish()
     _load()
+
+
+def _import_numba() -> None:
+    import numba  # noqa: F401 - its import, 0.13 s, a step of its own
 
 
 def _load() -> None:
