@@ -161,32 +161,68 @@ def test_warm_loads_every_kernel():
     assert all(not isinstance(getattr(kernels, name), kernels._Kernel) for name in kernels.KERNELS)
 
 
-def test_csr_times_is_scipy_s_product():
-    from scipy import sparse
-
-    matrix = sparse.random_array((40, 30), density=0.1, format="csr", random_state=np.random.default_rng(2))
-    x, out = RNG.standard_normal(30), np.empty(40)
-    kernels.csr_times(matrix.data, matrix.indices, matrix.indptr, x, out)
-    assert np.allclose(out, matrix @ x, rtol=1e-13)
-
-
-def test_cluster_limit_is_the_numpy_law():
-    """Commands over their limit brought to it with their integrals held, the others' integrals moved on,
-    a loop without authority (a limit zero, below zero or not a number) resting as numpy had it."""
-    loops, k = 12, 8
-    index = np.sort(RNG.choice(loops, k, replace=False)).astype(np.int64)
-    limit = RNG.uniform(0.2, 1.0, loops)
-    limit[index[:3]] = 0.0, -0.1, np.nan
-    out, integral, z = _complex(k), _complex(k), _complex(k)
+def _numpy_cluster_period(cka, kam, ki, x, slot, sent, now, ahead, sent_ahead, error, limit, index, integral):
+    """The stacked cluster laws' period as ClusterControl.update evaluated it in numpy (scipy's products):
+    (commands of its loops, next state, integral, innovation)."""
+    x, integral = x.copy(), integral.copy()
+    played = now * ahead
+    if sent.size:
+        x[slot] = (sent[index] * now * sent_ahead).view(float)
+    z = -error[index]
+    predicted = cka @ x
+    k2 = index.size * 2
+    surprise = (z * now).view(float) - predicted[:k2]
+    innovation = surprise.view(complex) / now
+    joined = predicted[k2:] + kam @ surprise
+    feedback, ahead_state = joined[:k2], joined[k2:]
+    out = (-feedback - ki @ (integral * now).view(float)).view(complex) / played
     size, cap = np.abs(out), limit[index]
     over = size > cap
-    expected_out = out.copy()
-    expected_out[over] *= cap[over] / np.maximum(size[over], 1e-300)
-    expected_integral = np.where(over, integral, integral + z)
-    expected_integral[cap <= 0] = 0
-    kernels.cluster_limit(out, limit, index, integral, z)
-    assert np.allclose(out, expected_out, rtol=1e-13) and np.allclose(integral, expected_integral, rtol=1e-13)
-    assert 0 < np.count_nonzero(over) < k  # both branches
+    out[over] *= cap[over] / np.maximum(size[over], 1e-300)
+    integral = np.where(over, integral, integral + z)
+    integral[cap <= 0] = 0
+    ahead_state[slot] += (out * played).view(float)
+    return out, ahead_state, integral, innovation
+
+
+@pytest.mark.parametrize("sent", [True, False])
+def test_cluster_period_is_the_numpy_update(sent):
+    """Two laws stacked block-diagonally (5 loops of 9, 22 states), with a command in flight and without one
+    (the first period), some loops over their limit and one resting: the commands, the next state, the
+    integrals and the innovation of the update numpy made, to round-off."""
+    from scipy import sparse
+    from scipy.linalg import block_diag
+
+    loops, states = 9, (12, 10)
+    index = np.array([1, 4, 5, 7, 8])
+    blocks = [(2, 12), (3, 10)]  # (loops, states) per law: its rows of C and K are 2 per loop
+    dense = lambda rows, cols: RNG.standard_normal((rows, cols)) * (RNG.random((rows, cols)) < 0.4)  # noqa: E731
+    c = block_diag(*(dense(2 * g, n) for g, n in blocks))
+    k = block_diag(*(dense(2 * g, n) for g, n in blocks))
+    a = block_diag(*(dense(n, n) * 0.3 for _, n in blocks))
+    m = block_diag(*(dense(n, 2 * g) for g, n in blocks))
+    ki = sparse.csr_array(block_diag(*(dense(2 * g, 2 * g) for g, _ in blocks)))
+    cka, kam = sparse.csr_array(np.vstack([c, k, a])), sparse.csr_array(np.vstack([k, a]) @ m)
+    x = RNG.standard_normal(sum(states))
+    slot = np.r_[np.arange(8, 12), np.arange(12 + 4, 12 + 10)]  # each law's newest command in flight: 2 per loop
+    turn = lambda: np.exp(1j * RNG.uniform(0, 2 * np.pi, index.size))  # noqa: E731
+    now, ahead, sent_ahead = turn(), turn(), turn()
+    command_sent = _complex(loops) if sent else np.zeros(0, complex)
+    error, integral = _complex(loops), _complex(index.size)
+    limit = RNG.uniform(0.5, 3.0, loops)
+    limit[index[0]], limit[index[1]], limit[index[2]] = 0.0, 0.05, np.nan  # resting, over its limit, none told
+    expected = _numpy_cluster_period(cka, kam, ki, x, slot, command_sent, now, ahead, sent_ahead, error, limit,
+                                     index, integral)
+    laws = tuple((mat.data, mat.indices, mat.indptr) for mat in (cka, kam, ki))
+    innovation, command = np.zeros(index.size, complex), np.zeros(loops, complex)
+    scratch = np.empty(cka.shape[0]), np.empty(kam.shape[0])
+    kernels.cluster_period(laws, (x, slot, command_sent), (now, ahead, sent_ahead), (error, limit, index),
+                           (integral, innovation), scratch, command)
+    out, state, held, told = expected
+    assert np.allclose(command[index], out, rtol=1e-13) and not np.any(np.delete(command, index))
+    assert np.allclose(x, state, rtol=1e-13) and np.allclose(integral, held, rtol=1e-13)
+    assert np.allclose(innovation, told, rtol=1e-13)
+    assert command[index[0]] == 0 and abs(abs(command[index[1]]) - 0.05) < 1e-12  # the branches taken
 
 
 class _PythonLiftDetector:

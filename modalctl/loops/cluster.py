@@ -58,10 +58,6 @@ INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the
 PROCESS = 1.0  # the process noise, in units of lqg's
 ALONE = {"lqg": LQGControl, "pi": pi_controller}  # the loops of the modes in no cluster (ClusterControl's alone)
 BESIDE = 4  # clusters from which half their laws are designed in a forked child (its fork and answer: ~20 ms)
-DENSE_STATES = 256  # stacked states up to which the laws' matrices are dense: an update sparse / dense with scipy's
-# sparse product, 22.5 / 17.8 us on thesis-al-cc's one law (60 states), 27.8 / 24.8 on plate-glass's (192), 37 / 60 on
-# panel-rounded's 18 (654); with the compiled one (kernels.csr_times) sparse and dense are within 1.5 us below 256
-# states (the default's whole update replayed, 2026-11-30: 93.7 / 95.2 us on thesis-al-cc, 118.8 / 120.2 on plate-glass)
 # a law is kept where, at its worst over the drift band, it grows at most this much over the shot's periods (a
 # radius of 1.00001 at +1% is x1.005 over a 25 ms shot's 500, and kept: refused at radius 1, plate-glass's tracked
 # shot lost its 40 Hz pair's law to per-mode loops, tau 0.967 -> 0.944, margin 0.527 -> 0.604; the tablet's
@@ -341,12 +337,11 @@ class ClusterControl(Controller):
         self._ahead, self._sent_ahead = spin ** lead, spin ** (lead - 1)
         # sparse: the laws' blocks, and within them the modes' states (a 2 x 2 block each) and the delay line,
         # are mostly zeros (panel-rounded's 18 laws: 578 states, 8,132 of A's 334,084 entries; A x 31 -> 7 us);
-        # up to DENSE_STATES dense, where a sparse product's overhead is more than its work
+        # compiled (kernels.cluster_period), a sparse product costs its work alone, and a small law's as little as a
+        # dense one's (within 1.5 us below 256 states, 2026-11-30)
         # (B is not stacked: it puts the command computed into the delay line's first slot, the rows _slot)
-        self._sparse = sum(law.A.shape[0] for law in laws) > DENSE_STATES
-        kind = sparse.csr_array if self._sparse else np.asarray
         self._A, self._C, self._M, self._K, self._Ki = (
-            kind(block_diag(*(getattr(law, name) for law in laws))) for name in ("A", "C", "M", "K", "Ki"))
+            sparse.csr_array(block_diag(*(getattr(law, name) for law in laws))) for name in ("A", "C", "M", "K", "Ki"))
         self._turn = PeriodTurns(self._angle)  # spin ** period: the frames' turn at a period
         self._join()
         slots, start = [], 0  # where each law's newest command in flight sits in the stacked state
@@ -361,18 +356,10 @@ class ClusterControl(Controller):
         state), then ``[K; A] M`` times the surprise (the same of the observer's correction ``M s``)."""
         if not self.laws:  # nothing stacked (block_diag of none is (1, 0))
             return
-        stack, kind = (sparse.vstack, sparse.csr_array) if self._sparse else (np.vstack, np.asarray)
-        ka = stack([self._K, self._A])
-        self._CKA, self._KAM = kind(stack([self._C, ka])), kind(ka @ self._M)
-
-    def _times(self, matrix, x: np.ndarray) -> np.ndarray:
-        """``matrix @ x`` (a stacked law's product), a sparse one compiled (:func:`~modalctl.loops.kernels.csr_times`:
-        scipy's checks cost ~10 us a call, three calls a period)."""
-        if not self._sparse:
-            return matrix @ x
-        out = np.empty(matrix.shape[0])
-        kernels.csr_times(matrix.data, matrix.indices, matrix.indptr, x, out)
-        return out
+        ka = sparse.vstack([self._K, self._A])
+        self._CKA, self._KAM = sparse.csr_array(sparse.vstack([self._C, ka])), sparse.csr_array(ka @ self._M)
+        self._laws = tuple((m.data, m.indices, m.indptr) for m in (self._CKA, self._KAM, sparse.csr_array(self._Ki)))
+        self._scratch = np.empty(self._CKA.shape[0]), np.empty(self._KAM.shape[0])
 
     def reset(self) -> None:
         if self.inner is not None:
@@ -380,6 +367,7 @@ class ClusterControl(Controller):
         self._n, self._sent = 0, None
         self._x = np.zeros(sum(law.A.shape[0] for law in self.laws))  # every cluster's predicted state, real I/Q
         self._integral = np.zeros(self._idx.size, complex)  # in each loop's own frame
+        self._none = np.zeros(0, complex)  # no command sent yet
         self.innovation = np.zeros(self._idx.size, complex)  # the last period's, each loop's frame
 
     def hand_over(self, amount: np.ndarray) -> None:
@@ -420,23 +408,9 @@ class ClusterControl(Controller):
         if not self.laws:
             self._n += 1
             return command
-        idx = self._idx
         now = self._turn(self._n + 1)  # the frames' turn now: the reading of period n is the model's (n + 1) T
-        played = now * self._ahead  # and when the command computed now is reached
-        x = self._x
-        if self._sent is not None:  # the command in flight last sent, as the supervisor let it through
-            x[self._slot] = (self._sent[idx] * now * self._sent_ahead).view(float)
-        z = -error[idx]  # the measured deviation from the plan, in each loop's frame
-        predicted = self._times(self._CKA, x)  # C x, K x, A x of the prediction
-        k2 = idx.size * 2
-        surprise = (z * now).view(float) - predicted[:k2]
-        self.innovation = surprise.view(complex) / now  # what the model did not predict
-        joined = predicted[k2:] + self._times(self._KAM, surprise)  # K x, A x of the corrected state x + M surprise
-        feedback, ahead = joined[:k2], joined[k2:]
-        out = (-feedback - self._times(self._Ki, (self._integral * now).view(float))).view(complex) / played
-        kernels.cluster_limit(out, np.asarray(limit, float), idx, self._integral, z)  # authority, anti-windup
-        ahead[self._slot] += (out * played).view(float)  # B: the command enters the delay line's first slot
-        self._x = ahead
+        kernels.cluster_period(self._laws, (self._x, self._slot, self._none if self._sent is None else self._sent),
+                               (now, self._ahead, self._sent_ahead), (error, np.asarray(limit, float), self._idx),
+                               (self._integral, self.innovation), self._scratch, command)
         self._n += 1  # the next period's, unless observe says otherwise (a lost reading)
-        command[idx] = out
         return command
