@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from modalctl.cli import main
+from modalctl.errors import InputError
 from modalctl.io.device import DeviceContext, DeviceError, open_device, transports
 from modalctl.model.records import read_field_record
 from modalctl.model.scenes import load_scene
@@ -192,7 +193,7 @@ def test_scan_indices_find_the_nearest_scan_points_and_refuse_a_far_one():
     ours = np.linspace(-0.05, 0.05, 41)[:, None]  # the model's 2.5 mm grid
     index = scan_indices(caps, ours)
     assert np.array_equal(index, np.argmin(np.abs(ours - scan.T), axis=1))  # brute force, independently
-    with pytest.raises(DeviceError, match="from the nearest scan point"):
+    with pytest.raises(InputError, match="from the nearest scan point"):
         scan_indices(caps, np.r_[ours, [[0.06]]])  # 10 mm off the scanned beam
     assert scan_indices(Capabilities("bare", 1, 1, 1e6, None, False), ours) is None
 

@@ -135,7 +135,8 @@ class SimDevice(Device):
         if key != self._last_drive:
             p = self.perturbation
             self._play(u, progress)
-            self._record = np.arange(u.shape[1]) / self.sample_rate, self._sigma(np.max(np.abs(self._played))), \
+            peak = np.abs(self._played).max(initial=0.0)  # no sensors (an identified model's truth): none
+            self._record = np.arange(u.shape[1]) / self.sample_rate, self._sigma(peak), \
                 np.clip(u, -p.voltage_limit, p.voltage_limit) if p.voltage_limit else u
             self._last_drive = key
 

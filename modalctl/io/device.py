@@ -293,20 +293,23 @@ def scan_indices(caps: Capabilities, positions: np.ndarray, url: str = "device")
     """Scan indices of the device's points nearest to ``positions`` (n, d) in m; None when the
     device does not list its points (it then scans the model's own grid).
 
-    Raises DeviceError when a position is farther from every scan point than half the
-    smallest spacing between the positions.
+    Raises InputError (the model does not describe the structure the device scans: exit 2, not a
+    device's fault) when the dimensions differ, or a position is farther from every scan point than
+    half the smallest spacing between the positions.
     """
     if caps.scan_points is None:
         return None
     scan = np.asarray(caps.scan_points, float).reshape(len(caps.scan_points), -1)
     pos = np.asarray(positions, float).reshape(len(positions), -1)
     if scan.shape[1] != pos.shape[1]:
-        raise DeviceError(f"{url}: scans {scan.shape[1]}-D points, the model's grid is {pos.shape[1]}-D")
+        raise InputError(f"{url}: scans {scan.shape[1]}-D points, the model's grid is {pos.shape[1]}-D: give the "
+                         f"model of the structure it scans")
     from scipy.spatial import cKDTree  # here: 0.2 s of every command's start otherwise
 
     distance, index = cKDTree(scan).query(pos)  # (a dense distance table is n m: 50 ms at 1051 points)
     spacing = np.min(np.linalg.norm(np.diff(pos, axis=0), axis=1)) if len(pos) > 1 else np.inf
     worst = float(distance.max())
     if worst > 0.5 * spacing:
-        raise DeviceError(f"{url}: a model grid point is {worst * 1e3:.3g} mm from the nearest scan point")
+        raise InputError(f"{url}: a model grid point is {worst * 1e3:.3g} mm from the nearest scan point: give the "
+                         f"model of the structure it scans")
     return index
