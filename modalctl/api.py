@@ -40,7 +40,7 @@ from modalctl.io.device import Capabilities, Capture, Device, DeviceContext, Dev
 from modalctl.loops.controller import Controller, ControllerFactory, LoopDesign, LoopPlant
 from modalctl.model.modes import Grid, ModalModel, ModelError
 from modalctl.model.scenes import SCENES, load_scene
-from modalctl.model.shape import Param, ParamError, Shape, ShapeGenerator, parse_params
+from modalctl.model.shape import Param, ParamError, Shape, ShapeGenerator, generated, parse_params
 from modalctl.options import ConvexOptions, LoopOptions, PlanOptions, RunOptions, SurveyOptions
 from modalctl.plan.decompose import Decomposition, decompose
 from modalctl.plan.dispatch import dispatch
@@ -80,8 +80,7 @@ def make_shape(generator: str | ShapeGenerator, model: ModalModel, manager=None,
     ``params`` are the generator's parameters, as text with units (``width="18mm"``) or numbers in
     SI units (``width=0.018``); defaults filled in, bad ones refused with :class:`ParamError`.
     """
-    chosen = pick("shape", generator, manager)
-    return chosen.generate(model.grid, **parse_params(chosen, params))
+    return generated(pick("shape", generator, manager), model.grid, params)
 
 
 def connect(url: str = "sim://", *, model: ModalModel | None = None, target: Shape | None = None, manager=None,

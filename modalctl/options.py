@@ -19,9 +19,9 @@ from typing import Any
 
 from modalctl.errors import InputError
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "LOOP_PERIODS_MIN", "ROBUST_DRIFT_MAX", "MODES_MAX",
-           "ConvexOptions", "PlanOptions", "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM",
-           "decimation", "control_periods"]
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "KAPPA_MIN", "KAPPA_MAX", "SHOT_SAMPLES_MAX", "LOOP_PERIODS_MIN",
+           "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions", "PlanOptions", "THESIS_PLAN", "LoopOptions",
+           "RunOptions", "SurveyOptions", "LEARN_FROM", "decimation", "control_periods"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
@@ -236,8 +236,12 @@ class PlanOptions(_Options):
             raise InputError(f"margin_on must be 'whole' or 'kept', got {self.margin_on!r}")
         if self.margin is not None and not 0 < self.margin <= 1:
             raise InputError(f"margin must lie in (0, 1], got {self.margin!r}")
+        if not KAPPA_MIN <= self.kappa <= KAPPA_MAX:  # beyond, the envelopes' design matrices are singular (an SVD
+            raise InputError(f"kappa must lie in [{KAPPA_MIN:g}, {KAPPA_MAX:g}], got {self.kappa!r}")  # failed)
 
 
+#: The envelope rates (units of each mode's zeta w) a plan may ask: the thesis's 1 within three decades either way
+KAPPA_MIN, KAPPA_MAX = 1e-3, 1e3
 #: The thesis's open-loop method: envelopes at kappa = 1 reaching their targets at T_F, no margin.
 #: The baseline of every study of something else than the planner (transports, loops, sweeps,
 #: the thesis's tables), so that they measure what they study on the plan the thesis played.

@@ -177,7 +177,7 @@ def _manifest(out: Path) -> dict | None:
         return None
     try:
         found = json.loads(path.read_text())
-    except (ValueError, OSError, UnicodeDecodeError):
+    except (ValueError, OSError, UnicodeDecodeError, RecursionError):
         return None
     return found if isinstance(found, dict) else None
 

@@ -185,3 +185,11 @@ def test_a_sweep_option_given_with_a_file_is_refused_even_at_its_default(tmp_pat
                  *options]) == 2
     err = capsys.readouterr().err
     assert named in err and "not apply to --frf" in err and not out.exists()
+
+
+def test_an_frf_no_measurement_reaches_is_refused_before_the_fit(tmp_path):
+    """FRFs of 1e300 (finite) had reached LSCF, whose sums of squares overflow: a singular solve, exit 4."""
+    points = grid_points(4, 3)
+    with pytest.raises(ModelError, match="stays below"):
+        read_uff58(write(tmp_path / "h.uff", points, mobility(points) * 1e298))
+    assert read_uff58(write(tmp_path / "s.uff", points, mobility(points) * 1e6)).values.shape[0] == 12

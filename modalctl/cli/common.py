@@ -20,10 +20,10 @@ from modalctl.outdir import OutDirError, atomic, check_writable
 from modalctl.plugin.command import grid_points
 from modalctl.units import number_type
 
-__all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "INTERNAL", "MODES_MAX", "parse_param", "points", "modes", "out_dir",
-           "out_file", "option_type", "progress_bars", "stage", "Interrupted", "interruptible", "add_target",
-           "model_and_shape", "open_device", "refuse", "internal_error", "jsonable", "write_json", "identity",
-           "identity_defaults"]
+__all__ = ["BAD_INPUT", "UNREACHABLE", "DEVICE", "INTERNAL", "MODES_MAX", "parse_param", "points", "modes",
+           "out_dir", "out_file", "picture_file", "option_type", "progress_bars", "stage", "Interrupted",
+           "interruptible", "add_target", "model_and_shape", "open_device", "refuse", "internal_error", "jsonable",
+           "write_json", "identity", "identity_defaults"]
 
 BAD_INPUT, UNREACHABLE, DEVICE, INTERNAL = 2, 1, 3, 4  # docs/errors.md
 MODES_MAX = 1000
@@ -65,6 +65,14 @@ def out_file(text: str) -> str:
     if not text.strip():
         raise argparse.ArgumentTypeError("give a file name")
     return _writable(text, folder=False)
+
+
+def picture_file(text: str) -> str:
+    """An option naming a picture to write: an :func:`out_file` ending in ``.png`` (the pictures are PNG:
+    ``out.pdf`` had reached matplotlib's writer with PNG's options and ended in a TypeError)."""
+    if not text.lower().endswith(".png"):
+        raise argparse.ArgumentTypeError(f"pictures are PNG: give a file ending in .png, got {text!r}")
+    return out_file(text)
 
 
 def _writable(text: str, folder: bool) -> str:
@@ -144,12 +152,11 @@ def model_and_shape(args):
     """The model (``--scene`` or ``--model``) and the target shape (``--shape``, ``--param``)."""
     from modalctl.model.modes import ModalModel
     from modalctl.model.scenes import load_scene
-    from modalctl.model.shape import parse_params
+    from modalctl.model.shape import generated
     from modalctl.plugin.manager import get_shape
 
     model = load_scene(args.scene, args.points) if args.scene is not None else ModalModel.load(args.model)
-    generator = get_shape(args.shape)
-    return model, generator.generate(model.grid, **parse_params(generator, dict(args.param)))
+    return model, generated(get_shape(args.shape), model.grid, dict(args.param))
 
 
 def open_device(args, model=None, shape=None):

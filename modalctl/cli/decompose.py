@@ -7,7 +7,7 @@ import json
 
 from modalctl.units import number_type
 
-from .common import add_target, model_and_shape, out_file
+from .common import add_target, model_and_shape, out_file, picture_file
 
 NAME, HELP = "decompose", "project a target field on a scene's modes and reduce"
 
@@ -21,7 +21,7 @@ def add_arguments(p) -> None:
     p.add_argument("--nrmse-target", type=number_type(float, "nrmse-target", low=0),
                    help="auto: largest NRMSE for the kept modes")
     p.add_argument("--orthogonalize", action="store_true", help="Gram-Schmidt the mode shapes first")
-    p.add_argument("--plot", metavar="FILE.png", type=out_file, help="draw the field and the modal bars")
+    p.add_argument("--plot", metavar="FILE.png", type=picture_file, help="draw the field and the modal bars")
     p.add_argument("--save-model", metavar="FILE.npz", type=out_file, help="also write the model used")
 
 

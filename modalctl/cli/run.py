@@ -4,15 +4,17 @@ the run's report (metrics.json, fields.npz, the pictures) into ``--out``."""
 from __future__ import annotations
 
 import json
+import math
 import signal
 import sys
 from pathlib import Path
 
-from modalctl.options import BOARD_CONTROLLER, HOST_CONTROLLER, LEARN_FROM, ROBUST_DRIFT_MAX, LoopOptions, PlanOptions
+from modalctl.options import BOARD_CONTROLLER, HOST_CONTROLLER, KAPPA_MAX, KAPPA_MIN, LEARN_FROM, ROBUST_DRIFT_MAX, \
+    LoopOptions, PlanOptions
 from modalctl.units import number_type, quantity_type
 
-from .common import DEVICE, add_target, identity, identity_defaults, interruptible, jsonable, model_and_shape, \
-    open_device, out_dir, progress_bars, stage, write_json
+from .common import DEVICE, UNREACHABLE, add_target, identity, identity_defaults, interruptible, jsonable, \
+    model_and_shape, open_device, out_dir, progress_bars, stage, write_json
 
 NAME, HELP = "run", "plan a focus, play it on a device (default sim://) and measure it"
 PLAN, LOOP = PlanOptions(), LoopOptions()  # the defaults the options below show and use
@@ -65,7 +67,8 @@ def _add_plan_arguments(p) -> None:
                    help="where --margin must hold: whole (the field the voltages drive on every mode of the "
                         "model; they are corrected near the focus until it does, up to a minute) or kept (the "
                         "kept modes' references, the thesis's criterion)")
-    p.add_argument("--kappa", type=number_type(float, "kappa", low=0), default=PLAN.kappa,
+    p.add_argument("--kappa", type=number_type(float, "kappa", low=KAPPA_MIN, high=KAPPA_MAX, low_open=False),
+                   default=PLAN.kappa,
                    help=f"envelope rate without --margin ({PLAN.kappa:g})")
     p.add_argument("--no-brake", action="store_true", help="optimizer: free decay after the focus only")
     p.add_argument("--after", type=quantity_type("s", "after", low=0), default=PLAN.after,
@@ -345,13 +348,23 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
         print(f"modalctl run: the supervisor stopped the shot: {fault}; outputs ramped to zero, "
               f"log in {out}/log.json + log.bin", file=sys.stderr)
+    unmeasured = [name for name in MEASURES if not math.isfinite(metrics[name])]
+    if unmeasured:  # a field zero everywhere (a drive the amplifier did not pass): written, and not a success
+        said = ", ".join(f"{n} ({metrics[n]})" for n in unmeasured)
+        print(f"modalctl run: the shot's {said} {'is' if len(unmeasured) == 1 else 'are'} not finite: the field "
+              f"measured is zero or without a focus; the record is in {out}/", file=sys.stderr)
+    code = DEVICE if fault else UNREACHABLE if unmeasured else 0
     if args.json:
         print(json.dumps(metrics, default=jsonable))
-        return DEVICE if fault else 0
+        return code
     _print_shot(args, metrics, shot.plan.report)
     _print_loop(metrics, shot, out)
     print(f"report: {out}/ (metrics.json, fields.npz" + (", pictures)" if "pictures" in metrics else ")"))
-    return DEVICE if fault else 0
+    return code
+
+
+#: The shot's measures that a run with any result at all makes finite (docs/errors.md: exit 1 when not)
+MEASURES = ("tau", "tau_norm", "nrmse", "margin_ratio")
 
 
 #: The run's pictures, drawn by two forked children at once: these, and every other (on a plate each takes about half)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 from pathlib import Path
 
 from modalctl.options import LoopOptions
@@ -20,6 +21,7 @@ from .common import identity, identity_defaults, jsonable, out_dir, parse_param,
     write_json
 from .run import voltage_limit
 
+CASES_MAX = 10_000  # cases a sweep runs at most (a 100 x 100 map; at 5-10 s a case, a day of shots)
 NAME, HELP = "sweep", "run a focus case over a grid of scenarios on the HIL and map where methods fail"
 
 # swept parameter (an option of modalctl run, whose type reads and checks each value) -> Case field
@@ -145,11 +147,19 @@ def run(args) -> int:
     keep_memory()  # shots reuse their memory instead of faulting on fresh pages each time
     if not 1 <= len(args.vary) <= 2:
         raise ParamError("give one or two --vary NAME=V1,V2,... (e.g. --vary drift=0,1%,2%)")
-    axes = [_swept_values(name, text) for name, text in args.vary]
+    names = [name for name, _ in args.vary]
+    if len(set(names)) < len(names):
+        raise ParamError(f"--vary {names[0]} given twice: one axis a name, two names at most")
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     unknown = set(methods) - set(METHODS)
-    if unknown:
-        raise ParamError(f"unknown method(s) {', '.join(sorted(unknown))}; choose from {', '.join(METHODS)}")
+    if unknown or not methods:
+        said = f"unknown method(s) {', '.join(sorted(unknown))}" if unknown else "--methods: none given"
+        raise ParamError(f"{said}; choose from {', '.join(METHODS)}")
+    axes = [_swept_values(name, text) for name, text in args.vary]
+    count = len(methods) * math.prod(len(values) for _, values in axes)
+    if count > CASES_MAX:  # before any case is made: 15,000 seeds by 15,000 ratios had built 2.7 GB of them
+        raise ParamError(f"{count} cases ({' x '.join(str(len(v)) for _, v in axes)} values, {len(methods)} methods); "
+                         f"a sweep runs {CASES_MAX} at most: split it")
     cases = _cases(args, axes, methods)
     for case in cases:  # each shot's options checked before --out is claimed (a 10 s focus, a rate not dividing)
         case.options()

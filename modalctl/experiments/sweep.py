@@ -28,7 +28,7 @@ import numpy as np
 from modalctl.errors import InputError
 from modalctl.io.device import DeviceContext, open_device
 from modalctl.model.scenes import load_scene
-from modalctl.model.shape import parse_params
+from modalctl.model.shape import generated
 from modalctl.model.touch import Touch, added_decay
 from modalctl.options import THESIS_PLAN, LoopOptions, PlanOptions, RunOptions
 from modalctl.plan.growth import model_for
@@ -128,8 +128,7 @@ def _model_shape(scene: str, points, shape: str, params: tuple, planned: PlanOpt
     sweep plays the shots ``run`` would (panel-rounded's 30 mm bump: 22 modes reach tau 0.957, refused
     at the default target, where ``run`` grows it to 53)."""
     model = load_scene(scene, points)
-    generator = get_shape(shape)
-    target = generator.generate(model.grid, **parse_params(generator, dict(params)))
+    target = generated(get_shape(shape), model.grid, dict(params))
     return model_for(model, target, planned)[0], target
 
 

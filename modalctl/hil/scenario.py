@@ -14,7 +14,7 @@ from modalctl.model.touch import touch_at
 
 from .vibrometer import NOISE_BLOCK, scan_noise  # noqa: F401  (the vibrometer's noise: its home is .vibrometer)
 
-__all__ = ["Perturbation", "perturb", "step", "ramp", "scan_noise", "DRIFT_MAX", "DRIFT_RATE_MAX",
+__all__ = ["Perturbation", "perturb", "step", "ramp", "scan_noise", "AMPLIFIER_MIN", "DRIFT_MAX", "DRIFT_RATE_MAX",
            "DAMPING_ERROR_MAX", "GAIN_ERROR_MAX", "FINGER_MAX", "SNR_MAX",
            "FINGER_SLIDE_MAX", "FINGER_PRESS_MAX", "FINGER_TIME_MAX"]
 
@@ -24,6 +24,7 @@ DRIFT_RATE_MAX = 10.0  # 1/s: 25% over a 25 ms shot, far past any warming
 DAMPING_ERROR_MAX = 10.0  # eleven times the modelled damping
 GAIN_ERROR_MAX = 0.9  # a mode driven at a tenth (or 1.9 times) of its modelled gain
 FINGER_MAX = 100.0  # N s/m: a hundred times a pressing finger (0.1-1 N s/m)
+AMPLIFIER_MIN = 1.0  # Hz: a first-order amplifier narrower passes nothing of a plate's modes (1e-300 Hz: a zero field)
 SNR_MAX = 200.0  # dB: beyond, the noise is below float64's round-off of the signal
 FINGER_SLIDE_MAX = 10.0  # m/s: a swipe; faster is no touch
 FINGER_PRESS_MAX = 1e4  # N s/m per s: from nothing to FINGER_MAX in 10 ms
@@ -115,6 +116,9 @@ class Perturbation:
         if self.finger and self.moving:
             raise InputError("a finger on a structure whose resonances move during the shot is not simulated: "
                              "give a fixed drift with the finger")
+        if self.amplifier_bandwidth is not None and not AMPLIFIER_MIN <= self.amplifier_bandwidth:
+            raise InputError(f"the amplifier's bandwidth must be at least {AMPLIFIER_MIN:g} Hz, got "
+                             f"{self.amplifier_bandwidth!r} Hz")
         if self.amplifier_bandwidth and (self.finger or self.moving):
             raise InputError("the amplifier's bandwidth is not simulated with a finger or a drift during the shot")
 

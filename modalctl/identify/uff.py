@@ -26,7 +26,8 @@ from modalctl.model.modes import ModelError
 
 from .frf import FRF
 
-__all__ = ["read_uff58", "read_uff58_references", "FUNCTION_TYPES", "RESPONSES", "UFF_POINTS_MAX", "UFF_BINS_MAX"]
+__all__ = ["read_uff58", "read_uff58_references", "FUNCTION_TYPES", "RESPONSES", "UFF_POINTS_MAX", "UFF_BINS_MAX",
+           "FRF_MAX"]
 
 # UFF 58, record 6 field 1: what a function is (only FRFs are identified from)
 FUNCTION_TYPES = {0: "a general or unknown function", 1: "time response data", 2: "an auto-spectrum",
@@ -47,6 +48,8 @@ FRF_TYPE, COHERENCE = 4, 6  # record 6 field 1: the functions read (a coherence 
 NODE_SETS = (15, 2411)  # datasets that give node coordinates
 UFF_POINTS_MAX = 100_000  # functions one file may hold
 UFF_BINS_MAX = 1 << 21  # bins per FRF
+FRF_MAX = 1e100  # an FRF's magnitude at most, in any unit: a sensor's counts per newton are below 1e12
+
 
 
 def _refuse(path, what: str) -> ModelError:
@@ -138,6 +141,9 @@ def _mobility(path, frfs: list[dict], freqs: np.ndarray, point_dir: str) -> tupl
     raw = np.array([np.asarray(s["data"], complex) for s in frfs]) * sign[:, None]
     if not np.all(np.isfinite(raw)):
         raise _refuse(path, "an FRF holds NaN or infinite values")
+    if np.abs(raw).max(initial=0.0) > FRF_MAX:  # its squares, which the fits sum, overflow (1e300: a singular solve)
+        raise _refuse(path, f"an FRF reaches {np.abs(raw).max():.3g}; a measured one stays below {FRF_MAX:g} in any "
+                            f"unit")
     with np.errstate(divide="ignore", invalid="ignore"):
         values = raw * (2j * np.pi * freqs) ** power
     keep = np.all(np.isfinite(values), axis=0)

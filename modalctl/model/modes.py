@@ -363,8 +363,9 @@ class ModalModel:
             header = json.loads(str(arrays.pop("meta_json")))
         except KeyError:
             raise ModelError(f"model file: {name!r} has no meta_json entry") from None
-        except ValueError as exc:
-            raise ModelError(f"model file: {name!r}: meta_json is not JSON ({exc})") from None
+        except (ValueError, RecursionError) as exc:  # not JSON, or nested past Python's limit (a crafted file)
+            raise ModelError(f"model file: {name!r}: meta_json is not JSON ({type(exc).__name__}: "
+                             f"{str(exc)[:200]})") from None
         if not isinstance(header, dict) or header.get("format") != "modalctl.ModalModel" \
                 or not isinstance(header.get("version", 0), int) or header.get("version", 0) > FORMAT_VERSION:
             found = header if not isinstance(header, dict) else (header.get("format"), header.get("version"))

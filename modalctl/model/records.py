@@ -410,7 +410,7 @@ def read_field_record(path) -> FieldRecord:
     except ModelError:
         raise
     except (ValueError, OSError, KeyError, TypeError, AttributeError, EOFError, zipfile.BadZipFile,
-            json.JSONDecodeError) as exc:
+            RecursionError) as exc:  # RecursionError: a header nested past Python's limit
         raise ModelError(f"field record: cannot read {str(path)!r} ({exc})") from None
     return FieldRecord(times, points, values, step, basis.shape[1], extra, noise)
 

@@ -18,7 +18,12 @@ from modalctl.units import UnitError, parse_point, parse_quantity
 
 from .modes import Grid, ModelError
 
-__all__ = ["Shape", "Param", "ShapeGenerator", "ParamError", "parse_params", "tukey_window"]
+__all__ = ["Shape", "Param", "ShapeGenerator", "ParamError", "parse_params", "generated", "tukey_window",
+           "PEAK_MIN", "PEAK_MAX"]
+
+#: The peak velocity (m/s) a target may ask: below, under any vibrometer's noise and where the modal sums
+#: underflow (1e-300 m/s planned a NaN tau); above, no surface moves (1e300 m/s overflowed them)
+PEAK_MIN, PEAK_MAX = 1e-9, 1e3
 
 
 class ParamError(InputError):
@@ -104,6 +109,21 @@ class ShapeGenerator(ABC):
     @abstractmethod
     def generate(self, grid: Grid, **params) -> Shape:
         """Target field and mask on ``grid`` for SI parameter values."""
+
+
+def generated(generator: ShapeGenerator, grid: Grid, raw: dict) -> Shape:
+    """``generator``'s target on ``grid`` for the raw parameters ``raw`` (:func:`parse_params`), checked as a
+    target a user asks for: not zero on every grid point, its peak within [:data:`PEAK_MIN`, :data:`PEAK_MAX`]
+    m/s. Raises :class:`ParamError` saying which."""
+    shape = generator.generate(grid, **parse_params(generator, raw))
+    peak = float(np.abs(shape.values).max(initial=0.0))
+    if peak == 0.0:
+        raise ParamError(f"shape {generator.name!r}: the target is zero on every grid point (an amplitude of zero, "
+                         f"a width far below the grid's spacing, or parts that cancel): nothing to focus")
+    if not PEAK_MIN <= peak <= PEAK_MAX:
+        raise ParamError(f"shape {generator.name!r}: the target's peak velocity {peak:.3g} m/s lies outside "
+                         f"[{PEAK_MIN:g}, {PEAK_MAX:g}] m/s")
+    return shape
 
 
 def parse_params(generator: ShapeGenerator, raw: dict) -> dict:
