@@ -258,6 +258,10 @@ class ModalModel:
             if value.shape != expected:
                 raise ModelError(f"{name}: expected shape {expected} for {k} modes on {n} points, got {value.shape}")
             check_finite(name, value)
+        listed = self.meta.get("actuators") if isinstance(self.meta, dict) else None
+        if isinstance(listed, list) and listed and len(listed) != gains["actuator_gains"].shape[1]:
+            raise ModelError(f"actuator_gains: {gains['actuator_gains'].shape[1]} columns for the "
+                             f"{len(listed)} actuators meta lists")
         if np.any(f <= 0):
             i = int(np.argmax(f <= 0))
             raise ModelError(f"frequencies: must be positive (Hz), got {f[i]!r} for mode {labels[i]}")
@@ -334,6 +338,7 @@ class ModalModel:
         path = Path(path)
         if path.suffix != ".npz":
             path = path.with_suffix(".npz")
+        path.parent.mkdir(parents=True, exist_ok=True)  # as the output options promise (made if absent)
         header = {"format": "modalctl.ModalModel", "version": FORMAT_VERSION, "meta": self.meta,
                   "grid_shape": list(self.grid.shape) if self.grid.shape else None}
         with atomic(path) as temporary:  # a full disk leaves the file that was there whole
