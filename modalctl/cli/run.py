@@ -11,6 +11,7 @@ from pathlib import Path
 
 from modalctl.options import BOARD_CONTROLLER, HOST_CONTROLLER, KAPPA_MAX, KAPPA_MIN, LEARN_FROM, ROBUST_DRIFT_MAX, \
     LoopOptions, PlanOptions
+from modalctl.model.modes import VOLTAGE_MIN
 from modalctl.units import number_type, quantity_type
 
 from .common import DEVICE, UNREACHABLE, add_target, identity, identity_defaults, interruptible, jsonable, \
@@ -60,7 +61,7 @@ def _add_plan_arguments(p) -> None:
                    help="convex planner: the time a margin program may take, e.g. 300s, or none (until it is done); "
                         "past it the plan is refused, saying where it stopped: a plan found within it does not "
                         f"depend on the machine's speed ({PLAN.convex.program_seconds:g}s)")
-    p.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=0),
+    p.add_argument("--slew-limit", type=quantity_type("V/s", "slew-limit", low=SLEW_MIN, low_open=False),
                    help="largest output slope, e.g. 2e6V/s: planned for by the convex planner, and the "
                         "closed loop's feedback clipped to it")
     p.add_argument("--margin-on", choices=("whole", "kept"), default=PLAN.margin_on,
@@ -109,7 +110,7 @@ def _add_loop_arguments(loop) -> None:
                            "the shot planned again on the updated model is the one reported")
 
 
-_VOLTS = quantity_type("V", "voltage-limit", low=0)
+_VOLTS = quantity_type("V", "voltage-limit", low=VOLTAGE_MIN, low_open=False)
 
 
 def _or_none(quantity):
@@ -121,7 +122,9 @@ def _or_none(quantity):
     return read
 
 
-#: ``--voltage-limit``: a voltage (V) above zero, or ``none`` (no limit but the device's rails)
+#: The least slew limit (V/s): 1e-300 V/s planned 37 s of rounds that could not end; 1 V/s is a volt a second
+SLEW_MIN = 1.0
+#: ``--voltage-limit``: a voltage (V) of at least VOLTAGE_MIN, or ``none`` (no limit but the device's rails)
 voltage_limit = _or_none(_VOLTS)
 #: ``--plan-time``: the seconds a margin program may take (zero or more), or ``none`` (until it is done)
 plan_time = _or_none(quantity_type("s", "plan-time", low=0, low_open=False))

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from modalctl.io.device import Device, DeviceContext, TransportOptions
+from modalctl.model.modes import VOLTAGE_MIN
 from modalctl.options import MODES_MAX
 from modalctl.plugin.spec import hookimpl
 from modalctl.units import number_type, quantity_type
@@ -96,5 +97,6 @@ def modalctl_add_options(options: TransportOptions):
                        help="the vibrometer measures each point N times and keeps the mean (1)")
     group.add_argument("--amplifier-bandwidth", type=quantity_type("Hz", "amplifier-bandwidth", low=0),
                        help="first-order amplifier bandwidth, e.g. 100kHz")
-    group.add_argument("--rails", type=quantity_type("V", "rails", low=0), help="amplifier voltage rails (clipping)")
+    group.add_argument("--rails", type=quantity_type("V", "rails", low=VOLTAGE_MIN, low_open=False),
+                       help="amplifier voltage rails (clipping)")
     group.add_argument("--seed", type=number_type(int, "seed", low=0, high=2**32 - 1, low_open=False), default=0, help="seed of the spread and the noise (0)")

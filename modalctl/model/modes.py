@@ -18,10 +18,14 @@ import numpy as np
 from modalctl.errors import InputError
 from modalctl.outdir import atomic
 
-__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "drift_cases", "VOLTAGE_LIMIT_KEY"]
+__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "drift_cases", "VOLTAGE_LIMIT_KEY",
+           "VOLTAGE_MIN"]
 
 FORMAT_VERSION = 1
 VOLTAGE_LIMIT_KEY = "voltage_limit_v"  # meta: the actuators' safe drive voltage (V), run's default --voltage-limit
+#: The least voltage limit (V) a model, a plan or the simulator's rails may set: 1e-300 V planned 12 s for rounds
+#: that could not end (exit 1 asking for more of them); a piezo driver's millivolt is its noise
+VOLTAGE_MIN = 1e-3
 
 #: The arrays a model file holds (besides ``meta_json``), and the most it may hold in all (bytes):
 #: a 2,000 x 2,000 plate with 200 modes is 6.4 GB; a model file beyond that is refused unread.
@@ -258,10 +262,6 @@ class ModalModel:
             if value.shape != expected:
                 raise ModelError(f"{name}: expected shape {expected} for {k} modes on {n} points, got {value.shape}")
             check_finite(name, value)
-        listed = self.meta.get("actuators") if isinstance(self.meta, dict) else None
-        if isinstance(listed, list) and listed and len(listed) != gains["actuator_gains"].shape[1]:
-            raise ModelError(f"actuator_gains: {gains['actuator_gains'].shape[1]} columns for the "
-                             f"{len(listed)} actuators meta lists")
         if np.any(f <= 0):
             i = int(np.argmax(f <= 0))
             raise ModelError(f"frequencies: must be positive (Hz), got {f[i]!r} for mode {labels[i]}")
@@ -278,9 +278,9 @@ class ModalModel:
             raise ModelError(f"meta: must be JSON-serializable ({exc})") from None
         limit = self.meta.get(VOLTAGE_LIMIT_KEY)
         if limit is not None and not (isinstance(limit, (int, float)) and not isinstance(limit, bool)
-                                      and np.isfinite(limit) and limit > 0):
-            raise ModelError(f"meta.{VOLTAGE_LIMIT_KEY}: the actuators' safe voltage must be a positive finite "
-                             f"number of volts, got {limit!r}")
+                                      and np.isfinite(limit) and limit >= VOLTAGE_MIN):
+            raise ModelError(f"meta.{VOLTAGE_LIMIT_KEY}: the actuators' safe voltage must be a finite number of "
+                             f"volts, at least {VOLTAGE_MIN:g} V, got {limit!r}")
         for name, value in [("frequencies", f), ("damping", z), ("shapes", shapes), ("labels", labels),
                             ("rigid_shapes", rigid), *gains.items()]:
             value.setflags(write=False)
