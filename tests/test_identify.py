@@ -228,7 +228,7 @@ def test_identify_cli_on_the_hil_and_bad_input(tmp_path):
     (["--scene", "plate-glass", "--mass-per-length", "1kg/m"], "on a plate: give --mass-per-area"),
     (["--scene", "plate-glass", "--step", "30mm"], "at least 5 per direction"),
     (["--scene", "thesis-al-cc", "--primary", "99"], "primary actuator 99: the device has 8 (0..7)"),
-    (["--scene", "thesis-al-cc", "--resolution", "0Hz"], "resolution must lie in (0, inf)"),
+    (["--scene", "thesis-al-cc", "--resolution", "0Hz"], "resolution must lie in (0, 10000]"),
     (["--scene", "thesis-al-cc", "--step=-1mm"], "step must lie in (0, inf)"),
 ])
 def test_identify_refuses_what_it_cannot_do(capsys, tmp_path, args, words):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from modalctl.model.modes import VOLTAGE_MIN
 from modalctl.options import SurveyOptions
 from modalctl.units import number_type, quantity_type
 
@@ -15,6 +16,8 @@ NAME, HELP = "identify", "identify a structure's modes from FRFs measured throug
 SURVEY = SurveyOptions()  # the defaults the options below show and use
 SCAN_POINTS_MIN = 5  # scan points a mode shape needs
 SNR = 40.0  # dB: the simulated vibrometer's noise below the largest velocity, unless --snr says
+RESOLUTION_MAX = 1e4  # Hz: a sweep of 0.1 ms at least (1e300 Hz had been taken for a channel not connected)
+AMPLITUDE_MAX = 1e4  # V: above any piezo driver's rails (1e300 V, as 1e-300 V, had been blamed on the channel)
 SWEEP = {"f_low": 100.0, "f_high": 100e3, "resolution": 4.0, "amplitude": 15.0, "step": 1e-3}  # defaults of the sweep
 SURVEY_ONLY = ("resolution", "amplitude", "step", "primary", "averages")  # options a file's FRFs have no use for
 
@@ -34,9 +37,10 @@ def add_arguments(p) -> None:
                    help=f"sweep start ({SWEEP['f_low']:g}Hz); with --frf the band's start (the file's)")
     p.add_argument("--f-high", type=quantity_type("Hz", "f-high", low=0),
                    help=f"sweep end ({SWEEP['f_high'] / 1e3:g}kHz); with --frf the band's end (the file's)")
-    p.add_argument("--resolution", type=quantity_type("Hz", "resolution", low=0),
+    p.add_argument("--resolution", type=quantity_type("Hz", "resolution", low=0, high=RESOLUTION_MAX),
                    help=f"FRF resolution = 1 / T_sweep ({SWEEP['resolution']:g}Hz)")
-    p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=0),
+    p.add_argument("--amplitude", type=quantity_type("V", "amplitude", low=VOLTAGE_MIN, high=AMPLITUDE_MAX,
+                                                     low_open=False),
                    help=f"sweep peak voltage ({SWEEP['amplitude']:g}V)")
     p.add_argument("--step", type=quantity_type("m", "step", low=0),
                    help=f"spatial step of the scan, in each direction on a plate ({SWEEP['step'] * 1e3:g}mm)")
