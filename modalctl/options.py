@@ -19,7 +19,8 @@ from typing import Any
 
 from modalctl.errors import InputError
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "KAPPA_MIN", "KAPPA_MAX", "SHOT_SAMPLES_MAX", "LOOP_PERIODS_MIN",
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "KAPPA_MIN", "KAPPA_MAX", "VOLTAGE_MIN", "SLEW_MIN", "FOCUS_SAMPLES_MIN",
+           "check_focus_samples", "SHOT_SAMPLES_MAX", "LOOP_PERIODS_MIN",
            "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions", "PlanOptions", "THESIS_PLAN", "LoopOptions",
            "RunOptions", "SurveyOptions", "LEARN_FROM", "decimation", "control_periods"]
 
@@ -236,10 +237,21 @@ class PlanOptions(_Options):
             raise InputError(f"margin_on must be 'whole' or 'kept', got {self.margin_on!r}")
         if self.margin is not None and not 0 < self.margin <= 1:
             raise InputError(f"margin must lie in (0, 1], got {self.margin!r}")
+        if self.voltage_limit is not None and not self.voltage_limit >= VOLTAGE_MIN:
+            raise InputError(f"voltage_limit must be at least {VOLTAGE_MIN:g} V, got {self.voltage_limit!r}")
+        if self.slew_limit is not None and not self.slew_limit >= SLEW_MIN:
+            raise InputError(f"slew_limit must be at least {SLEW_MIN:g} V/s, got {self.slew_limit!r}")
         if not KAPPA_MIN <= self.kappa <= KAPPA_MAX:  # beyond, the envelopes' design matrices are singular (an SVD
             raise InputError(f"kappa must lie in [{KAPPA_MIN:g}, {KAPPA_MAX:g}], got {self.kappa!r}")  # failed)
 
 
+#: The least voltage limit (V) a model, a plan or the simulator's rails may set: 1e-300 V planned 12 s for rounds
+#: that could not end (exit 1 asking for more of them); a piezo driver's millivolt is its noise
+VOLTAGE_MIN = 1e-3
+#: The least slew limit (V/s): 1e-300 V/s planned 37 s of rounds that could not end; 1 V/s is a volt a second
+SLEW_MIN = 1.0
+#: The fewest DAC samples a focus time may span: below, there is no envelope to plan (1e-300 s: an SVD failed)
+FOCUS_SAMPLES_MIN = 10
 #: The envelope rates (units of each mode's zeta w) a plan may ask: the thesis's 1 within three decades either way
 KAPPA_MIN, KAPPA_MAX = 1e-3, 1e3
 #: The thesis's open-loop method: envelopes at kappa = 1 reaching their targets at T_F, no margin.
@@ -403,6 +415,7 @@ class RunOptions(_Options):
     def __post_init__(self):
         if not self.focus_time > 0:
             raise InputError(f"focus time must be positive, got {self.focus_time!r} s")
+        check_focus_samples(self.focus_time, self.plan.sample_rate)  # before --out is claimed, a sweep's every case
         samples = (self.focus_time + self.plan.after) * self.plan.sample_rate
         if samples > SHOT_SAMPLES_MAX:
             raise InputError(f"the shot (T_F + after = {self.focus_time + self.plan.after:g} s at "
@@ -458,6 +471,13 @@ class SurveyOptions(_Options):
     orthogonalize: bool = True
     threshold_db: float = 3.0
     weak_drive: float = 0.1
+
+
+def check_focus_samples(focus_time: float, sample_rate: float) -> None:
+    """InputError when ``focus_time`` (s) spans fewer than :data:`FOCUS_SAMPLES_MIN` samples at ``sample_rate`` (Hz)."""
+    if focus_time * sample_rate < FOCUS_SAMPLES_MIN:
+        raise InputError(f"focus time {focus_time:g} s is shorter than {FOCUS_SAMPLES_MIN} samples of the DAC at "
+                         f"{sample_rate:g} Hz: give a longer --focus-time")
 
 
 def control_periods(duration: float, sample_rate: float, control_rate: float) -> int:

@@ -344,14 +344,20 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
                          "(an identified model: identify measures the actuators' gains, not the sensors'): run it "
                          "open loop (--loop open), or plan on a model with its sensors")
     caps, voltage_limit = _configure(device, options)
+    scan_indices(caps, model.grid.points, device.url)  # the model's grid against what the device scans, before any work
     if options.closed and options.loop.on_board:  # the shortest table the shot needs, before planning
         check_table(1, _periods(options.focus_time + options.plan.after, options), caps.table_values,
                     f"the board at {device.url}")
     elif options.closed:  # the link's rate with one mode, the most it carries whatever the plan keeps
         _sustained(options.loop, device, 1, options.plan.sample_rate, options.focus_time)
-        kernels.warm_soon()  # the loops' kernels load while the plan's solver leaves a core free
+        # the loops' kernels load while the convex plan's solver leaves a core free, else at once
+        kernels.warm_soon(idle=planned is None and name_of(options.plan.planner) == "convex")
     plan_options = options.planned.but(voltage_limit=voltage_limit)
-    dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
+    try:
+        dec, the_plan = planned or plan_shot(model, shape, options.focus_time, plan_options, options.progress)
+    except BaseException:
+        kernels.cancel_warm()  # a refused plan: no kernel begins loading behind the caller's back
+        raise
     learning = None
     if options.learn is not None:
         learning, model = _learning_shot(dec, the_plan, device, options, voltage_limit)

@@ -90,10 +90,14 @@ class IdleWork:
     steps : iterable of callable
     name : str
         The thread's.
+    idle : bool
+        False: every step at once, one after the other (where no such call comes: a plan without DAQP).
     """
 
-    def __init__(self, steps: Iterable[Callable], name: str):
-        self._steps, self._now, self._error = list(steps), threading.Event(), None
+    def __init__(self, steps: Iterable[Callable], name: str, idle: bool = True):
+        self._steps, self._now, self._error, self._cancelled = list(steps), threading.Event(), None, False
+        if not idle:
+            self._now.set()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
@@ -102,9 +106,16 @@ class IdleWork:
             for step in self._steps:
                 while not self._now.is_set() and not _IDLE.wait(POLL):
                     pass
+                if self._cancelled:
+                    return
                 step()
         except BaseException as exc:  # noqa: BLE001 - raised by finish
             self._error = exc
+
+    def cancel(self) -> None:
+        """No step begins from now on (the one running ends); the thread ends with it."""
+        self._cancelled = True
+        self._now.set()
 
     def finish(self) -> None:
         """Every step run (those not begun yet, now), or what one raised raised here."""

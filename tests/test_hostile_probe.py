@@ -67,7 +67,31 @@ def test_a_shot_whose_field_has_no_focus_is_not_a_success(tmp_path, capsys, monk
     monkeypatch.setattr("modalctl.run.tau_norm", lambda *a, **k: float("nan"))
     assert call([*RUN, "--out", str(tmp_path / "b")]) == 1
     assert "tau_norm (nan) is not finite" in capsys.readouterr().err
-    assert json.loads((tmp_path / "b" / "metrics.json").read_text(), parse_constant=str)["tau_norm"] == "NaN"
+    written = json.loads((tmp_path / "b" / "metrics.json").read_text(), parse_constant=str)
+    assert written["tau_norm"] == "NaN" and written["code"] == 1 and "not finite" in written["error"]
+    assert call([*RUN, "--json", "--out", str(tmp_path / "c")]) == 1  # a refusal's JSON: error, code, command
+    said = json.loads(capsys.readouterr().out.strip().splitlines()[-1], parse_constant=str)
+    assert said["code"] == 1 and said["command"] == "run" and "tau_norm" in said["error"]
+
+
+def test_the_api_refuses_what_the_command_line_does():
+    """The floors and ranges live in the options and the decomposition, not only in argparse's types."""
+    from modalctl.errors import InputError
+    from modalctl.hil.scenario import Perturbation
+    from modalctl.model.shape import ParamError, Shape
+    from modalctl.options import PlanOptions, RunOptions
+    from modalctl.plan.decompose import decompose
+
+    for bad in ({"voltage_limit": 1e-300}, {"slew_limit": 0.5}, {"kappa": 1e300}, {"kappa": 1e-300}):
+        with pytest.raises(InputError):
+            PlanOptions(**bad)
+    with pytest.raises(InputError, match="shorter than 10 samples"):
+        RunOptions(focus_time=1e-300)
+    with pytest.raises(InputError, match="rails"):
+        Perturbation(voltage_limit=1e-6)
+    model = load_scene("thesis-al-cc", 61)
+    with pytest.raises(ParamError, match="zero on every grid point"):
+        decompose(model, Shape(np.zeros(61), np.ones(61, bool)))
 
 
 def test_model_files_nested_past_python_s_limit_or_without_actuators_are_refused(tmp_path, capsys):

@@ -134,7 +134,9 @@ def test_bad_units_exit_2(capsys, tmp_path):
     ("--margin", "-0.2", "margin must lie in (0, 1]"), ("--margin", "1.5", "margin must lie in (0, 1]"),
     ("--margin", "0", "margin must lie in (0, 1]"), ("--robust-drift", "-1%", "robust-drift must lie in [0, 0.5]"),
     ("--robust-drift", "150%", "robust-drift must lie in [0, 0.5]"),
-    ("--latency", "-1", "latency must lie in [0, 1000]"), ("--voltage-limit", "0V", "voltage-limit must lie in (0"),
+    ("--latency", "-1", "latency must lie in [0, 1000]"), ("--voltage-limit", "0V", "voltage-limit must lie in [0.001"),
+    ("--voltage-limit", "0.5mV", "voltage-limit must lie in [0.001"),
+    ("--slew-limit", "0.5V/s", "slew-limit must lie in [1"), ("--rails", "0.5mV", "rails must lie in [0.001"),
     ("--watchdog", "0", "watchdog must lie in [1"), ("--latency", "x", "invalid latency value"),
     ("--plan-time", "-1s", "plan-time must lie in [0"), ("--plan-time", "2V", "plan-time")])
 def test_out_of_range_options_exit_2_before_any_work(capsys, tmp_path, option, value, words):

@@ -159,7 +159,7 @@ def test_idle_work_begins_while_a_long_call_lets_go_of_the_interpreter():
     heard_at_once(lambda: None)  # too short to be idle time
     time.sleep(0.05)
     assert done == []
-    heard_at_once(lambda: time.sleep(IDLE_AFTER + 0.1))  # the step begins within it
+    heard_at_once(lambda: time.sleep(IDLE_AFTER + 0.5))  # the step begins within it
     assert done == ["first"]
     release.set()  # the second step ends; the third waits for idle time again, or for finish
     time.sleep(0.05)
@@ -174,3 +174,19 @@ def test_idle_work_raises_what_a_step_raised_at_finish():
     work = IdleWork([lambda: 1 / 0, lambda: pytest.fail("a step after a failed one ran")], "test-idle")
     with pytest.raises(ZeroDivisionError):
         work.finish()
+
+
+def test_idle_work_at_once_or_cancelled():
+    """Without idle=True the steps run at once; cancelled, none begins after."""
+    import time
+
+    from modalctl.threads import IdleWork
+
+    done = []
+    IdleWork([lambda: done.append(1), lambda: done.append(2)], "test-idle", idle=False).finish()
+    assert done == [1, 2]
+    work = IdleWork([lambda: done.append(3)], "test-idle")  # waits for idle time that never comes
+    work.cancel()
+    work.finish()
+    time.sleep(0.05)
+    assert done == [1, 2]

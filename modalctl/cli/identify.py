@@ -6,8 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from modalctl.model.modes import VOLTAGE_MIN
-from modalctl.options import SurveyOptions
+from modalctl.options import VOLTAGE_MIN, SurveyOptions
 from modalctl.units import number_type, quantity_type
 
 from .common import open_device, out_file, progress_bars, stage

@@ -10,8 +10,7 @@ import sys
 from pathlib import Path
 
 from modalctl.options import BOARD_CONTROLLER, HOST_CONTROLLER, KAPPA_MAX, KAPPA_MIN, LEARN_FROM, ROBUST_DRIFT_MAX, \
-    LoopOptions, PlanOptions
-from modalctl.model.modes import VOLTAGE_MIN
+    SLEW_MIN, VOLTAGE_MIN, LoopOptions, PlanOptions
 from modalctl.units import number_type, quantity_type
 
 from .common import DEVICE, UNREACHABLE, add_target, identity, identity_defaults, interruptible, jsonable, \
@@ -122,8 +121,6 @@ def _or_none(quantity):
     return read
 
 
-#: The least slew limit (V/s): 1e-300 V/s planned 37 s of rounds that could not end; 1 V/s is a volt a second
-SLEW_MIN = 1.0
 #: ``--voltage-limit``: a voltage (V) of at least VOLTAGE_MIN, or ``none`` (no limit but the device's rails)
 voltage_limit = _or_none(_VOLTS)
 #: ``--plan-time``: the seconds a margin program may take (zero or more), or ``none`` (until it is done)
@@ -346,16 +343,18 @@ def _report(args, model, shot, device, out, growth=None, stages=None) -> int:
     metrics["stages_s"] = {**(stages or {}), "write_fields_s": written - started,
                            **({} if drawn is None else {"pictures_s": drawn,
                                                         "pictures_wait_s": time.perf_counter() - written})}
+    unmeasured = [name for name in MEASURES if not math.isfinite(metrics[name])]
+    if unmeasured:  # a field zero everywhere (a drive the amplifier did not pass): written, and not a success
+        said = ", ".join(f"{n} ({metrics[n]})" for n in unmeasured)
+        metrics.update(error=f"the shot's {said} {'is' if len(unmeasured) == 1 else 'are'} not finite: the field "
+                             f"measured is zero or without a focus; the record is in {out}/",
+                       code=UNREACHABLE, command="run")  # as a refusal's JSON says it (docs/errors.md)
+        print(f"modalctl run: {metrics['error']}", file=sys.stderr)
     write_json(out / "metrics.json", metrics)
     fault = metrics.get("loop", {}).get("fault")
     if fault:  # the supervisor stopped the shot: the report is written, the run did not succeed
         print(f"modalctl run: the supervisor stopped the shot: {fault}; outputs ramped to zero, "
               f"log in {out}/log.json + log.bin", file=sys.stderr)
-    unmeasured = [name for name in MEASURES if not math.isfinite(metrics[name])]
-    if unmeasured:  # a field zero everywhere (a drive the amplifier did not pass): written, and not a success
-        said = ", ".join(f"{n} ({metrics[n]})" for n in unmeasured)
-        print(f"modalctl run: the shot's {said} {'is' if len(unmeasured) == 1 else 'are'} not finite: the field "
-              f"measured is zero or without a focus; the record is in {out}/", file=sys.stderr)
     code = DEVICE if fault else UNREACHABLE if unmeasured else 0
     if args.json:
         print(json.dumps(metrics, default=jsonable))

@@ -11,6 +11,7 @@ from modalctl.errors import InputError
 from modalctl.model.modes import ModalModel, ModelError
 from modalctl.model.shape import Shape
 from modalctl.model.touch import touch_at
+from modalctl.options import VOLTAGE_MIN
 
 from .vibrometer import NOISE_BLOCK, scan_noise  # noqa: F401  (the vibrometer's noise: its home is .vibrometer)
 
@@ -116,6 +117,8 @@ class Perturbation:
         if self.finger and self.moving:
             raise InputError("a finger on a structure whose resonances move during the shot is not simulated: "
                              "give a fixed drift with the finger")
+        if self.voltage_limit is not None and not self.voltage_limit >= VOLTAGE_MIN:
+            raise InputError(f"the amplifier's rails must be at least {VOLTAGE_MIN:g} V, got {self.voltage_limit!r} V")
         if self.amplifier_bandwidth is not None and not AMPLIFIER_MIN <= self.amplifier_bandwidth:
             raise InputError(f"the amplifier's bandwidth must be at least {AMPLIFIER_MIN:g} Hz, got "
                              f"{self.amplifier_bandwidth!r} Hz")

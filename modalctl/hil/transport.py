@@ -11,8 +11,7 @@ from __future__ import annotations
 import argparse
 
 from modalctl.io.device import Device, DeviceContext, TransportOptions
-from modalctl.model.modes import VOLTAGE_MIN
-from modalctl.options import MODES_MAX
+from modalctl.options import MODES_MAX, VOLTAGE_MIN
 from modalctl.plugin.spec import hookimpl
 from modalctl.units import number_type, quantity_type
 

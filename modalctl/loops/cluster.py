@@ -352,13 +352,15 @@ class ClusterControl(Controller):
         self._slot = np.concatenate(slots) if slots else np.zeros(0, int)
 
     def _join(self) -> None:
-        """A period in two products: ``[C; K; A] x`` (the prediction's reading, its feedback and next
-        state), then ``[K; A] M`` times the surprise (the same of the observer's correction ``M s``)."""
+        """A period in three products (:func:`~modalctl.loops.kernels.cluster_period`): ``[C; K; A] x`` (the
+        prediction's reading, its feedback and next state), ``[K; A] M`` times the surprise (the same of the
+        observer's correction ``M s``), and ``Ki`` times the integrals."""
         if not self.laws:  # nothing stacked (block_diag of none is (1, 0))
             return
         ka = sparse.vstack([self._K, self._A])
         self._CKA, self._KAM = sparse.csr_array(sparse.vstack([self._C, ka])), sparse.csr_array(ka @ self._M)
-        self._laws = tuple((m.data, m.indices, m.indptr) for m in (self._CKA, self._KAM, sparse.csr_array(self._Ki)))
+        self._laws = tuple((m.data, m.indices.astype(np.int64), m.indptr.astype(np.int64))  # one compiled signature,
+                           for m in (self._CKA, self._KAM, sparse.csr_array(self._Ki)))  # whatever scipy's index type
         self._scratch = np.empty(self._CKA.shape[0]), np.empty(self._KAM.shape[0])
 
     def reset(self) -> None:

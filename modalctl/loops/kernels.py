@@ -14,7 +14,7 @@ it replaced (``tests/test_kernels.py``).
 Each is compiled when first called, numba imported then (an open-loop shot never pays for it), and
 cached beside this file (numba's ``cache=True``; in numba's user-wide cache when the folder is
 read-only): a process loads them in 0.4 s (numba's import 0.13 s, its first kernel 0.25 s, each next
-3 ms: :func:`warm`, which a closed-loop run starts while it plans), a machine compiles them once (a
+3 ms: :func:`warm`, which a closed-loop run starts while its plan waits on DAQP), a machine compiles them once (a
 few seconds). Call them as attributes of this module (``kernels.pi_update(...)``): the first call puts
 the compiled kernel in the stub's place.
 """
@@ -407,11 +407,18 @@ def lift_statistics(stats, period, short, long, keep, arm, limits):
 _warming: list = []  # the work warm_soon started, while it runs
 
 
-def warm_soon() -> None:
-    """:func:`warm` in a daemon thread, numba's import and then the kernels each begun while the caller
-    waits on a call that lets go of the interpreter (a closed loop's plan's DAQP solves:
-    :class:`modalctl.threads.IdleWork`); :func:`warm` then waits for it."""
-    _warming.append(IdleWork([_import_numba, _load], "modalctl-kernels"))
+def warm_soon(idle: bool = True) -> None:
+    """:func:`warm` in a daemon thread: numba's import and then the kernels, each begun while the caller waits
+    on a call that lets go of the interpreter (``idle``: a convex plan's DAQP solves,
+    :class:`modalctl.threads.IdleWork`), or at once; :func:`warm` then waits for it, :func:`cancel_warm` stops
+    what has not begun (a plan refused: nothing loads behind the caller's back after)."""
+    _warming.append(IdleWork([_import_numba, _load], "modalctl-kernels", idle=idle))
+
+
+def cancel_warm() -> None:
+    """No kernel :func:`warm_soon` began loading begins from now on."""
+    while _warming:
+        _warming.pop().cancel()
 
 
 def warm() -> None:
@@ -441,7 +448,7 @@ def _load() -> None:
                               np.zeros((2, 1), complex), 1.0, c.copy())
     kernel["overlap_commands"](c, c, np.zeros(1, np.int64), c, np.zeros((1, 1), complex), c.copy())
     kernel["loop_errors"](c, c, c, c, c, c.copy(), c.copy())
-    csr = (np.zeros(1), np.zeros(1, np.int32), np.array([0, 1], np.int32))
+    csr = (np.zeros(1), np.zeros(1, np.int64), np.array([0, 1], np.int64))
     one = np.ones(1, complex)  # a turn
     kernel["cluster_period"]((csr, csr, csr), (np.zeros(2), np.arange(2), c), (one, one, one),
                              (c, r, np.zeros(1, np.int64)), (c.copy(), c.copy()), (np.zeros(6), np.zeros(4)),
@@ -453,4 +460,4 @@ def _load() -> None:
     kernel["lift_statistics"](np.zeros(5), 0, 1.0, 1.0, 0.5, 1.0, (6.0, 0.05, 2.0))
 
 
-__all__ = [*KERNELS, "warm", "warm_soon"]
+__all__ = [*KERNELS, "warm", "warm_soon", "cancel_warm"]

@@ -16,16 +16,13 @@ from pathlib import Path
 import numpy as np
 
 from modalctl.errors import InputError
+from modalctl.options import VOLTAGE_MIN
 from modalctl.outdir import atomic
 
-__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "drift_cases", "VOLTAGE_LIMIT_KEY",
-           "VOLTAGE_MIN"]
+__all__ = ["ModelError", "Grid", "ModalModel", "quadrature_weights", "check_finite", "drift_cases", "VOLTAGE_LIMIT_KEY"]
 
 FORMAT_VERSION = 1
 VOLTAGE_LIMIT_KEY = "voltage_limit_v"  # meta: the actuators' safe drive voltage (V), run's default --voltage-limit
-#: The least voltage limit (V) a model, a plan or the simulator's rails may set: 1e-300 V planned 12 s for rounds
-#: that could not end (exit 1 asking for more of them); a piezo driver's millivolt is its noise
-VOLTAGE_MIN = 1e-3
 
 #: The arrays a model file holds (besides ``meta_json``), and the most it may hold in all (bytes):
 #: a 2,000 x 2,000 plate with 200 modes is 6.4 GB; a model file beyond that is refused unread.

@@ -18,7 +18,8 @@ from modalctl.units import UnitError, parse_point, parse_quantity
 
 from .modes import Grid, ModelError
 
-__all__ = ["Shape", "Param", "ShapeGenerator", "ParamError", "parse_params", "generated", "tukey_window",
+__all__ = ["Shape", "Param", "ShapeGenerator", "ParamError", "parse_params", "generated", "checked_target",
+           "tukey_window",
            "PEAK_MIN", "PEAK_MAX"]
 
 #: The peak velocity (m/s) a target may ask: below, under any vibrometer's noise and where the modal sums
@@ -115,14 +116,20 @@ def generated(generator: ShapeGenerator, grid: Grid, raw: dict) -> Shape:
     """``generator``'s target on ``grid`` for the raw parameters ``raw`` (:func:`parse_params`), checked as a
     target a user asks for: not zero on every grid point, its peak within [:data:`PEAK_MIN`, :data:`PEAK_MAX`]
     m/s. Raises :class:`ParamError` saying which."""
-    shape = generator.generate(grid, **parse_params(generator, raw))
+    return checked_target(generator.generate(grid, **parse_params(generator, raw)), f"shape {generator.name!r}")
+
+
+def checked_target(shape: Shape, name: str = "shape") -> Shape:
+    """``shape``, a target asked for (:func:`generated`'s, or one built by hand and handed to
+    :func:`~modalctl.plan.decompose.decompose`), or a :class:`ParamError` saying ``name``'s target is zero on every
+    grid point or has its peak outside [:data:`PEAK_MIN`, :data:`PEAK_MAX`] m/s."""
     peak = float(np.abs(shape.values).max(initial=0.0))
     if peak == 0.0:
-        raise ParamError(f"shape {generator.name!r}: the target is zero on every grid point (an amplitude of zero, "
-                         f"a width far below the grid's spacing, or parts that cancel): nothing to focus")
+        raise ParamError(f"{name}: the target is zero on every grid point (an amplitude of zero, a width far below "
+                         f"the grid's spacing, or parts that cancel): nothing to focus")
     if not PEAK_MIN <= peak <= PEAK_MAX:
-        raise ParamError(f"shape {generator.name!r}: the target's peak velocity {peak:.3g} m/s lies outside "
-                         f"[{PEAK_MIN:g}, {PEAK_MAX:g}] m/s")
+        raise ParamError(f"{name}: the target's peak velocity {peak:.3g} m/s lies outside [{PEAK_MIN:g}, {PEAK_MAX:g}] "
+                         f"m/s")
     return shape
 
 

@@ -10,7 +10,7 @@ from modalctl.errors import InputError
 from modalctl.model.metrics import focus_contrast, nrmse, tau, tau_norm
 from modalctl.model.modes import ModalModel
 from modalctl.model.projection import orthonormalize_model, project, reconstruct
-from modalctl.model.shape import Shape
+from modalctl.model.shape import Shape, checked_target
 from modalctl.options import DEFAULT_TAU
 
 from .reduction import smallest_set
@@ -102,6 +102,7 @@ def decompose(model: ModalModel, shape: Shape, modes="auto", *, tau_min: float |
     """
     if shape.values.size != model.grid.n:
         raise ValueError(f"shape has {shape.values.size} points, the model's grid {model.grid.n}")
+    checked_target(shape)  # one built by hand (the API) as a generator's
     if orthogonalize:
         model = orthonormalize_model(model)
     coefficients = project(shape.values, model.shapes, model.grid.mass)

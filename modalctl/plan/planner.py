@@ -26,7 +26,7 @@ from modalctl.model.modes import ModalModel
 from modalctl.model.projection import reconstruct
 from modalctl.model.propagate import Plant
 from modalctl.model.shape import Shape
-from modalctl.options import PlanOptions
+from modalctl.options import PlanOptions, check_focus_samples
 from modalctl.plugin.manager import pick
 from modalctl.threads import serial_blas
 
@@ -288,10 +288,6 @@ class Planner(ABC):
         return True
 
 
-#: The fewest DAC samples a focus time may span: below, there is no envelope to plan (one sample at 1 MHz is 1 us)
-FOCUS_SAMPLES_MIN = 10
-
-
 def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptions(),
          progress: bool = False) -> Plan:
     """Plan with the planner ``options.planner`` is or names (see :class:`Planner`)."""
@@ -304,9 +300,7 @@ def plan(dec: Decomposition, focus_time: float, options: PlanOptions = PlanOptio
     if not options.sample_rate > 2 * top:  # an option that cannot serve the scene: bad input, not a target missed
         raise InputError(f"sample rate {options.sample_rate:g} Hz is below twice the highest kept mode ({top:g} Hz): "
                          f"give --sample-rate above {2 * top:g} Hz")
-    if focus_time * options.sample_rate < FOCUS_SAMPLES_MIN:  # programs degenerate (1e-300 s: an SVD failed)
-        raise InputError(f"focus time {focus_time:g} s is shorter than {FOCUS_SAMPLES_MIN} samples of the DAC "
-                         f"at {options.sample_rate:g} Hz: give a longer --focus-time")
+    check_focus_samples(focus_time, options.sample_rate)  # the programs degenerate below (1e-300 s: an SVD failed)
     planner = pick("planner", options.planner)
     start = _time.perf_counter()
     with serial_blas():  # many small products (modalctl.threads)
