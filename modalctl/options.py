@@ -415,7 +415,6 @@ class RunOptions(_Options):
     def __post_init__(self):
         if not self.focus_time > 0:
             raise InputError(f"focus time must be positive, got {self.focus_time!r} s")
-        check_focus_samples(self.focus_time, self.plan.sample_rate)  # before --out is claimed, a sweep's every case
         samples = (self.focus_time + self.plan.after) * self.plan.sample_rate
         if samples > SHOT_SAMPLES_MAX:
             raise InputError(f"the shot (T_F + after = {self.focus_time + self.plan.after:g} s at "
