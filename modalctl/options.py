@@ -19,10 +19,10 @@ from typing import Any
 
 from modalctl.errors import InputError
 
-__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "KAPPA_MIN", "KAPPA_MAX", "VOLTAGE_MIN", "SLEW_MIN", "FOCUS_SAMPLES_MIN",
-           "check_focus_samples", "SHOT_SAMPLES_MAX", "LOOP_PERIODS_MIN",
-           "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions", "PlanOptions", "THESIS_PLAN", "LoopOptions",
-           "RunOptions", "SurveyOptions", "LEARN_FROM", "decimation", "control_periods"]
+__all__ = ["THESIS_MARGIN", "DEFAULT_TAU", "SHOT_SAMPLES_MAX", "VOLTAGE_MIN", "SLEW_MIN", "FOCUS_SAMPLES_MIN",
+           "KAPPA_MIN", "KAPPA_MAX", "LOOP_PERIODS_MIN", "ROBUST_DRIFT_MAX", "MODES_MAX", "ConvexOptions",
+           "PlanOptions", "THESIS_PLAN", "LoopOptions", "RunOptions", "SurveyOptions", "LEARN_FROM",
+           "check_focus_samples", "decimation", "control_periods"]
 
 #: The thesis's transient margin (chapter 5): off the target zone the velocity stays below half the
 #: focus peak, before and after the focus.
@@ -30,6 +30,16 @@ THESIS_MARGIN = 0.5
 
 #: The most DAC samples per channel a shot may take: 1 s at 1 MHz, 40 times the thesis's shots.
 SHOT_SAMPLES_MAX = 1_000_000
+#: The least voltage limit (V) a model, a plan or the simulator's rails may set: 1e-300 V planned 12 s for rounds
+#: that could not end (exit 1 asking for more of them); a piezo driver's millivolt is its noise
+VOLTAGE_MIN = 1e-3
+#: The least slew limit (V/s): 1e-300 V/s planned 37 s of rounds that could not end; 1 V/s is a volt a second
+SLEW_MIN = 1.0
+#: The fewest DAC samples a focus time may span: below, there is no envelope to plan (1e-300 s: an SVD failed)
+FOCUS_SAMPLES_MIN = 10
+#: The envelope rates (units of each mode's zeta w) a plan may ask: the thesis's 1 within three decades either way
+KAPPA_MIN, KAPPA_MAX = 1e-3, 1e3
+
 LOOP_PERIODS_MIN = 10  # control periods a closed-loop shot holds at least: a loop that cannot act ten times does
 # nothing (and a shot shorter than one period failed inside the plant's propagation: issue 37's hostile inputs)
 
@@ -245,15 +255,6 @@ class PlanOptions(_Options):
             raise InputError(f"kappa must lie in [{KAPPA_MIN:g}, {KAPPA_MAX:g}], got {self.kappa!r}")  # failed)
 
 
-#: The least voltage limit (V) a model, a plan or the simulator's rails may set: 1e-300 V planned 12 s for rounds
-#: that could not end (exit 1 asking for more of them); a piezo driver's millivolt is its noise
-VOLTAGE_MIN = 1e-3
-#: The least slew limit (V/s): 1e-300 V/s planned 37 s of rounds that could not end; 1 V/s is a volt a second
-SLEW_MIN = 1.0
-#: The fewest DAC samples a focus time may span: below, there is no envelope to plan (1e-300 s: an SVD failed)
-FOCUS_SAMPLES_MIN = 10
-#: The envelope rates (units of each mode's zeta w) a plan may ask: the thesis's 1 within three decades either way
-KAPPA_MIN, KAPPA_MAX = 1e-3, 1e3
 #: The thesis's open-loop method: envelopes at kappa = 1 reaching their targets at T_F, no margin.
 #: The baseline of every study of something else than the planner (transports, loops, sweeps,
 #: the thesis's tables), so that they measure what they study on the plan the thesis played.

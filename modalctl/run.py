@@ -344,7 +344,7 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
                          "(an identified model: identify measures the actuators' gains, not the sensors'): run it "
                          "open loop (--loop open), or plan on a model with its sensors")
     caps, voltage_limit = _configure(device, options)
-    scan_indices(caps, model.grid.points, device.url)  # the model's grid against what the device scans, before any work
+    grid_scan = scan_indices(caps, model.grid.points, device.url)  # the grid against what it scans, before any work
     if options.closed and options.loop.on_board:  # the shortest table the shot needs, before planning
         check_table(1, _periods(options.focus_time + options.plan.after, options), caps.table_values,
                     f"the board at {device.url}")
@@ -360,11 +360,11 @@ def run(model: ModalModel, shape: Shape, device: Device, options: RunOptions,
         raise
     learning = None
     if options.learn is not None:
-        learning, model = _learning_shot(dec, the_plan, device, options, voltage_limit)
+        learning, model = _learning_shot(dec, the_plan, device, options, voltage_limit, grid_scan)
         dec, the_plan = plan_shot(model, shape, options.focus_time, plan_options, options.progress)
     start = _time.perf_counter()
     played = _play(the_plan, device, options, voltage_limit, options.log)
-    shot = _measure(dec, the_plan, played, device, caps, options, start)
+    shot = _measure(dec, the_plan, played, device, grid_scan, options, start)
     return replace(shot, learning=learning)
 
 
@@ -468,22 +468,22 @@ def _stopped(result: RunResult, log, exc: DeviceError) -> DeviceError:
                        f"{log}.json/.bin; the shot could not be measured afterwards: {exc}")
 
 
-def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device, caps: Capabilities,
-             options: RunOptions, start: float) -> ShotResult:
-    """Scan the field the shot made and measure it: the one place where a shot's metrics are made."""
+def _measure(dec: Decomposition, the_plan: Plan, played: _Played, device: Device, grid_scan, options: RunOptions,
+             start: float) -> ShotResult:
+    """Scan the field the shot made and measure it: the one place where a shot's metrics are made. ``grid_scan``:
+    the device's scan points at the model's grid points (:func:`~modalctl.io.device.scan_indices`; None: its own)."""
     model, focus_time, shape = dec.model, the_plan.focus_time, dec.shape
     times = np.union1d(the_plan.check_times(whole_shot=True), [focus_time])  # the margin: before and after
     scanned = _time.perf_counter()
     try:
-        field = device.scan(times, scan_indices(caps, model.grid.points, device.url))
+        field = device.scan(times, grid_scan)
     except DeviceError as exc:
         if played.result is None:
             raise
         raise _stopped(played.result, options.log, exc) from None
     focus = field[:, np.argmin(np.abs(times - focus_time))]
     point = int(np.argmax(np.abs(focus) * shape.target_mask))
-    index = scan_indices(caps, model.grid.points[[point]], device.url)
-    focus_velocity = device.scan(played.capture.times, points=point if index is None else index)[0]
+    focus_velocity = device.scan(played.capture.times, points=point if grid_scan is None else grid_scan[[point]])[0]
     scan_seconds = _time.perf_counter() - scanned
     sim_seconds = _time.perf_counter() - start
     extremes = Extremes.of(field, shape.target_mask)
@@ -552,11 +552,12 @@ def _clusters(parts: LoopParts, the_plan: Plan) -> dict:
     return {**found.to_dict(labels), "together": together, "lines": found.summary(labels)}
 
 
-def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit):
+def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: RunOptions, voltage_limit,
+                   grid_scan):
     """A shot that teaches the model; ``(what it measured and taught, the updated model)``. From its
     record: open loop, which cannot diverge however far the truth drifted (on plate-glass at 3% the
-    loops diverged); from a pole tracker: closed loop, where the trackers run."""
-    model, caps = dec.model, device.capabilities
+    loops diverged); from a pole tracker: closed loop, where the trackers run. ``grid_scan``: as :func:`_measure`'s."""
+    model = dec.model
     tracker, log, played_by = None, None, options.but(loop=None, learn=None)  # a record: open loop, no log
     if options.learn == "tracker":  # the carriers stay on the plan's during the shot
         tracker = options.tracker.create(model.frequencies[the_plan.modes], model.damping[the_plan.modes],
@@ -565,7 +566,7 @@ def _learning_shot(dec: Decomposition, the_plan: Plan, device: Device, options: 
         played_by = options
     start = _time.perf_counter()
     played = _play(the_plan, device, played_by, voltage_limit, log, tracker)
-    shot = _measure(dec, the_plan, played, device, caps, played_by, start)
+    shot = _measure(dec, the_plan, played, device, grid_scan, played_by, start)
     if shot.fault is not None:
         raise LearningStopped(f"the supervisor stopped the learning shot ({shot.fault})"
                               + ("" if log is None else f"; log in {log}.json"), shot)

@@ -51,7 +51,6 @@ UFF_BINS_MAX = 1 << 21  # bins per FRF
 FRF_MAX = 1e100  # an FRF's magnitude at most, in any unit: a sensor's counts per newton are below 1e12
 
 
-
 def _refuse(path, what: str) -> ModelError:
     return ModelError(f"uff: {str(path)!r}: {what}")
 

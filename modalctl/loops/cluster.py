@@ -57,6 +57,7 @@ __all__ = ["ClusterControl", "drift_radius", "closed_loop_radius"]
 INTEGRAL = 1 / 4  # the integrators' weight, times the crossover (rad/s) and the period (as lqg's)
 PROCESS = 1.0  # the process noise, in units of lqg's
 ALONE = {"lqg": LQGControl, "pi": pi_controller}  # the loops of the modes in no cluster (ClusterControl's alone)
+NONE_SENT = np.zeros(0, complex)  # the commands sent before the first update: none (kernels.cluster_period)
 BESIDE = 4  # clusters from which half their laws are designed in a forked child (its fork and answer: ~20 ms)
 # a law is kept where, at its worst over the drift band, it grows at most this much over the shot's periods (a
 # radius of 1.00001 at +1% is x1.005 over a 25 ms shot's 500, and kept: refused at radius 1, plate-glass's tracked
@@ -358,10 +359,10 @@ class ClusterControl(Controller):
         if not self.laws:  # nothing stacked (block_diag of none is (1, 0))
             return
         ka = sparse.vstack([self._K, self._A])
-        self._CKA, self._KAM = sparse.csr_array(sparse.vstack([self._C, ka])), sparse.csr_array(ka @ self._M)
+        cka, kam = sparse.csr_array(sparse.vstack([self._C, ka])), sparse.csr_array(ka @ self._M)
         self._laws = tuple((m.data, m.indices.astype(np.int64), m.indptr.astype(np.int64))  # one compiled signature,
-                           for m in (self._CKA, self._KAM, sparse.csr_array(self._Ki)))  # whatever scipy's index type
-        self._scratch = np.empty(self._CKA.shape[0]), np.empty(self._KAM.shape[0])
+                           for m in (cka, kam, sparse.csr_array(self._Ki)))  # whatever scipy's index type
+        self._scratch = np.empty(cka.shape[0]), np.empty(kam.shape[0])
 
     def reset(self) -> None:
         if self.inner is not None:
@@ -369,7 +370,6 @@ class ClusterControl(Controller):
         self._n, self._sent = 0, None
         self._x = np.zeros(sum(law.A.shape[0] for law in self.laws))  # every cluster's predicted state, real I/Q
         self._integral = np.zeros(self._idx.size, complex)  # in each loop's own frame
-        self._none = np.zeros(0, complex)  # no command sent yet
         self.innovation = np.zeros(self._idx.size, complex)  # the last period's, each loop's frame
 
     def hand_over(self, amount: np.ndarray) -> None:
@@ -411,7 +411,7 @@ class ClusterControl(Controller):
             self._n += 1
             return command
         now = self._turn(self._n + 1)  # the frames' turn now: the reading of period n is the model's (n + 1) T
-        kernels.cluster_period(self._laws, (self._x, self._slot, self._none if self._sent is None else self._sent),
+        kernels.cluster_period(self._laws, (self._x, self._slot, NONE_SENT if self._sent is None else self._sent),
                                (now, self._ahead, self._sent_ahead), (error, np.asarray(limit, float), self._idx),
                                (self._integral, self.innovation), self._scratch, command)
         self._n += 1  # the next period's, unless observe says otherwise (a lost reading)

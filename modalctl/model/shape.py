@@ -19,8 +19,7 @@ from modalctl.units import UnitError, parse_point, parse_quantity
 from .modes import Grid, ModelError
 
 __all__ = ["Shape", "Param", "ShapeGenerator", "ParamError", "parse_params", "generated", "checked_target",
-           "tukey_window",
-           "PEAK_MIN", "PEAK_MAX"]
+           "tukey_window", "PEAK_MIN", "PEAK_MAX"]
 
 #: The peak velocity (m/s) a target may ask: below, under any vibrometer's noise and where the modal sums
 #: underflow (1e-300 m/s planned a NaN tau); above, no surface moves (1e300 m/s overflowed them)
