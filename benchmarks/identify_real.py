@@ -516,6 +516,10 @@ def main() -> None:
             print(f"{name}: not in {args.data} (fetch {SETS[name]['source'].split(',')[0]})", file=sys.stderr)
             continue
         sets[name] = score(name, path)
+    if not sets:  # the results committed are left as they are: a run without the data measured nothing
+        print(f"identify_real.py: error: none of the {len(SETS)} measured sets is in {args.data}: give --data DIR "
+              f"(or MODALCTL_REAL_DATA); results/{NAME}.* left as they are", file=sys.stderr)
+        sys.exit(2)
     path = write_json(NAME, {"sets": sets, "missing": missing, "machine": machine()})
     report(*read_json(NAME))
     print(path)
